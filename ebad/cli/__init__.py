@@ -1,0 +1,68 @@
+"""The ``ebad`` command line.
+
+Each subcommand lives in its own module in this package and exposes::
+
+    NAME: str                      # the subcommand, e.g. "deblur"
+    HELP: str                      # one line for ``ebad --help``
+    def add_arguments(parser): ... # fill an argparse parser
+    def run(args) -> int: ...      # do the work, return an exit code
+
+Modules are discovered, so adding a command touches no other file. User mistakes raise
+``ebad.errors.UserError`` (or ``ValueError``/``FileNotFoundError`` with a message that
+names the file, field or argument); ``main`` prints the message, not a traceback.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import pkgutil
+import sys
+
+from ..errors import UserError
+
+
+def _commands():
+    mods = []
+    for info in sorted(pkgutil.iter_modules(__path__), key=lambda m: m.name):
+        if info.name.startswith("_"):
+            continue
+        mod = importlib.import_module(f"{__name__}.{info.name}")
+        if hasattr(mod, "NAME") and hasattr(mod, "run"):
+            mods.append(mod)
+    return mods
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="ebad",
+        description="Sharp 3D Gaussian scenes, novel views and frames from blurry event-camera captures.",
+    )
+    parser.add_argument("--traceback", action="store_true", help="show full tracebacks on errors")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for mod in _commands():
+        p = sub.add_parser(mod.NAME, help=mod.HELP, description=getattr(mod, "DESCRIPTION", mod.HELP))
+        mod.add_arguments(p)
+        p.set_defaults(_run=mod.run)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "_run", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args._run(args) or 0)
+    except KeyboardInterrupt:
+        print("ebad: interrupted", file=sys.stderr)
+        return 130
+    except (UserError, ValueError, FileNotFoundError, NotADirectoryError, IsADirectoryError) as exc:
+        if args.traceback:
+            raise
+        print(f"ebad {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
