@@ -1,4 +1,34 @@
-"""edi: event streams and the Event-based Double Integral (Pan et al., CVPR 2019)."""
-from .events import EventError, EventStream, seconds_to_us
+"""edi: event streams and the Event-based Double Integral (Pan et al., CVPR 2019).
 
-__all__ = ["EventStream", "EventError", "seconds_to_us"]
+Public API::
+
+    EventStream, EventError, seconds_to_us          # validated event arrays
+    read_events(path, t_unit=None, width=None, height=None) -> EventStream
+    read_aedat4(path) -> AedatRecording(events, frames, exposures, t0)
+    LOG_EPS, SATURATION                             # log(I + LOG_EPS); saturated pixels
+    deblur(blur, exposure, events, times=None, c=None) -> [H, W(, D)] | [F, H, W(, D)]
+    estimate_c(frames, exposures, events, return_report=False) -> c | (c, ContrastReport)
+    medi(frames, exposures, events, c=None) -> [F, H, W(, D)]
+"""
+from .contrast import ContrastReport, estimate_c
+from .deblur import LOG_EPS, SATURATION, DeblurReport, deblur
+from .events import EventError, EventStream, seconds_to_us
+from .io import AedatRecording, infer_time_unit, read_aedat4, read_events
+from .medi import medi
+
+__all__ = [
+    "EventStream",
+    "EventError",
+    "seconds_to_us",
+    "LOG_EPS",
+    "SATURATION",
+    "deblur",
+    "DeblurReport",
+    "estimate_c",
+    "ContrastReport",
+    "medi",
+    "read_events",
+    "read_aedat4",
+    "AedatRecording",
+    "infer_time_unit",
+]

@@ -1,4 +1,22 @@
-"""scenes: capture format, readers for real recordings, synthetic scenes, camera initialisation."""
-from .capture import Capture, TestView
+"""scenes: capture format, readers for real recordings, synthetic scenes, camera initialisation.
 
-__all__ = ["Capture", "TestView"]
+Public API::
+
+    load(path) -> Capture                 # ebad-capture/1, .aedat4, Event Camera Dataset, EvDeblurNeRF
+    save(capture, path)                   # ebad-capture/1, atomic, lossless
+    CaptureError                          # ValueError naming the file and the field
+    simulate_events(images, times, ...)   # ESIM-style event simulator
+    make_scene(name, size, ...) -> SynthScene, SCENES, write_scene(scene, out_dir)
+    scenes.colmap.estimate_poses(capture) # pycolmap SfM (imported lazily: ``import scenes.colmap``)
+"""
+from .capture import Capture, TestView
+from .errors import CaptureError
+from .format import save
+from .readers import detect_layout, load
+from .render import Quad, RayScene, Sphere, project_points, render
+from .simulate import simulate_events
+from .synth import SCENES, SIZES, SynthScene, make_scene, write_scene
+
+__all__ = ["Capture", "TestView", "CaptureError", "load", "save", "detect_layout", "simulate_events",
+           "make_scene", "write_scene", "SynthScene", "SCENES", "SIZES", "render", "RayScene", "Quad",
+           "Sphere", "project_points"]

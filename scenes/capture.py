@@ -8,13 +8,40 @@ import numpy as np
 
 from edi import EventStream
 
-__all__ = ["Capture", "TestView"]
+from .errors import CaptureError
+
+__all__ = ["Capture", "TestView", "check_rigid"]
+
+RIGID_TOL = 1e-5  # max |R^T R - I| and |det R - 1| accepted for a camera pose
+
+
+def check_rigid(m: np.ndarray, file: str | None, field_name: str) -> np.ndarray:
+    """Return ``m`` as a float64 [4, 4] rigid transform, or raise CaptureError naming the field."""
+    try:
+        a = np.asarray(m, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise CaptureError(file, field_name, f"not a numeric 4x4 matrix ({exc})") from None
+    if a.shape != (4, 4):
+        raise CaptureError(file, field_name, f"must be a 4x4 matrix, got shape {a.shape}")
+    if not np.isfinite(a).all():
+        raise CaptureError(file, field_name, "has a non-finite entry")
+    if np.abs(a[3] - np.array([0.0, 0.0, 0.0, 1.0])).max() > RIGID_TOL:
+        raise CaptureError(file, field_name, f"last row must be [0, 0, 0, 1], got {a[3].tolist()}")
+    r = a[:3, :3]
+    ortho = np.abs(r.T @ r - np.eye(3)).max()
+    det = float(np.linalg.det(r))
+    if ortho > RIGID_TOL or abs(det - 1.0) > RIGID_TOL:
+        raise CaptureError(file, field_name,
+                           f"is not a rigid transform (max |R^T R - I| = {ortho:.2e}, det R = {det:.6f})")
+    return a
 
 
 @dataclass
 class TestView:
     """A held-out view: a camera at time ``t`` (seconds) with pose ``c2w`` [4, 4] and,
     when known, its sharp image [H, W, D] float32 in linear [0, 1]."""
+
+    __test__ = False  # not a pytest test class
 
     name: str
     t: float
@@ -58,3 +85,70 @@ class Capture:
     @property
     def channels(self) -> int:
         return int(self.frames.shape[3])
+
+    def validate(self, source: str | None = None) -> "Capture":
+        """Check every field (shapes, dtypes, ranges, rigid poses); raise CaptureError naming
+        the field (and ``source``, the file it came from, when given). Returns ``self``."""
+        f = self.frames
+        if not isinstance(f, np.ndarray) or f.ndim != 4 or f.shape[3] not in (1, 3):
+            raise CaptureError(source, "frames", f"must be a [F, H, W, D] array with D in (1, 3), got "
+                                                 f"{getattr(f, 'shape', type(f))}")
+        if f.shape[0] == 0:
+            raise CaptureError(source, "frames", "a capture needs at least one frame")
+        if f.dtype != np.float32:
+            raise CaptureError(source, "frames", f"must be float32, got {f.dtype}")
+        if not np.isfinite(f).all() or f.min() < 0.0 or f.max() > 1.0:
+            raise CaptureError(source, "frames", "must be finite linear intensity in [0, 1]")
+        n = f.shape[0]
+        e = np.asarray(self.exposures)
+        if e.shape != (n, 2):
+            raise CaptureError(source, "exposures", f"must have shape ({n}, 2), got {e.shape}")
+        if not np.isfinite(e).all():
+            raise CaptureError(source, "exposures", "has a non-finite time")
+        bad = np.flatnonzero(e[:, 1] < e[:, 0])
+        if len(bad):
+            raise CaptureError(source, f"exposures[{bad[0]}]", f"t_end {e[bad[0], 1]} is before t_start {e[bad[0], 0]}")
+        ev = self.events
+        if not isinstance(ev, EventStream):
+            raise CaptureError(source, "events", f"must be an edi.EventStream, got {type(ev).__name__}")
+        if (ev.width, ev.height) != (self.width, self.height):
+            raise CaptureError(source, "events", f"sensor {ev.width}x{ev.height} differs from the frames' "
+                                                 f"{self.width}x{self.height}")
+        k = np.asarray(self.K, dtype=np.float64)
+        if k.shape != (3, 3) or not np.isfinite(k).all():
+            raise CaptureError(source, "K", f"must be a finite 3x3 matrix, got shape {k.shape}")
+        if k[0, 0] <= 0 or k[1, 1] <= 0 or np.abs(k[2] - [0, 0, 1]).max() > 0 or k[1, 0] != 0 or k[0, 1] != 0:
+            raise CaptureError(source, "K", "must be [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0")
+        if self.distortion is not None:
+            d = np.asarray(self.distortion, dtype=np.float64)
+            if d.shape != (5,) or not np.isfinite(d).all():
+                raise CaptureError(source, "distortion", f"must be 5 finite numbers k1 k2 p1 p2 k3, got shape {d.shape}")
+        if self.c2w is not None:
+            c = np.asarray(self.c2w)
+            if c.shape != (n, 4, 4):
+                raise CaptureError(source, "c2w", f"must have shape ({n}, 4, 4), got {c.shape}")
+            for i in range(n):
+                check_rigid(c[i], source, f"frames[{i}].c2w")
+        if self.split and len(self.split) != n:
+            raise CaptureError(source, "split", f"needs one entry per frame ({n}), got {len(self.split)}")
+        if self.names and len(self.names) != n:
+            raise CaptureError(source, "names", f"needs one entry per frame ({n}), got {len(self.names)}")
+        if self.names and len(set(self.names)) != n:
+            raise CaptureError(source, "names", "frame names must be unique")
+        seen = set()
+        for j, tv in enumerate(self.test_views):
+            if tv.name in seen:
+                raise CaptureError(source, f"test_views[{j}].name", f"duplicate name {tv.name!r}")
+            seen.add(tv.name)
+            if not np.isfinite(float(tv.t)):
+                raise CaptureError(source, f"test_views[{j}].t", "must be finite")
+            check_rigid(tv.c2w, source, f"test_views[{j}].c2w")
+            if tv.image is not None:
+                im = tv.image
+                if not isinstance(im, np.ndarray) or im.shape != f.shape[1:] or im.dtype != np.float32:
+                    raise CaptureError(source, f"test_views[{j}].image",
+                                       f"must be float32 {f.shape[1:]}, got {getattr(im, 'dtype', None)} "
+                                       f"{getattr(im, 'shape', None)}")
+                if not np.isfinite(im).all() or im.min() < 0 or im.max() > 1:
+                    raise CaptureError(source, f"test_views[{j}].image", "must be finite and in [0, 1]")
+        return self

@@ -1,1 +1,82 @@
-"""splat_cpu: a small differentiable 3D Gaussian rasteriser that is fast on a CPU."""
+"""splat_cpu: a small differentiable 3D Gaussian rasteriser that is fast on a CPU.
+
+    images, alphas, meta = splat_cpu.rasterize(means, quats, scales, opacities, colors,
+                                               viewmats, Ks, width, height, background=None)
+
+Semantics are gsplat's "classic" mode (see `splat_cpu.constants` and docs/conventions.md).
+`rasterize` uses the numba tile kernels for CPU tensors and the pure-torch reference
+elsewhere; `rasterize_reference` always uses the reference.
+"""
+
+from __future__ import annotations
+
+from torch import Tensor
+
+from . import constants
+from ._torch_impl import rasterize_reference as _reference
+from ._validate import validate_inputs
+
+__all__ = ["rasterize", "rasterize_reference", "constants"]
+
+
+def rasterize(
+    means: Tensor,  # [N, 3]
+    quats: Tensor,  # [N, 4]
+    scales: Tensor,  # [N, 3]
+    opacities: Tensor,  # [N]
+    colors: Tensor,  # [N, D]
+    viewmats: Tensor,  # [C, 4, 4]
+    Ks: Tensor,  # [C, 3, 3]
+    width: int,
+    height: int,
+    background: Tensor | None = None,  # [D]
+) -> tuple[Tensor, Tensor, dict]:
+    """Render N 3D Gaussians into C pinhole cameras, differentiably.
+
+    Args:
+        means: [N, 3] world positions.
+        quats: [N, 4] rotations (w, x, y, z); normalised inside.
+        scales: [N, 3] standard deviations along the rotated axes, > 0 (activated).
+        opacities: [N] in [0, 1] (activated).
+        colors: [N, D] per-Gaussian values, any D >= 1 (1 grey, 3 colour, or features).
+        viewmats: [C, 4, 4] world-to-camera, OpenCV axes (x right, y down, z forward).
+        Ks: [C, 3, 3] intrinsics in pixels, no skew; the top-left pixel's centre is (0.5, 0.5).
+        width, height: image size in pixels, > 0.
+        background: [D] composited as T_final * background, or None (black).
+
+    Returns:
+        images: [C, H, W, D]; alphas: [C, H, W, 1] (1 - final transmittance);
+        meta: dict with "radii" [C, N, 2] int32 (0 where culled), "means2d" [C, N, 2] (in
+        the autograd graph: call retain_grad() for screen-space gradients), "depths" [C, N],
+        "n_visible" [C], "path" ("numba" or "torch"), "timings" (ms per stage).
+
+    Gradients flow to means, quats, scales, opacities, colors, viewmats and background.
+    Raises ValueError naming the argument for wrong shapes, dtypes, devices, non-finite
+    values, non-positive width/height, scales <= 0 or opacities outside [0, 1].
+    """
+    validate_inputs(means, quats, scales, opacities, colors, viewmats, Ks, width, height, background)
+    if means.device.type == "cpu":
+        try:
+            from ._numba_impl import rasterize_numba
+        except ImportError:  # numba missing: fall back to the reference
+            rasterize_numba = None
+        if rasterize_numba is not None:
+            return rasterize_numba(means, quats, scales, opacities, colors, viewmats, Ks, width, height, background)
+    return _reference(means, quats, scales, opacities, colors, viewmats, Ks, width, height, background)
+
+
+def rasterize_reference(
+    means: Tensor,  # [N, 3]
+    quats: Tensor,  # [N, 4]
+    scales: Tensor,  # [N, 3]
+    opacities: Tensor,  # [N]
+    colors: Tensor,  # [N, D]
+    viewmats: Tensor,  # [C, 4, 4]
+    Ks: Tensor,  # [C, 3, 3]
+    width: int,
+    height: int,
+    background: Tensor | None = None,  # [D]
+) -> tuple[Tensor, Tensor, dict]:
+    """The pure-torch path (any device), same contract as `rasterize`; slow but short."""
+    validate_inputs(means, quats, scales, opacities, colors, viewmats, Ks, width, height, background)
+    return _reference(means, quats, scales, opacities, colors, viewmats, Ks, width, height, background)

@@ -1,0 +1,154 @@
+"""The Gaussian scene: parameters, initialisation, activation and rendering.
+
+Parameters live in a plain ``dict[str, nn.Parameter]`` (gsplat's layout) so the
+densification strategy can replace them together with their Adam state:
+
+- ``means`` [N, 3] world positions,
+- ``scales`` [N, 3] log standard deviations,
+- ``quats`` [N, 4] (w, x, y, z), normalised by the rasteriser,
+- ``opacities`` [N] logits,
+- ``colors`` [N, D] spherical-harmonic DC coefficients: colour = 0.5 + SH_C0 * f_dc, clamped at 0
+  (the 3DGS convention, so ``point_cloud.ply`` opens in splat viewers). D = 1 for grey scenes.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+from torch import Tensor, nn
+
+from .lie import viewmat_from_c2w
+
+__all__ = ["SH_C0", "init_params", "points_from_frames", "knn_scale", "activate", "render",
+           "num_gaussians", "scene_scale"]
+
+SH_C0 = 0.28209479177387814
+
+
+def knn_scale(points: Tensor, k: int = 3, chunk: int = 4096) -> Tensor:  # [P, 3] -> [P]
+    """Mean distance to the k nearest other points (the 3DGS initial scale)."""
+    P = points.shape[0]
+    if P <= 1:
+        return torch.full((P,), 0.01, dtype=points.dtype)
+    k = min(k, P - 1)
+    out = []
+    for i in range(0, P, chunk):
+        d = torch.cdist(points[i:i + chunk], points)
+        d[torch.arange(d.shape[0]), torch.arange(i, i + d.shape[0])] = float("inf")
+        out.append(d.topk(k, largest=False).values.mean(-1))
+    return torch.cat(out).clamp_min(1e-7)
+
+
+def init_params(
+    points: Tensor,  # [P, 3]
+    colors: Tensor,  # [P, D] linear intensity in [0, 1]
+    scales: Tensor | None = None,  # [P] isotropic std, or None: k-NN distance
+    opacity: float = 0.3,
+) -> dict[str, nn.Parameter]:
+    """Gaussians at ``points`` with ``colors``, isotropic, identity rotation."""
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise ValueError(f"points must be [P, 3], got {tuple(points.shape)}")
+    if colors.ndim != 2 or colors.shape[0] != points.shape[0]:
+        raise ValueError(f"colors must be [P, D] with P = {points.shape[0]}, got {tuple(colors.shape)}")
+    if not (torch.isfinite(points).all() and torch.isfinite(colors).all()):
+        raise ValueError("points and colors must be finite")
+    if not 0 < opacity < 1:
+        raise ValueError(f"opacity must be in (0, 1), got {opacity}")
+    points = points.float()
+    P = points.shape[0]
+    s = knn_scale(points) if scales is None else scales.float()
+    quats = torch.zeros(P, 4)
+    quats[:, 0] = 1
+    return {
+        "means": nn.Parameter(points.clone()),
+        "scales": nn.Parameter(torch.log(s)[:, None].repeat(1, 3)),
+        "quats": nn.Parameter(quats),
+        "opacities": nn.Parameter(torch.full((P,), math.log(opacity / (1 - opacity)))),
+        "colors": nn.Parameter((colors.float().clamp(0, 1) - 0.5) / SH_C0),
+    }
+
+
+def points_from_frames(
+    frames: np.ndarray,  # [F, H, W, D]
+    c2w: np.ndarray,  # [F, 4, 4]
+    K: np.ndarray,  # [3, 3]
+    n: int,
+    depth_range: tuple[float, float],
+    scale_px: float = 1.5,
+    seed: int = 0,
+) -> tuple[Tensor, Tensor, Tensor]:  # points [n, 3], colors [n, D], scales [n]
+    """Fallback initialisation without SfM points: back-projected pixels.
+
+    Each point takes a random frame, a random pixel of it and a depth drawn uniformly in
+    inverse depth over ``depth_range``; its colour is that pixel's intensity and its size
+    ``scale_px`` pixels at that depth. Wrong depths are pruned and re-grown by the
+    densification strategy; every line of sight starts covered, which keeps the first
+    renders close to the frames.
+    """
+    near, far = depth_range
+    if not 0 < near < far:
+        raise ValueError(f"depth_range must satisfy 0 < near < far, got {depth_range}")
+    rng = np.random.default_rng(seed)
+    F, H, W, D = frames.shape
+    f = rng.integers(0, F, n)
+    px = rng.uniform(0, W, n)
+    py = rng.uniform(0, H, n)
+    inv = rng.uniform(1 / far, 1 / near, n)
+    z = 1 / inv
+    Kinv = np.linalg.inv(K)
+    rays = (Kinv @ np.stack([px, py, np.ones(n)]))  # [3, n] camera space, z = 1
+    pc = rays.T * z[:, None]
+    R = c2w[f, :3, :3]
+    t = c2w[f, :3, 3]
+    pw = np.einsum("nij,nj->ni", R, pc) + t
+    col = frames[f, np.clip(py.astype(int), 0, H - 1), np.clip(px.astype(int), 0, W - 1)]
+    scales = scale_px * z / K[0, 0]
+    return (torch.from_numpy(pw).float(), torch.from_numpy(np.asarray(col)).float(),
+            torch.from_numpy(scales).float())
+
+
+def scene_scale(c2w: np.ndarray, depth_range: tuple[float, float] | None = None) -> float:  # [F, 4, 4]
+    """A length for learning rates and size thresholds: the camera spread or the geometric mean of
+    the depth range, the larger."""
+    centres = c2w[:, :3, 3]
+    spread = float(np.linalg.norm(centres - centres.mean(0), axis=1).max()) * 1.1
+    if depth_range is not None:
+        spread = max(spread, math.sqrt(float(depth_range[0]) * float(depth_range[1])))
+    return max(spread, 1e-3)
+
+
+def num_gaussians(params: dict[str, Tensor]) -> int:
+    return int(params["means"].shape[0])
+
+
+def activate(params: dict[str, Tensor]) -> dict[str, Tensor]:
+    """The rasteriser's inputs: exp scales, sigmoid opacities, colours from SH DC."""
+    return {
+        "means": params["means"],
+        "quats": params["quats"],
+        "scales": torch.exp(params["scales"]),
+        "opacities": torch.sigmoid(params["opacities"]),
+        "colors": (0.5 + SH_C0 * params["colors"]).clamp_min(0.0),
+    }
+
+
+def render(
+    params: dict[str, Tensor],
+    c2w: Tensor,  # [C, 4, 4]
+    K: Tensor,  # [3, 3] or [C, 3, 3]
+    width: int,
+    height: int,
+    background: float = 0.0,
+) -> tuple[Tensor, Tensor, dict]:  # images [C, H, W, D], alphas [C, H, W, 1], meta
+    """Render the Gaussians from C cameras in one batched rasteriser call."""
+    import splat_cpu
+
+    C = c2w.shape[0]
+    Ks = K.float().expand(C, 3, 3) if K.ndim == 2 else K.float()
+    a = activate(params)
+    D = a["colors"].shape[1]
+    bg = torch.full((D,), float(background))
+    viewmats = viewmat_from_c2w(c2w.float())
+    return splat_cpu.rasterize(a["means"], a["quats"], a["scales"], a["opacities"], a["colors"],
+                               viewmats, Ks, int(width), int(height), background=bg)

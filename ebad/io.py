@@ -1,0 +1,191 @@
+"""Run-folder files: 16-bit PNGs, the 3DGS ``point_cloud.ply``, trajectories (JSON and plot).
+
+PNG: written with a tiny encoder (zlib, filter 0) because Pillow cannot write 16-bit colour;
+values are linear intensity, ``round(v * 65535)``.
+
+PLY: the standard 3DGS layout (binary little-endian float32): ``x y z nx ny nz f_dc_0 f_dc_1
+f_dc_2 opacity scale_0 scale_1 scale_2 rot_0 rot_1 rot_2 rot_3``, opacity as a logit, scales
+as logs, rotation (w, x, y, z). A grey model writes its single DC value into all three f_dc
+so viewers show grey, and records ``comment ebad channels 1`` so it reads back as grey.
+"""
+from __future__ import annotations
+
+import json
+import struct
+import zlib
+from pathlib import Path
+
+import numpy as np
+import torch
+
+__all__ = ["write_png16", "read_png16", "write_ply", "read_ply", "write_trajectories", "plot_trajectories"]
+
+
+# --------------------------------------------------------------------------- PNG
+
+def _chunk(kind: bytes, data: bytes) -> bytes:
+    return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
+
+
+def write_png16(path: str | Path, img: np.ndarray) -> Path:  # [H, W, D] or [H, W], D in {1, 3}
+    """Write linear [0, 1] intensity as a 16-bit grey or RGB PNG."""
+    a = np.asarray(img, dtype=np.float64)
+    if a.ndim == 2:
+        a = a[..., None]
+    if a.ndim != 3 or a.shape[2] not in (1, 3):
+        raise ValueError(f"image must be [H, W] or [H, W, 1|3], got {a.shape}")
+    if not np.isfinite(a).all():
+        raise ValueError(f"image for {path} has non-finite values")
+    H, W, D = a.shape
+    q = np.round(np.clip(a, 0, 1) * 65535).astype(">u2")
+    raw = b"".join(b"\x00" + q[y].tobytes() for y in range(H))
+    colour_type = 0 if D == 1 else 2
+    png = (b"\x89PNG\r\n\x1a\n" + _chunk(b"IHDR", struct.pack(">IIBBBBB", W, H, 16, colour_type, 0, 0, 0))
+           + _chunk(b"IDAT", zlib.compress(raw, 6)) + _chunk(b"IEND", b""))
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(png)
+    return path
+
+
+def read_png16(path: str | Path) -> np.ndarray:  # -> [H, W, D] float32
+    """Read a PNG as float32 [H, W, D] in [0, 1] (any bit depth Pillow or imageio reads)."""
+    import imageio.v3 as iio
+
+    path = Path(path)
+    data = path.read_bytes()
+    if data[12:16] == b"IHDR" and data[24] == 16 and data[25] in (0, 2) and data[28] == 0:
+        W, H = struct.unpack(">II", data[16:24])
+        D = 1 if data[25] == 0 else 3
+        pos, idat = 8, b""
+        while pos < len(data):
+            n = struct.unpack(">I", data[pos:pos + 4])[0]
+            kind = data[pos + 4:pos + 8]
+            if kind == b"IDAT":
+                idat += data[pos + 8:pos + 8 + n]
+            pos += 12 + n
+        raw = zlib.decompress(idat)
+        stride = 1 + W * D * 2
+        rows = [np.frombuffer(raw[y * stride + 1:(y + 1) * stride], dtype=">u2") for y in range(H)]
+        if all(raw[y * stride] == 0 for y in range(H)):
+            return (np.stack(rows).reshape(H, W, D).astype(np.float32) / 65535.0)
+    a = np.asarray(iio.imread(path))
+    scale = 65535.0 if a.dtype == np.uint16 else 255.0
+    a = a.astype(np.float32) / scale
+    return a[..., None] if a.ndim == 2 else a
+
+
+# --------------------------------------------------------------------------- PLY
+
+_PLY_FIELDS = (["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2", "opacity"]
+               + [f"scale_{i}" for i in range(3)] + [f"rot_{i}" for i in range(4)])
+
+
+def write_ply(path: str | Path, params: dict[str, torch.Tensor]) -> Path:
+    """Write the model in the standard 3DGS layout (see module docstring)."""
+    means = params["means"].detach().float().cpu().numpy()
+    N = means.shape[0]
+    colors = params["colors"].detach().float().cpu().numpy()
+    D = colors.shape[1]
+    if D == 1:
+        f_dc = np.repeat(colors, 3, axis=1)
+    elif D == 3:
+        f_dc = colors
+    else:
+        raise ValueError(f"write_ply supports D = 1 or 3 colour channels, got {D}")
+    cols = [means, np.zeros((N, 3), np.float32), f_dc,
+            params["opacities"].detach().float().cpu().numpy()[:, None],
+            params["scales"].detach().float().cpu().numpy(),
+            params["quats"].detach().float().cpu().numpy()]
+    data = np.concatenate(cols, axis=1).astype("<f4")
+    header = ["ply", "format binary_little_endian 1.0", f"comment ebad channels {D}", f"element vertex {N}"]
+    header += [f"property float {name}" for name in _PLY_FIELDS] + ["end_header"]
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "wb") as fh:
+        fh.write(("\n".join(header) + "\n").encode("ascii"))
+        fh.write(data.tobytes())
+    return path
+
+
+def read_ply(path: str | Path) -> dict[str, torch.Tensor]:
+    """Read a 3DGS ``point_cloud.ply`` (float32 properties; the layout of ``write_ply``)."""
+    path = Path(path)
+    blob = path.read_bytes()
+    end = blob.find(b"end_header\n")
+    if not blob.startswith(b"ply") or end < 0:
+        raise ValueError(f"{path}: not a PLY file")
+    header = blob[:end].decode("ascii").splitlines()
+    if "format binary_little_endian 1.0" not in header:
+        raise ValueError(f"{path}: only binary_little_endian PLY is supported")
+    names, N, D = [], None, 3
+    for line in header:
+        parts = line.split()
+        if parts[:2] == ["element", "vertex"]:
+            N = int(parts[2])
+        elif parts[:1] == ["property"]:
+            if parts[1] != "float":
+                raise ValueError(f"{path}: property {parts[-1]} must be float, got {parts[1]}")
+            names.append(parts[2])
+        elif parts[:3] == ["comment", "ebad", "channels"]:
+            D = int(parts[3])
+    if N is None:
+        raise ValueError(f"{path}: no 'element vertex' in the header")
+    missing = [n for n in _PLY_FIELDS if n not in names and not n.startswith("n")]
+    if missing:
+        raise ValueError(f"{path}: missing properties {missing}")
+    data = np.frombuffer(blob[end + len(b"end_header\n"):], dtype="<f4", count=N * len(names)).reshape(N, len(names))
+    col = {n: data[:, i] for i, n in enumerate(names)}
+
+    def stack(keys):
+        return torch.from_numpy(np.stack([col[k] for k in keys], 1).astype(np.float32))
+
+    return {
+        "means": stack(["x", "y", "z"]),
+        "colors": stack([f"f_dc_{i}" for i in range(D)]),
+        "opacities": torch.from_numpy(col["opacity"].astype(np.float32).copy()),
+        "scales": stack([f"scale_{i}" for i in range(3)]),
+        "quats": stack([f"rot_{i}" for i in range(4)]),
+    }
+
+
+# --------------------------------------------------------------------------- trajectories
+
+def write_trajectories(path: str | Path, names: list[str], exposures: np.ndarray,
+                       poses: np.ndarray, u: np.ndarray) -> Path:  # poses [F, S, 4, 4], u [S]
+    """JSON: per frame its name, exposure and the camera-to-world pose at each sampled instant."""
+    out = []
+    for f, name in enumerate(names):
+        t0, t1 = float(exposures[f, 0]), float(exposures[f, 1])
+        out.append({"name": name, "t_start": t0, "t_end": t1,
+                    "samples": [{"t": t0 + float(uu) * (t1 - t0), "c2w": poses[f, s].tolist()}
+                                for s, uu in enumerate(u)]})
+    path = Path(path)
+    path.write_text(json.dumps({"frames": out}, indent=1) + "\n")
+    return path
+
+
+def plot_trajectories(path: str | Path, poses: np.ndarray, gt: np.ndarray | None = None) -> Path:  # [F, S, 4, 4]
+    """Top view (x, z) of the camera centres along every exposure; ground truth dashed if given."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4.5))
+    for ax, (i, j, lab) in zip(axes, [(0, 2, "x-z (top)"), (0, 1, "x-y (front)")]):
+        for f in range(poses.shape[0]):
+            c = poses[f, :, :3, 3]
+            ax.plot(c[:, i], c[:, j], "-", lw=1.5, color="C0", label="recovered" if f == 0 else None)
+            ax.plot(c[0, i], c[0, j], "o", ms=3, color="C0")
+            if gt is not None:
+                g = gt[f, :, :3, 3]
+                ax.plot(g[:, i], g[:, j], "--", lw=1, color="C3", label="ground truth" if f == 0 else None)
+        ax.set_title(f"camera centres during each exposure, {lab}")
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.legend(loc="best", fontsize=8)
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path

@@ -1,0 +1,216 @@
+"""Densification and pruning behind gsplat's small strategy interface.
+
+A strategy has ``initialize_state(n)``, ``step_pre_backward(params, optimizers, state, step,
+info)`` and ``step_post_backward(...) -> dict`` (a report of what it did). ``DefaultStrategy``
+follows gsplat's default: screen-space gradients of the projected means are accumulated over
+EVERY camera of each rasteriser call (all V virtual views of an exposure, not only the last),
+and every ``refine_every`` steps Gaussians with a high mean gradient are cloned (small) or
+split in two (large); transparent ones are pruned (and, after the first opacity reset, huge
+ones); every ``reset_every`` steps opacities are clamped down so that floaters can die.
+
+The parameter surgery functions (``duplicate``, ``split``, ``remove``, ``reset_opacity``)
+keep each Adam optimizer's moments aligned with its parameter.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable
+
+import torch
+from torch import Tensor, nn
+
+from .config import StrategyConfig
+from .lie import quat_to_rotmat
+
+__all__ = ["DefaultStrategy", "NoStrategy", "STRATEGIES", "make_strategy", "duplicate", "split",
+           "remove", "reset_opacity", "screen_grads"]
+
+Params = dict[str, nn.Parameter]
+Optims = dict[str, torch.optim.Optimizer]
+
+
+def _surgery(params: Params, optimizers: Optims, param_fn: Callable[[str, Tensor], Tensor],
+             state_fn: Callable[[str, Tensor], Tensor], names=None) -> None:
+    """Replace params[name] by param_fn(name, p) and each Adam moment by state_fn(name, moment)."""
+    for name in list(params) if names is None else names:
+        old = params[name]
+        new = nn.Parameter(param_fn(name, old.data), requires_grad=old.requires_grad)
+        opt = optimizers.get(name)
+        if opt is not None:
+            st = opt.state.pop(old, None)
+            for group in opt.param_groups:
+                group["params"] = [new if p is old else p for p in group["params"]]
+            if st:
+                st = {k: (state_fn(k, v) if isinstance(v, Tensor) and v.ndim > 0 else v) for k, v in st.items()}
+                opt.state[new] = st
+        params[name] = new
+
+
+def duplicate(params: Params, optimizers: Optims, mask: Tensor) -> None:  # mask [N] bool
+    """Append a copy of every selected Gaussian (fresh zero Adam moments for the copies)."""
+    idx = torch.nonzero(mask).squeeze(1)
+    _surgery(params, optimizers, lambda n, p: torch.cat([p, p[idx]]),
+             lambda k, v: torch.cat([v, torch.zeros_like(v[idx])]))
+
+
+def split(params: Params, optimizers: Optims, mask: Tensor, generator: torch.Generator | None = None,
+          shrink: float = 1.6) -> None:  # mask [N] bool
+    """Replace every selected Gaussian by two, sampled from it, each ``shrink`` times smaller."""
+    idx = torch.nonzero(mask).squeeze(1)
+    keep = ~mask
+    with torch.no_grad():
+        s = torch.exp(params["scales"][idx])  # [S, 3]
+        R = quat_to_rotmat(params["quats"][idx])  # [S, 3, 3]
+        noise = torch.randn(2, idx.shape[0], 3, generator=generator)
+        offsets = torch.einsum("sij,ksj->ksi", R, noise * s[None])  # [2, S, 3]
+        new_means = (params["means"][idx][None] + offsets).reshape(-1, 3)
+
+    def pfn(name, p):
+        if name == "means":
+            extra = new_means
+        elif name == "scales":
+            extra = (p[idx] - math.log(shrink)).repeat(2, 1)
+        else:
+            extra = p[idx].repeat(2, *([1] * (p.ndim - 1)))
+        return torch.cat([p[keep], extra])
+
+    _surgery(params, optimizers, pfn,
+             lambda k, v: torch.cat([v[keep], torch.zeros_like(v[idx]).repeat(2, *([1] * (v.ndim - 1)))]))
+
+
+def remove(params: Params, optimizers: Optims, mask: Tensor) -> None:  # mask [N] bool
+    """Delete the selected Gaussians."""
+    keep = ~mask
+    _surgery(params, optimizers, lambda n, p: p[keep], lambda k, v: v[keep])
+
+
+def reset_opacity(params: Params, optimizers: Optims, value: float) -> None:
+    """Clamp every opacity to at most ``value`` and zero the opacity moments."""
+    cap = math.log(value / (1 - value))
+    _surgery(params, optimizers, lambda n, p: p.clamp_max(cap), lambda k, v: torch.zeros_like(v),
+             names=["opacities"])
+
+
+def screen_grads(info: dict) -> tuple[Tensor, Tensor] | None:
+    """Per-camera screen-space gradient norms [C, N] (NDC units, as gsplat) and visibility [C, N].
+
+    ``info`` holds ``means2d`` [C, N, 2] (whose ``.grad`` the backward filled), ``radii``
+    [C, N] or [C, N, 2], ``width`` and ``height``. Returns None when there is no gradient.
+    """
+    m2d = info.get("means2d")
+    if m2d is None or m2d.grad is None:
+        return None
+    g = m2d.grad.detach().clone()
+    g[..., 0] *= info["width"] / 2.0
+    g[..., 1] *= info["height"] / 2.0
+    radii = info["radii"]
+    visible = (radii > 0).all(-1) if radii.ndim == 3 else radii > 0
+    return g.norm(dim=-1) * visible, visible
+
+
+@dataclass
+class DefaultStrategy:
+    """gsplat's default strategy; see the module docstring. ``scene_scale`` in world units."""
+
+    cfg: StrategyConfig
+    scene_scale: float = 1.0
+    max_gaussians: int = 1_000_000
+    generator: torch.Generator | None = None
+
+    def initialize_state(self, n: int) -> dict:
+        return {"grad2d": torch.zeros(n), "count": torch.zeros(n)}
+
+    def step_pre_backward(self, params: Params, optimizers: Optims, state: dict, step: int, info: dict) -> None:
+        m2d = info.get("means2d")
+        if m2d is not None and m2d.requires_grad:
+            m2d.retain_grad()
+
+    def accumulate(self, state: dict, info: dict) -> None:
+        """Add this step's per-camera gradient norms (every camera of the batch) to the state."""
+        out = screen_grads(info)
+        if out is None:
+            return
+        norms, visible = out  # [C, N]
+        state["grad2d"] += norms.sum(0)
+        state["count"] += visible.sum(0).float()
+
+    def step_post_backward(self, params: Params, optimizers: Optims, state: dict, step: int, info: dict) -> dict:
+        cfg = self.cfg
+        report = {"cloned": 0, "split": 0, "pruned": 0, "reset": False}
+        if step >= cfg.refine_stop:
+            return report
+        self.accumulate(state, info)
+        if step > cfg.refine_start and step % cfg.refine_every == 0:
+            report.update(self.refine(params, optimizers, state, step))
+        if cfg.reset_every > 0 and step > 0 and step % cfg.reset_every == 0:
+            reset_opacity(params, optimizers, cfg.reset_opacity)
+            report["reset"] = True
+        return report
+
+    def refine(self, params: Params, optimizers: Optims, state: dict, step: int) -> dict:
+        cfg = self.cfg
+        n0 = params["means"].shape[0]
+        avg = state["grad2d"] / state["count"].clamp_min(1)
+        high = avg > cfg.grad_threshold
+        big = torch.exp(params["scales"].detach()).max(-1).values > cfg.split_scale * self.scene_scale
+        clone_mask = high & ~big
+        split_mask = high & big
+        room = self.max_gaussians - n0
+        if room <= 0:
+            clone_mask[:] = False
+            split_mask[:] = False
+        elif int(clone_mask.sum() + split_mask.sum()) > room:  # keep the strongest gradients
+            order = torch.argsort(avg, descending=True)
+            allowed = torch.zeros_like(high)
+            allowed[order[:room]] = True
+            clone_mask &= allowed
+            split_mask &= allowed
+        n_clone, n_split = int(clone_mask.sum()), int(split_mask.sum())
+        if n_clone:
+            duplicate(params, optimizers, clone_mask)
+        if n_split:
+            split_mask = torch.cat([split_mask, torch.zeros(n_clone, dtype=torch.bool)])
+            split(params, optimizers, split_mask, generator=self.generator)
+        with torch.no_grad():
+            prune = torch.sigmoid(params["opacities"]) < cfg.prune_opacity
+            if cfg.reset_every > 0 and step > cfg.reset_every:
+                prune |= torch.exp(params["scales"]).max(-1).values > cfg.prune_scale * self.scene_scale
+        n_prune = int(prune.sum())
+        if n_prune and n_prune < prune.shape[0]:
+            remove(params, optimizers, prune)
+        else:
+            n_prune = 0
+        n = params["means"].shape[0]
+        state["grad2d"] = torch.zeros(n)
+        state["count"] = torch.zeros(n)
+        return {"cloned": n_clone, "split": n_split, "pruned": n_prune}
+
+
+@dataclass
+class NoStrategy:
+    """Keeps the initial Gaussians as they are."""
+
+    cfg: StrategyConfig | None = None
+    scene_scale: float = 1.0
+    max_gaussians: int = 0
+    generator: torch.Generator | None = None
+
+    def initialize_state(self, n: int) -> dict:
+        return {}
+
+    def step_pre_backward(self, params, optimizers, state, step, info) -> None:
+        return None
+
+    def step_post_backward(self, params, optimizers, state, step, info) -> dict:
+        return {"cloned": 0, "split": 0, "pruned": 0, "reset": False}
+
+
+STRATEGIES = {"default": DefaultStrategy, "none": NoStrategy}
+
+
+def make_strategy(cfg: StrategyConfig, scene_scale: float, max_gaussians: int,
+                  generator: torch.Generator | None = None):
+    if cfg.kind not in STRATEGIES:
+        raise ValueError(f"unknown strategy '{cfg.kind}'; choose one of {sorted(STRATEGIES)}")
+    return STRATEGIES[cfg.kind](cfg, scene_scale, max_gaussians, generator)

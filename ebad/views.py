@@ -1,0 +1,72 @@
+"""How many virtual views each exposure needs, and the events between them.
+
+"Skip what the scene does not need": a frame whose exposure is empty (t_start == t_end) or
+that saw fewer than ``sharp_events_per_pixel`` events per pixel during it is sharp and gets
+V = 1 (one render, no trajectory); every other frame gets the configured V.
+"""
+from __future__ import annotations
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from edi import EventStream, seconds_to_us
+
+__all__ = ["events_per_pixel", "choose_num_views", "event_sums"]
+
+
+def events_per_pixel(events: EventStream, exposures: np.ndarray) -> np.ndarray:  # [F, 2] -> [F]
+    """Events fired during each exposure divided by the sensor's pixel count."""
+    exposures = np.asarray(exposures, dtype=np.float64)
+    if exposures.ndim != 2 or exposures.shape[1] != 2:
+        raise ValueError(f"exposures must be [F, 2], got {exposures.shape}")
+    npix = float(events.width * events.height)
+    out = np.zeros(len(exposures))
+    for f, (t0, t1) in enumerate(exposures):
+        i0, i1 = events.index_range(seconds_to_us(t0), seconds_to_us(t1))
+        out[f] = (i1 - i0) / npix
+    return out
+
+
+def choose_num_views(
+    exposures: np.ndarray,  # [F, 2] seconds
+    events: EventStream | None,
+    num_views: int,
+    adaptive: bool = True,
+    sharp_events_per_pixel: float = 0.05,
+) -> np.ndarray:  # [F] int
+    """V per frame: 1 for sharp exposures, ``num_views`` otherwise (see module docstring).
+
+    With ``adaptive`` the event activity decides; without events (None or an empty stream)
+    only zero-length exposures are sharp, since nothing else tells blur apart.
+    """
+    if num_views < 1:
+        raise ValueError(f"num_views must be >= 1, got {num_views}")
+    exposures = np.asarray(exposures, dtype=np.float64)
+    V = np.full(len(exposures), int(num_views), dtype=np.int64)
+    V[exposures[:, 1] <= exposures[:, 0]] = 1
+    if adaptive and events is not None and len(events) > 0:
+        V[events_per_pixel(events, exposures) < sharp_events_per_pixel] = 1
+    elif adaptive and events is not None and len(events) == 0:
+        V[:] = 1  # a capture with an event sensor that saw nothing did not move
+    return V
+
+
+def event_sums(
+    events: EventStream,
+    exposure: tuple[float, float],
+    V: int,
+) -> Tensor:  # [V - 1, H, W] float32
+    """Signed event counts between consecutive virtual instants t_k = t0 + (k + 0.5)/V (t1 - t0)."""
+    t0, t1 = float(exposure[0]), float(exposure[1])
+    H, W = events.height, events.width
+    if V < 2:
+        return torch.zeros(0, H, W)
+    inst = t0 + (np.arange(V) + 0.5) / V * (t1 - t0)
+    out = np.zeros((V - 1, H * W), dtype=np.float64)
+    for k in range(V - 1):
+        i0, i1 = events.index_range(seconds_to_us(inst[k]), seconds_to_us(inst[k + 1]))
+        if i1 > i0:
+            idx = events.y[i0:i1].astype(np.int64) * W + events.x[i0:i1]
+            out[k] = np.bincount(idx, weights=events.p[i0:i1].astype(np.float64), minlength=H * W)
+    return torch.from_numpy(out.reshape(V - 1, H, W).astype(np.float32))

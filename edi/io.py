@@ -1,0 +1,292 @@
+"""Readers for event files and AEDAT4 recordings.
+
+Formats (by extension):
+  * ``.npz`` / ``.h5`` / ``.hdf5``: arrays x, y, t, p at the root or under ``events/``
+    (EvDeblurNeRF, E-NeRF layouts; ``polarity``/``pol`` and ``ts``/``timestamp`` accepted).
+  * ``.txt``: the Event Camera Dataset's ``events.txt``, lines ``t x y p`` (t in seconds).
+  * ``.mat``: MATLAB, an ``events`` array N x 4 ``[t, x, y, p]`` (ni-joint layout), or
+    separate x, y, t, p variables.
+  * ``.aedat4``: through the ``aedat`` package (``pip install aedat``, or the project's
+    ``[aedat]`` extra); ``dv-processing`` is used when ``aedat`` is missing.
+
+The time unit is given (``t_unit`` in "s", "ms", "us", "ns") or inferred: non-integer
+times -> seconds, integer times spanning more than 1e10 -> nanoseconds, else
+microseconds. The unit used is logged at INFO and returned by
+``read_events(..., return_unit=True)``. Raw epoch
+times (above 1e12 us, ~11.6 days) are made relative by subtracting the first event's time
+in int64 (kept as ``EventStream.t0``).
+"""
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .events import EventError, EventStream
+
+__all__ = ["read_events", "read_aedat4", "AedatRecording", "infer_time_unit"]
+
+log = logging.getLogger(__name__)
+
+_UNIT_TO_US = {"s": 1e6, "ms": 1e3, "us": 1.0, "ns": 1e-3}
+_EPOCH_US = 10**12  # times above this are raw epoch timestamps
+
+_ALIASES = {
+    "t": ("t", "ts", "timestamp", "timestamps", "time", "times"),
+    "x": ("x", "xs"),
+    "y": ("y", "ys"),
+    "p": ("p", "polarity", "polarities", "pol", "ps"),
+}
+
+
+def infer_time_unit(t: np.ndarray) -> tuple[str, str]:
+    """(unit, reason) for raw timestamps t [M]."""
+    if len(t) == 0:
+        return "us", "no events (defaulting to microseconds)"
+    if t.dtype.kind == "f":
+        finite = t[np.isfinite(t)]
+        if finite.size and np.any(finite != np.round(finite)):
+            return "s", "non-integer timestamps"
+    span = float(np.max(t)) - float(np.min(t))
+    if span > 1e10:
+        return "ns", f"integer timestamps spanning {span:.3g} (> 1e10)"
+    return "us", f"integer timestamps spanning {span:.3g}"
+
+
+def _to_us(t: np.ndarray, unit: str, path: str) -> tuple[np.ndarray, int]:
+    """raw times -> (int64 us relative to t0, t0 in us)."""
+    if unit not in _UNIT_TO_US:
+        raise ValueError(f"{path}: t_unit must be one of {sorted(_UNIT_TO_US)}, got {unit!r}")
+    if t.dtype.kind == "f":
+        if not np.isfinite(t).all():
+            i = int(np.flatnonzero(~np.isfinite(t))[0])
+            raise EventError(f"{path}: field 't' has a non-finite value at index {i}")
+        us = np.round(t.astype(np.float64) * _UNIT_TO_US[unit])
+        if len(us) and np.abs(us).max() > 2**53:
+            raise EventError(f"{path}: float times too large for exact microseconds; store them as int64")
+        t_us = us.astype(np.int64)
+    elif t.dtype.kind in "iu":
+        ti = t.astype(np.int64)
+        if unit == "ns":
+            t_us = (ti + 500) // 1000
+        elif unit == "us":
+            t_us = ti
+        else:
+            t_us = ti * int(_UNIT_TO_US[unit])
+    else:
+        raise EventError(f"{path}: field 't' must be numeric, got dtype {t.dtype}")
+    t0 = int(t_us.min()) if len(t_us) and int(t_us.min()) > _EPOCH_US else 0
+    return t_us, t0
+
+
+def _pick(keys, field: str, path: str) -> str:
+    for a in _ALIASES[field]:
+        if a in keys:
+            return a
+    raise EventError(f"{path}: no events field '{field}' (looked for {', '.join(_ALIASES[field])}; found {sorted(keys)})")
+
+
+def _load_arrays(path: Path) -> dict[str, np.ndarray]:
+    ext = path.suffix.lower()
+    if ext == ".npz":
+        with np.load(path, allow_pickle=False) as z:
+            keys = list(z.keys())
+            if not any(k in keys for k in _ALIASES["x"]) and any(k.startswith("events/") for k in keys):
+                return {k.split("/", 1)[1]: z[k] for k in keys if k.startswith("events/")}
+            if len(keys) == 1 and z[keys[0]].ndim == 2 and z[keys[0]].shape[1] == 4:
+                a = z[keys[0]]
+                return {"t": a[:, 0], "x": a[:, 1], "y": a[:, 2], "p": a[:, 3]}
+            return {k: z[k] for k in keys}
+    if ext in (".h5", ".hdf5"):
+        import h5py
+
+        with h5py.File(path, "r") as f:
+            grp = f["events"] if "events" in f and isinstance(f["events"], h5py.Group) else f
+            out = {k: grp[k][()] for k in grp.keys() if isinstance(grp[k], h5py.Dataset)}
+            if "events" in f and isinstance(f["events"], h5py.Dataset) and f["events"].ndim == 2:
+                a = f["events"][()]
+                out = {"t": a[:, 0], "x": a[:, 1], "y": a[:, 2], "p": a[:, 3]}
+            return out
+    if ext == ".mat":
+        from scipy.io import loadmat
+
+        m = {k: v for k, v in loadmat(path).items() if not k.startswith("__")}
+        if "events" in m and m["events"].ndim == 2 and m["events"].shape[1] == 4:
+            a = m["events"]
+            return {"t": a[:, 0], "x": a[:, 1], "y": a[:, 2], "p": a[:, 3]}
+        return {k: np.asarray(v).reshape(-1) for k, v in m.items()}
+    if ext == ".txt":
+        a = np.loadtxt(path, dtype=np.float64, ndmin=2)
+        if a.size == 0:
+            return {k: np.zeros(0) for k in "txyp"}
+        if a.shape[1] < 4:
+            raise EventError(f"{path}: expected lines 't x y p', got {a.shape[1]} columns")
+        return {"t": a[:, 0], "x": a[:, 1], "y": a[:, 2], "p": a[:, 3]}
+    raise ValueError(f"{path}: unknown event file type {ext!r} (use .npz, .h5, .txt, .mat or .aedat4)")
+
+
+def read_events(
+    path: str | Path,
+    t_unit: str | None = None,
+    width: int | None = None,
+    height: int | None = None,
+    *,
+    return_unit: bool = False,
+):
+    """Read an event file into an ``EventStream``.
+
+    Args:
+        path: .npz, .h5/.hdf5, .txt (t x y p, seconds), .mat or .aedat4.
+        t_unit: "s", "ms", "us" or "ns"; None infers it (see ``infer_time_unit``) and logs it.
+            ``.txt`` defaults to seconds; ``.aedat4`` is always microseconds.
+        width, height: sensor size; default from the file (``width``/``height`` or
+            ``sensor_size`` keys), else max coordinate + 1 (logged as a warning).
+        return_unit: return (events, unit, reason) instead.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"event file not found: {path}")
+    if path.suffix.lower() == ".aedat4":
+        ev = read_aedat4(path).events
+        return (ev, "us", "AEDAT4 timestamps are microseconds") if return_unit else ev
+    arrs = _load_arrays(path)
+    keys = set(arrs)
+    t = np.asarray(arrs[_pick(keys, "t", str(path))]).reshape(-1)
+    x = np.asarray(arrs[_pick(keys, "x", str(path))]).reshape(-1)
+    y = np.asarray(arrs[_pick(keys, "y", str(path))]).reshape(-1)
+    p = np.asarray(arrs[_pick(keys, "p", str(path))]).reshape(-1)
+    if t_unit is None:
+        if path.suffix.lower() == ".txt":
+            unit, reason = "s", "events.txt stores seconds"
+        else:
+            unit, reason = infer_time_unit(t)
+        log.info("read_events %s: time unit %r (inferred: %s)", path, unit, reason)
+    else:
+        unit, reason = t_unit, "given"
+    t_us, t0 = _to_us(t, unit, str(path))
+    if width is None or height is None:
+        w_f = next((int(np.asarray(arrs[k]).reshape(-1)[0]) for k in ("width", "sensor_width") if k in arrs), None)
+        h_f = next((int(np.asarray(arrs[k]).reshape(-1)[0]) for k in ("height", "sensor_height") if k in arrs), None)
+        if "sensor_size" in arrs:
+            ss = np.asarray(arrs["sensor_size"]).reshape(-1)
+            h_f, w_f = int(ss[0]), int(ss[1])  # (H, W) as in E-NeRF / tonic
+        if w_f is None or h_f is None:
+            w_f = int(np.max(x)) + 1 if len(x) else 1
+            h_f = int(np.max(y)) + 1 if len(y) else 1
+            log.warning("read_events %s: no sensor size in the file; using %dx%d from the coordinates", path, w_f, h_f)
+        width = width if width is not None else w_f
+        height = height if height is not None else h_f
+    try:
+        ev = EventStream(t_us, x, y, p, int(width), int(height), t0=t0)
+    except EventError as exc:
+        raise EventError(f"{path}: {exc}") from exc
+    return (ev, unit, reason) if return_unit else ev
+
+
+@dataclass
+class AedatRecording:
+    """An AEDAT4 recording: events and APS frames on one clock (microseconds from ``t0``)."""
+
+    events: EventStream  # t relative to t0
+    frames: np.ndarray  # [F, H, W, D] float32 linear [0, 1]
+    exposures: np.ndarray  # [F, 2] float64 seconds (exposure begin, end) relative to t0
+    t0: int  # us, the raw timestamp subtracted
+
+
+_MISSING = (
+    "reading .aedat4 needs the 'aedat' package: pip install aedat "
+    "(or pip install 'ebad[aedat]'); dv-processing also works: pip install dv-processing"
+)
+
+
+def _frame_pixels(px: np.ndarray, fmt: str) -> np.ndarray:
+    a = np.asarray(px)
+    scale = 255.0 if a.dtype == np.uint8 else 65535.0 if a.dtype == np.uint16 else 1.0
+    a = a.astype(np.float32) / np.float32(scale)
+    if a.ndim == 2:
+        return a[..., None]
+    if fmt.upper().startswith("BGR"):
+        a = a[..., [2, 1, 0]]
+    return a[..., :3] if a.shape[-1] >= 3 else a
+
+
+def read_aedat4(path: str | Path) -> AedatRecording:
+    """Read events and frames of an AEDAT4 file (``aedat``, else ``dv-processing``)."""
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"AEDAT4 file not found: {path}")
+    try:
+        import aedat  # type: ignore
+    except ImportError:
+        aedat = None
+    if aedat is None:
+        try:
+            import dv_processing as dv  # type: ignore  # noqa: F401
+        except ImportError:
+            raise ImportError(_MISSING) from None
+        return _read_aedat4_dv(path)
+    try:
+        dec = aedat.Decoder(str(path))
+    except Exception as exc:
+        raise ValueError(f"{path}: not a readable AEDAT4 file ({exc})") from exc
+    streams = dec.id_to_stream()
+    size = next(((s["width"], s["height"]) for s in streams.values() if s.get("type") == "events"), None)
+    if size is None:
+        size = next(((s["width"], s["height"]) for s in streams.values() if s.get("type") == "frame"), None)
+    if size is None:
+        raise ValueError(f"{path}: no events or frame stream")
+    ev_chunks, frames, exps = [], [], []
+    for pk in dec:
+        if "events" in pk:
+            ev_chunks.append(pk["events"])
+        elif "frame" in pk:
+            fr = pk["frame"]
+            frames.append(_frame_pixels(fr["pixels"], fr.get("format", "L")))
+            exps.append((int(fr["exposure_begin_t"]), int(fr["exposure_end_t"])))
+    evs = np.concatenate(ev_chunks) if ev_chunks else None
+    t_raw = evs["t"].astype(np.int64) if evs is not None else np.zeros(0, np.int64)
+    candidates = [int(t_raw[0])] if len(t_raw) else []
+    if exps:
+        candidates.append(min(e[0] for e in exps))
+    t0 = min(candidates) if candidates else 0
+    if evs is not None:
+        order = np.argsort(t_raw, kind="stable")  # packets may interleave slightly
+        pol = evs[evs.dtype.names[3]]
+        events = EventStream(t_raw[order], evs["x"][order], evs["y"][order], pol[order].astype(np.int8), size[0], size[1], t0=t0)
+    else:
+        events = EventStream.empty(size[0], size[1])
+    if frames:
+        fr_arr = np.stack(frames).astype(np.float32)
+        ex = (np.asarray(exps, dtype=np.int64) - t0).astype(np.float64) * 1e-6
+    else:
+        fr_arr = np.zeros((0, size[1], size[0], 1), np.float32)
+        ex = np.zeros((0, 2))
+    return AedatRecording(events, fr_arr, ex, t0)
+
+
+def _read_aedat4_dv(path: Path) -> AedatRecording:  # pragma: no cover - needs dv-processing
+    import dv_processing as dv  # type: ignore
+
+    rec = dv.io.MonoCameraRecording(str(path))
+    evs, frames, exps = [], [], []
+    while rec.isRunning():
+        batch = rec.getNextEventBatch() if rec.isEventStreamAvailable() else None
+        if batch is not None:
+            evs.append(batch.numpy())
+        fr = rec.getNextFrame() if rec.isFrameStreamAvailable() else None
+        if fr is not None:
+            frames.append(_frame_pixels(fr.image, "BGR" if fr.image.ndim == 3 else "L"))
+            begin = int(fr.timestamp)
+            exps.append((begin, begin + int(fr.exposure.total_seconds() * 1e6)))
+        if batch is None and fr is None:
+            break
+    w, h = rec.getEventResolution()
+    a = np.concatenate(evs) if evs else None
+    t_raw = a["timestamp"].astype(np.int64) if a is not None else np.zeros(0, np.int64)
+    t0 = min([int(t_raw[0])] if len(t_raw) else [] + [e[0] for e in exps] or [0])
+    events = EventStream(t_raw, a["x"], a["y"], a["polarity"], w, h, t0=t0) if a is not None else EventStream.empty(w, h)
+    ex = (np.asarray(exps, np.int64) - t0) * 1e-6 if exps else np.zeros((0, 2))
+    fr_arr = np.stack(frames) if frames else np.zeros((0, h, w, 1), np.float32)
+    return AedatRecording(events, fr_arr, ex, t0)

@@ -1,0 +1,205 @@
+"""An ESIM-style event simulator over a sequence of renders.
+
+Each pixel keeps a reference log level ``log(I + eps)`` (I: linear intensity; colour renders
+are averaged over channels first, as ``edi.synthetic`` does). Between two renders the log
+intensity is taken as linear in time; every time it climbs ``C+`` above the reference (or
+falls ``C-`` below it) the pixel fires one event at the interpolated crossing time and the
+reference moves by exactly that threshold. ``C+`` and ``C-`` are drawn per pixel from
+N(c, sigma_c) (clipped to at least ``MIN_C_FRACTION * c``). A refractory period drops events
+that follow the pixel's previous emitted event too closely (the reference still moves, as if
+the pixel had reset). Shot noise adds Poisson events of random polarity at ``noise_hz`` per
+pixel; ``hot_pixels`` random pixels fire positive events at ``hot_pixel_hz``.
+
+Two implementations: ``_crossings_numba`` (fast) and ``_crossings_reference`` (plain Python),
+tested against each other.
+"""
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from edi import EventStream
+
+__all__ = ["simulate_events", "default_eps", "MIN_C_FRACTION", "HOT_PIXEL_HZ"]
+
+MIN_C_FRACTION = 0.25  # per-pixel thresholds are clipped to >= this fraction of c
+HOT_PIXEL_HZ = 500.0  # default firing rate of a hot pixel
+
+
+def default_eps() -> float:
+    """The project's log offset, ``edi.LOG_EPS`` (1e-3 when edi does not define it)."""
+    try:
+        from edi.deblur import LOG_EPS
+    except ImportError:  # pragma: no cover - edi without deblur
+        return 1e-3
+    return float(LOG_EPS)
+
+
+@numba.njit(cache=True)
+def _crossings_numba(logi, times, c_pos, c_neg, refractory):  # pragma: no cover - jit
+    s, npx = logi.shape
+    # pass 1: an upper bound on the number of events (no refractory)
+    count = 0
+    for p in range(npx):
+        ref = logi[0, p]
+        for k in range(s - 1):
+            b = logi[k + 1, p]
+            while True:
+                if b - ref >= c_pos[p]:
+                    ref += c_pos[p]
+                elif ref - b >= c_neg[p]:
+                    ref -= c_neg[p]
+                else:
+                    break
+                count += 1
+    t_out = np.empty(count, np.float64)
+    pix = np.empty(count, np.int64)
+    pol = np.empty(count, np.int8)
+    n = 0
+    for p in range(npx):
+        ref = logi[0, p]
+        last = -np.inf
+        for k in range(s - 1):
+            a = logi[k, p]
+            b = logi[k + 1, p]
+            while True:
+                if b - ref >= c_pos[p]:
+                    target = ref + c_pos[p]
+                    sgn = 1
+                elif ref - b >= c_neg[p]:
+                    target = ref - c_neg[p]
+                    sgn = -1
+                else:
+                    break
+                frac = (target - a) / (b - a)
+                frac = min(1.0, max(0.0, frac))
+                te = times[k] + frac * (times[k + 1] - times[k])
+                ref = target
+                if te - last >= refractory:
+                    t_out[n] = te
+                    pix[n] = p
+                    pol[n] = sgn
+                    n += 1
+                    last = te
+    return t_out[:n], pix[:n], pol[:n]
+
+
+def _crossings_reference(logi, times, c_pos, c_neg, refractory):
+    """Plain-Python twin of ``_crossings_numba`` (same outputs, same order)."""
+    s, npx = logi.shape
+    ts, px, ps = [], [], []
+    for p in range(npx):
+        ref = float(logi[0, p])
+        last = -math.inf
+        for k in range(s - 1):
+            a, b = float(logi[k, p]), float(logi[k + 1, p])
+            while True:
+                if b - ref >= c_pos[p]:
+                    target, sgn = ref + c_pos[p], 1
+                elif ref - b >= c_neg[p]:
+                    target, sgn = ref - c_neg[p], -1
+                else:
+                    break
+                frac = min(1.0, max(0.0, (target - a) / (b - a)))
+                te = times[k] + frac * (times[k + 1] - times[k])
+                ref = target
+                if te - last >= refractory:
+                    ts.append(te)
+                    px.append(p)
+                    ps.append(sgn)
+                    last = te
+    return np.array(ts, np.float64), np.array(px, np.int64), np.array(ps, np.int8)
+
+
+def _check(images, times, c, sigma_c, refractory, noise_hz, hot_pixels, eps):
+    imgs = np.asarray(images)
+    if imgs.ndim == 4:
+        if imgs.shape[3] not in (1, 3):
+            raise ValueError(f"images: expected [S, H, W] or [S, H, W, D] with D in (1, 3), got {imgs.shape}")
+    elif imgs.ndim != 3:
+        raise ValueError(f"images: expected [S, H, W] or [S, H, W, D], got shape {imgs.shape}")
+    if imgs.shape[0] < 2:
+        raise ValueError(f"images: need at least 2 renders, got {imgs.shape[0]}")
+    if imgs.dtype.kind not in "fiu":
+        raise ValueError(f"images: must be numeric, got {imgs.dtype}")
+    if not np.isfinite(imgs).all() or imgs.min() < 0:
+        raise ValueError("images: must be finite, non-negative linear intensity")
+    t = np.asarray(times, dtype=np.float64)
+    if t.shape != (imgs.shape[0],):
+        raise ValueError(f"times: expected shape ({imgs.shape[0]},), got {t.shape}")
+    if not np.isfinite(t).all() or np.any(np.diff(t) <= 0):
+        raise ValueError("times: must be finite and strictly increasing (seconds)")
+    for name, v, lo in (("c", c, 0.0), ("eps", eps, 0.0)):
+        if not (math.isfinite(v) and v > lo):
+            raise ValueError(f"{name}: must be a positive finite number, got {v!r}")
+    for name, v in (("sigma_c", sigma_c), ("refractory", refractory), ("noise_hz", noise_hz)):
+        if not (math.isfinite(v) and v >= 0):
+            raise ValueError(f"{name}: must be a finite number >= 0, got {v!r}")
+    if int(hot_pixels) != hot_pixels or hot_pixels < 0:
+        raise ValueError(f"hot_pixels: must be a non-negative integer, got {hot_pixels!r}")
+    return imgs, t
+
+
+def simulate_events(images: np.ndarray,  # [S, H, W] or [S, H, W, D] linear intensity
+                    times: np.ndarray,  # [S] seconds, increasing
+                    c: float = 0.2, sigma_c: float = 0.03, refractory: float = 0.0, noise_hz: float = 0.0,
+                    hot_pixels: int = 0, seed: int = 0, eps: float | None = None,
+                    hot_pixel_hz: float = HOT_PIXEL_HZ, return_thresholds: bool = False,
+                    reference: bool = False):
+    """Events fired by a DVS pixel array watching ``images`` at ``times``.
+
+    Args:
+        images: [S, H, W] or [S, H, W, D] linear intensity (D = 3 is averaged to grey first).
+        times: [S] seconds, strictly increasing. Events lie in [times[0], times[-1]].
+        c: mean contrast threshold, natural-log units. sigma_c: per-pixel std of C+ and C-.
+        refractory: seconds; events closer than this to the pixel's previous event are dropped.
+        noise_hz: shot-noise events per pixel per second (random polarity, uniform times).
+        hot_pixels: number of random pixels firing +1 events at ``hot_pixel_hz``.
+        seed: RNG seed for thresholds and noise.
+        eps: offset in log(I + eps); None means ``edi.LOG_EPS``.
+        return_thresholds: also return (c_pos, c_neg), each [H, W].
+        reference: use the plain-Python kernel (slow; for tests).
+
+    Returns:
+        EventStream (t in integer microseconds of ``times``' clock, sorted, inside the sensor),
+        or (EventStream, c_pos [H, W], c_neg [H, W]) with ``return_thresholds``.
+    """
+    eps = default_eps() if eps is None else float(eps)
+    imgs, t = _check(images, times, float(c), float(sigma_c), float(refractory), float(noise_hz), hot_pixels, eps)
+    if imgs.ndim == 4:
+        imgs = imgs.mean(axis=3)
+    s, h, w = imgs.shape
+    rng = np.random.default_rng(seed)
+    c_min = MIN_C_FRACTION * c
+    c_pos = np.maximum(c + sigma_c * rng.standard_normal(h * w), c_min) if sigma_c > 0 else np.full(h * w, float(c))
+    c_neg = np.maximum(c + sigma_c * rng.standard_normal(h * w), c_min) if sigma_c > 0 else np.full(h * w, float(c))
+    logi = np.log(imgs.reshape(s, h * w).astype(np.float64) + eps)
+    kern = _crossings_reference if reference else _crossings_numba
+    te, pix, pol = kern(np.ascontiguousarray(logi), t, c_pos, c_neg, float(refractory))
+    parts_t, parts_pix, parts_p = [te], [pix], [pol]
+    span = float(t[-1] - t[0])
+    if noise_hz > 0:
+        n = rng.poisson(noise_hz * span, size=h * w)
+        npix = np.repeat(np.arange(h * w), n)
+        parts_pix.append(npix)
+        parts_t.append(t[0] + span * rng.random(len(npix)))
+        parts_p.append(np.where(rng.random(len(npix)) < 0.5, 1, -1).astype(np.int8))
+    if hot_pixels:
+        hp = rng.choice(h * w, size=min(int(hot_pixels), h * w), replace=False)
+        for p in hp:
+            k = max(1, int(round(hot_pixel_hz * span)))
+            parts_t.append(np.sort(t[0] + span * rng.random(k)))
+            parts_pix.append(np.full(k, p, np.int64))
+            parts_p.append(np.ones(k, np.int8))
+    te = np.concatenate(parts_t)
+    pix = np.concatenate(parts_pix)
+    pol = np.concatenate(parts_p)
+    t_us = np.round(te * 1e6).astype(np.int64)
+    order = np.argsort(t_us, kind="stable")
+    ev = EventStream(t_us[order], (pix[order] % w).astype(np.int32), (pix[order] // w).astype(np.int32),
+                     pol[order], w, h)
+    if return_thresholds:
+        return ev, c_pos.reshape(h, w), c_neg.reshape(h, w)
+    return ev

@@ -1,0 +1,72 @@
+"""OpenCV radial-tangential (k1 k2 p1 p2 k3) distortion: undistort frames and events on load.
+
+Convention: pixel coordinates with the top-left pixel centre at (0.5, 0.5) (pixel index j
+covers [j, j + 1)); the undistorted capture keeps the same K.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy import ndimage
+
+from edi import EventStream
+
+__all__ = ["distort_normalized", "undistort_normalized", "undistort_frames", "undistort_events"]
+
+
+def distort_normalized(xy: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    """[..., 2] ideal normalised coordinates -> distorted normalised coordinates."""
+    k1, k2, p1, p2, k3 = (float(v) for v in dist)
+    x, y = xy[..., 0], xy[..., 1]
+    r2 = x * x + y * y
+    radial = 1 + k1 * r2 + k2 * r2**2 + k3 * r2**3
+    xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+    return np.stack([xd, yd], axis=-1)
+
+
+def undistort_normalized(xy_d: np.ndarray, dist: np.ndarray, iters: int = 20) -> np.ndarray:
+    """[..., 2] distorted normalised coordinates -> ideal ones (fixed-point iteration, as OpenCV)."""
+    k1, k2, p1, p2, k3 = (float(v) for v in dist)
+    xd, yd = xy_d[..., 0], xy_d[..., 1]
+    x, y = xd.copy(), yd.copy()
+    for _ in range(iters):
+        r2 = x * x + y * y
+        radial = 1 + k1 * r2 + k2 * r2**2 + k3 * r2**3
+        dx = 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+        dy = p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+        x = (xd - dx) / radial
+        y = (yd - dy) / radial
+    return np.stack([x, y], axis=-1)
+
+
+def undistort_frames(frames: np.ndarray,  # [F, H, W, D]
+                     K: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    """Resample distorted frames onto the ideal pinhole grid with the same K (bilinear,
+    border pixels that map outside the sensor take the nearest edge value). [F, H, W, D]."""
+    f, h, w, d = frames.shape
+    u, v = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
+    xy = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1]], -1)
+    xyd = distort_normalized(xy, dist)
+    src_u = xyd[..., 0] * K[0, 0] + K[0, 2] - 0.5  # array index space
+    src_v = xyd[..., 1] * K[1, 1] + K[1, 2] - 0.5
+    out = np.empty_like(frames)
+    for i in range(f):
+        for c in range(d):
+            out[i, :, :, c] = ndimage.map_coordinates(frames[i, :, :, c], [src_v, src_u], order=1, mode="nearest")
+    return np.clip(out, 0.0, 1.0).astype(np.float32)
+
+
+def undistort_events(ev: EventStream, K: np.ndarray, dist: np.ndarray) -> tuple[EventStream, int]:
+    """Move each event to the ideal pixel containing its undistorted pixel centre; events that
+    leave the sensor are dropped. Returns (events, number dropped)."""
+    w, h = ev.width, ev.height
+    u, v = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
+    xyd = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1]], -1)
+    xy = undistort_normalized(xyd, dist)
+    nu = np.floor(xy[..., 0] * K[0, 0] + K[0, 2]).astype(np.int64)
+    nv = np.floor(xy[..., 1] * K[1, 1] + K[1, 2]).astype(np.int64)
+    ex, ey = nu[ev.y, ev.x], nv[ev.y, ev.x]
+    keep = (ex >= 0) & (ex < w) & (ey >= 0) & (ey < h)
+    out = EventStream(ev.t[keep], ex[keep], ey[keep], ev.p[keep], w, h)
+    object.__setattr__(out, "t0", ev.t0)
+    return out, int((~keep).sum())

@@ -1,0 +1,87 @@
+"""Typed, early validation of the public inputs; every error names the argument."""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+
+def _check_tensor(name: str, x: object, ndim: int, tail: tuple[int | None, ...], like: Tensor | None = None) -> Tensor:
+    if not isinstance(x, Tensor):
+        raise ValueError(f"{name}: expected a torch.Tensor, got {type(x).__name__}")
+    if x.dim() != ndim:
+        raise ValueError(f"{name}: expected {ndim} dimensions, got shape {tuple(x.shape)}")
+    for i, want in enumerate(tail):
+        got = x.shape[ndim - len(tail) + i]
+        if want is not None and got != want:
+            shape = ", ".join("*" if w is None else str(w) for w in tail)
+            raise ValueError(f"{name}: expected shape [..., {shape}], got {tuple(x.shape)}")
+    if not x.is_floating_point():
+        raise ValueError(f"{name}: expected a floating-point tensor, got dtype {x.dtype}")
+    if x.dtype not in (torch.float32, torch.float64):
+        raise ValueError(f"{name}: expected float32 or float64, got {x.dtype}")
+    if like is not None:
+        if x.dtype != like.dtype:
+            raise ValueError(f"{name}: dtype {x.dtype} differs from means' dtype {like.dtype}")
+        if x.device != like.device:
+            raise ValueError(f"{name}: device {x.device} differs from means' device {like.device}")
+    if not bool(torch.isfinite(x).all()):
+        raise ValueError(f"{name}: contains non-finite values (nan or inf)")
+    return x
+
+
+def validate_inputs(
+    means: Tensor,  # [N, 3]
+    quats: Tensor,  # [N, 4]
+    scales: Tensor,  # [N, 3]
+    opacities: Tensor,  # [N]
+    colors: Tensor,  # [N, D]
+    viewmats: Tensor,  # [C, 4, 4]
+    Ks: Tensor,  # [C, 3, 3]
+    width: int,
+    height: int,
+    background: Tensor | None,  # [D]
+) -> None:
+    """Raise ValueError naming the first argument that is not what `rasterize` expects."""
+    for name, v in (("width", width), ("height", height)):
+        if isinstance(v, bool) or not isinstance(v, int):
+            raise ValueError(f"{name}: expected a Python int, got {type(v).__name__}")
+        if v <= 0:
+            raise ValueError(f"{name}: must be positive, got {v}")
+    _check_tensor("means", means, 2, (3,))
+    n = means.shape[0]
+    _check_tensor("quats", quats, 2, (4,), means)
+    _check_tensor("scales", scales, 2, (3,), means)
+    _check_tensor("opacities", opacities, 1, (), means)
+    _check_tensor("colors", colors, 2, (None,), means)
+    _check_tensor("viewmats", viewmats, 3, (4, 4), means)
+    _check_tensor("Ks", Ks, 3, (3, 3), means)
+    for name, x in (("quats", quats), ("scales", scales), ("opacities", opacities), ("colors", colors)):
+        if x.shape[0] != n:
+            raise ValueError(f"{name}: expected {n} rows (one per Gaussian, as means), got shape {tuple(x.shape)}")
+    if colors.shape[1] < 1:
+        raise ValueError(f"colors: expected at least one channel, got shape {tuple(colors.shape)}")
+    c = viewmats.shape[0]
+    if c < 1:
+        raise ValueError("viewmats: expected at least one camera, got shape [0, 4, 4]")
+    if Ks.shape[0] != c:
+        raise ValueError(f"Ks: expected {c} cameras (as viewmats), got shape {tuple(Ks.shape)}")
+    if background is not None:
+        _check_tensor("background", background, 1, (), means)
+        if background.shape[0] != colors.shape[1]:
+            raise ValueError(
+                f"background: expected {colors.shape[1]} channels (as colors), got shape {tuple(background.shape)}")
+    if n > 0:
+        if bool((scales <= 0).any()):
+            raise ValueError("scales: must be > 0 (activated scales, not logs)")
+        if bool(((opacities < 0) | (opacities > 1)).any()):
+            raise ValueError("opacities: must lie in [0, 1] (activated opacities, not logits)")
+        if bool((quats.norm(dim=-1) == 0).any()):
+            raise ValueError("quats: a quaternion has zero norm")
+    if bool((viewmats[:, 3, :3] != 0).any()) or bool((viewmats[:, 3, 3] != 1).any()):
+        raise ValueError("viewmats: the last row of every 4x4 must be [0, 0, 0, 1]")
+    if bool((Ks[:, 0, 0] <= 0).any()) or bool((Ks[:, 1, 1] <= 0).any()):
+        raise ValueError("Ks: focal lengths fx = K[0, 0] and fy = K[1, 1] must be > 0")
+    if bool((Ks[:, 0, 1] != 0).any()) or bool((Ks[:, 1, 0] != 0).any()) or bool((Ks[:, 2, :2] != 0).any()) \
+            or bool((Ks[:, 2, 2] != 1).any()):
+        raise ValueError("Ks: expected [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] (no skew)")

@@ -1,0 +1,23 @@
+"""Numerical constants of the rasteriser (gsplat "classic" mode).
+
+Every path (the torch reference, the numba kernels and the brute-force compositor in the
+tests) uses exactly these values.
+"""
+
+ALPHA_MAX = 0.999
+"""alpha = min(ALPHA_MAX, o * exp(-sigma)): keeps 1 - alpha >= 1e-3 so T can be recovered by division."""
+
+ALPHA_MIN = 1.0 / 255.0
+"""A Gaussian whose alpha at a pixel is below this is skipped at that pixel."""
+
+T_MIN = 1e-4
+"""A pixel stops before the Gaussian that would bring its transmittance T to T_MIN or below."""
+
+COV2D_BLUR = 0.3
+"""Added to the diagonal of every projected 2D covariance, in px^2 (low-pass / anti-alias)."""
+
+NEAR = 0.01
+"""Gaussians whose camera-space depth z is not greater than NEAR (scene units) are culled."""
+
+TILE = 16
+"""Tile edge in pixels for the tiled paths (16 x 16 tiles)."""

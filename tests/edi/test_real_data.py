@@ -1,0 +1,110 @@
+"""Real recordings from ../shared/data (skipped with a reason when absent)."""
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import edi
+from edi import LOG_EPS
+
+SHARED = Path(__file__).parents[2].parent / "shared" / "data"
+STREET = SHARED / "davis346_street" / "davis346_street.aedat4"
+NI = SHARED / "ni_joint_blur"
+needs_street = pytest.mark.skipif(not STREET.exists(), reason=f"real data not found: {STREET}")
+needs_ni = pytest.mark.skipif(not NI.exists(), reason=f"real data not found: {NI}")
+
+
+@pytest.fixture(scope="module")
+def street():
+    return edi.read_aedat4(STREET)
+
+
+@needs_street
+def test_street_reads_frames_and_events(street):
+    assert street.frames.shape == (59, 260, 346, 1) and street.frames.dtype == np.float32
+    assert len(street.events) == 78_830 and (street.events.width, street.events.height) == (346, 260)
+    assert street.t0 > 10**15 and street.events.t0 == street.t0  # epoch us, subtracted exactly
+    ex = street.exposures
+    assert ex.shape == (59, 2) and np.allclose(ex[:, 1] - ex[:, 0], 0.0005) and (np.diff(ex[:, 0]) > 0).all()
+    assert 0.0 <= street.events.t[0] * 1e-6 < 0.05 and street.events.t[-1] * 1e-6 < 2.5
+
+
+@needs_street
+def test_street_events_predict_the_next_frame(street):
+    fr, ex, ev = street.frames[..., 0].astype(np.float64), street.exposures, street.events
+    c, rep = edi.estimate_c(fr, ex, ev, return_report=True)
+    assert rep.method == "consistency" and 0.05 < c < 1.0
+    centres = ex.mean(axis=1)
+    err_pred, err_hold, n = 0.0, 0.0, 0
+    for k in range(len(fr) - 1):
+        win = ev.slice_time(centres[k], centres[k + 1])
+        fired = (win.count_image(1) + win.count_image(-1)) > 0
+        ok = fired & (fr[k] < edi.SATURATION) & (fr[k + 1] < edi.SATURATION)
+        if not ok.any():
+            continue
+        lk, lk1 = np.log(fr[k] + LOG_EPS), np.log(fr[k + 1] + LOG_EPS)
+        pred = lk + c * win.count_image().astype(np.float64)
+        err_pred += float(np.abs(pred - lk1)[ok].sum())
+        err_hold += float(np.abs(lk - lk1)[ok].sum())
+        n += int(ok.sum())
+    assert n > 1000
+    assert err_pred < 0.95 * err_hold, (err_pred / n, err_hold / n)
+
+
+def _gradient_energy(img):
+    gy, gx = np.gradient(np.asarray(img, np.float64))
+    return float(np.mean(gx**2 + gy**2))
+
+
+@needs_ni
+@pytest.mark.parametrize("name", ["keyboard", "toy", "text_cambridge", "badminton", "night_run", "low_light_model1"])
+def test_ni_joint_blur_gets_sharper(name):
+    from skimage import io
+
+    png = NI / (name.rstrip("12") + ".png" if name.startswith("low_light") else name + ".png")
+    B = io.imread(png).astype(np.float64) / 255.0
+    ev = edi.read_events(NI / f"{name}.mat", width=B.shape[1], height=B.shape[0])
+    ex = (ev.t[0] * 1e-6, (ev.t[-1] + 1) * 1e-6)  # no exposure stored: the span of the events
+    L, rep = edi.deblur(B, ex, ev, return_report=True)
+    assert np.isfinite(L).all() and L.shape == B.shape
+    assert rep.num_events == len(ev)
+    # measured gains: 1.1 (night_run, mostly black) to 35 (badminton). The single-frame c
+    # estimate often runs to the bracket's top on these frames (see the edi report), so the
+    # gain is partly noise: judge the images by eye as well (ebad deblur writes them).
+    assert _gradient_energy(L) > 1.1 * _gradient_energy(B)
+
+
+@needs_ni
+def test_cli_deblur_frame_and_mat_events(tmp_path):
+    import json
+
+    from skimage import io
+
+    from ebad.cli import main
+
+    out = tmp_path / "out"
+    rc = main(["deblur", str(NI / "toy.png"), "--events", str(NI / "toy.mat"), "--out", str(out), "--c", "0.25", "--times", "3"])
+    assert rc == 0
+    sharp = io.imread(out / "sharp" / "toy.png")
+    assert sharp.shape == (260, 346) and sharp.dtype == np.uint8
+    assert io.imread(out / "side_by_side" / "toy.png").shape == (260, 692)
+    assert sorted(p.name for p in (out / "instants").iterdir()) == ["toy_00.png", "toy_01.png", "toy_02.png"]
+    meta = json.loads((out / "c.json").read_text())
+    assert meta["frames"][0]["c_pos"] == 0.25 and meta["frames"][0]["num_events"] == 27594
+
+
+@needs_street
+def test_cli_deblur_aedat4_and_bad_arguments(tmp_path, capsys):
+    import json
+
+    from ebad.cli import main
+
+    out = tmp_path / "street"
+    assert main(["deblur", str(STREET), "--out", str(out), "--max-frames", "4"]) == 0
+    meta = json.loads((out / "c.json").read_text())
+    assert len(meta["frames"]) == 4 and meta["frames"][0]["c_pos"] is None  # no events: returned B
+    assert len(list((out / "sharp").iterdir())) == 4
+    assert main(["deblur", str(STREET), "--out", str(out), "--c", "-1"]) == 2
+    assert "--c must be" in capsys.readouterr().err
+    assert main(["deblur", str(NI / "toy.png"), "--out", str(out)]) == 2
+    assert "needs --events" in capsys.readouterr().err

@@ -1,0 +1,271 @@
+"""ebad-capture/1: lossless round trip, atomic writes, errors that name the file and the field."""
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+import scenes.format as fmt
+from edi import EventStream
+from scenes import Capture, CaptureError, TestView, load, save
+from scenes.images import quantize
+from scenes.synth import look_at
+
+
+def _capture(rgb=False, quantised=True, seed=0, f=3, h=12, w=16):
+    rng = np.random.default_rng(seed)
+    d = 3 if rgb else 1
+    frames = rng.uniform(0, 1, (f, h, w, d)).astype(np.float32)
+    if quantised:
+        frames = quantize(frames)
+    m = 400
+    ev = EventStream(np.sort(rng.integers(0, 300_000, m)), rng.integers(0, w, m), rng.integers(0, h, m),
+                     rng.integers(0, 2, m), w, h)
+    object.__setattr__(ev, "t0", 1_600_000_000_000_000)
+    c2w = np.stack([look_at(rng.normal(size=3), np.array([0.0, 0.0, 4.0]) + rng.normal(size=3) * 0.1)
+                    for _ in range(f)])
+    exps = np.stack([np.arange(f) * 0.1 + 0.01, np.arange(f) * 0.1 + 0.0437], 1)
+    exps[1, 1] = exps[1, 0]  # one sharp frame
+    tv = [TestView("held_0", 0.123456789, c2w[0] @ look_at(np.zeros(3), np.array([0.1, 0, 1.0])),
+                   rng.uniform(0, 1, (h, w, d)).astype(np.float32)),
+          TestView("held_1", 0.2, c2w[1], None)]
+    K = np.array([[20.5, 0, 8.1], [0, 21.25, 6.3], [0, 0, 1.0]])
+    return Capture(frames=frames, exposures=exps, events=ev, K=K, distortion=np.array([0.1, -0.01, 1e-3, 2e-4, 0.0]),
+                   c2w=c2w, split=["train", "test", "train"][:f], test_views=tv, names=[f"f{i}" for i in range(f)],
+                   meta={"c": 0.2, "note": "x", "arr": np.arange(3)})
+
+
+def _assert_same(a: Capture, b: Capture, meta=True):
+    np.testing.assert_array_equal(a.frames, b.frames)
+    assert a.frames.dtype == b.frames.dtype == np.float32
+    np.testing.assert_array_equal(a.exposures, b.exposures)
+    for k in "txyp":
+        np.testing.assert_array_equal(getattr(a.events, k), getattr(b.events, k))
+    assert (a.events.width, a.events.height, a.events.t0) == (b.events.width, b.events.height, b.events.t0)
+    np.testing.assert_array_equal(a.K, b.K)
+    np.testing.assert_array_equal(a.distortion, b.distortion)
+    np.testing.assert_array_equal(a.c2w, b.c2w)
+    assert a.split == b.split and a.names == b.names
+    assert len(a.test_views) == len(b.test_views)
+    for x, y in zip(a.test_views, b.test_views):
+        assert x.name == y.name and x.t == y.t
+        np.testing.assert_array_equal(x.c2w, y.c2w)
+        if x.image is None:
+            assert y.image is None
+        else:
+            np.testing.assert_array_equal(x.image, y.image)
+    if meta:
+        assert b.meta == {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in a.meta.items()}
+
+
+@pytest.mark.parametrize("rgb, quantised", [(False, True), (True, True), (False, False), (True, False)])
+def test_save_load_round_trip_is_lossless(tmp_path, rgb, quantised):
+    cap = _capture(rgb=rgb, quantised=quantised)
+    save(cap, tmp_path / "cap")
+    back = load(tmp_path / "cap", undistort=False)
+    _assert_same(cap, back)
+    again = tmp_path / "again"
+    save(back, again)
+    _assert_same(back, load(again, undistort=False))
+    files = sorted(p.suffix for p in (tmp_path / "cap" / "frames").iterdir())
+    assert set(files) == ({".png"} if quantised else {".npy"})
+
+
+def test_sixteen_bit_grey_png_is_used_when_exact(tmp_path):
+    cap = _capture()
+    cap.frames = (np.round(cap.frames * 0 + np.random.default_rng(0).uniform(0, 1, cap.frames.shape) * 65535)
+                  .astype(np.float32) / np.float32(65535)).astype(np.float32)
+    save(cap, tmp_path / "c")
+    png = next((tmp_path / "c" / "frames").iterdir())
+    assert png.suffix == ".png" and Image.open(png).mode.startswith("I")
+    _assert_same(cap, load(tmp_path / "c", undistort=False))
+
+
+def test_load_undistorts_by_default(tmp_path):
+    cap = _capture()
+    save(cap, tmp_path / "c")
+    back = load(tmp_path / "c")
+    assert back.distortion is None and back.meta["undistorted"] is True
+    assert back.frames.shape == cap.frames.shape
+    assert not np.array_equal(back.frames, cap.frames)
+
+
+def _leftovers(parent: Path, name: str):
+    return [p.name for p in parent.iterdir() if p.name.startswith(f".{name}.")]
+
+
+def test_save_invalid_capture_writes_nothing(tmp_path):
+    cap = _capture()
+    cap.c2w[1, 0, 0] = 2.0
+    with pytest.raises(CaptureError, match=r"frames\[1\]\.c2w.*rigid"):
+        save(cap, tmp_path / "bad")
+    assert not (tmp_path / "bad").exists() and not _leftovers(tmp_path, "bad")
+
+
+def test_save_failing_midway_leaves_nothing(tmp_path, monkeypatch):
+    cap = _capture()
+    calls = []
+
+    def boom(path, img):
+        calls.append(path)
+        if len(calls) == 2:
+            raise OSError("disk full")
+        return real(path, img)
+
+    real = fmt.write_image
+    monkeypatch.setattr(fmt, "write_image", boom)
+    with pytest.raises(OSError, match="disk full"):
+        save(cap, tmp_path / "cap")
+    assert not (tmp_path / "cap").exists() and not _leftovers(tmp_path, "cap")
+
+
+def test_save_refuses_to_clobber_unless_asked(tmp_path):
+    cap = _capture()
+    save(cap, tmp_path / "c")
+    with pytest.raises(CaptureError, match="already exists"):
+        save(cap, tmp_path / "c")
+    cap2 = _capture(seed=1)
+    save(cap2, tmp_path / "c", overwrite=True)
+    _assert_same(cap2, load(tmp_path / "c", undistort=False))
+    assert not _leftovers(tmp_path, "c")
+
+
+@pytest.fixture
+def saved(tmp_path):
+    save(_capture(), tmp_path / "c")
+    root = tmp_path / "c"
+    return root, json.loads((root / "capture.json").read_text())
+
+
+def _rewrite(root, doc):
+    (root / "capture.json").write_text(json.dumps(doc))
+
+
+def test_missing_t_end_names_file_and_field(saved):
+    root, doc = saved
+    del doc["frames"][2]["t_end"]
+    _rewrite(root, doc)
+    with pytest.raises(CaptureError) as e:
+        load(root)
+    assert "capture.json" in str(e.value) and "frames[2].t_end" in str(e.value) and "missing" in str(e.value)
+    assert e.value.field == "frames[2].t_end"
+
+
+def test_frame_of_wrong_size_names_file_and_field(saved):
+    root, doc = saved
+    Image.fromarray(np.zeros((5, 7), np.uint8)).save(root / doc["frames"][1]["file"])
+    with pytest.raises(CaptureError, match=r"f1\.png.*frames\[1\]\.file.*7x5"):
+        load(root)
+
+
+def test_unreadable_image_names_file_and_field(saved):
+    root, doc = saved
+    (root / doc["frames"][0]["file"]).write_bytes(b"not a png")
+    with pytest.raises(CaptureError, match=r"f0\.png.*frames\[0\]\.file.*unreadable"):
+        load(root)
+
+
+def test_missing_image_names_file(saved):
+    root, doc = saved
+    (root / doc["frames"][0]["file"]).unlink()
+    with pytest.raises(CaptureError, match=r"f0\.png.*not found"):
+        load(root)
+
+
+def _rewrite_events(root, **over):
+    z = dict(np.load(root / "events.npz"))
+    z.update(over)
+    np.savez(root / "events.npz", **z)
+
+
+def test_events_outside_sensor_name_file_and_field(saved):
+    root, _ = saved
+    z = dict(np.load(root / "events.npz"))
+    x = z["x"].astype(np.int32)
+    x[7] = 16
+    _rewrite_events(root, x=x)
+    with pytest.raises(CaptureError, match=r"events\.npz.*'x' is outside the sensor at index 7"):
+        load(root)
+
+
+def test_unsorted_events_name_file_and_field(saved):
+    root, _ = saved
+    z = dict(np.load(root / "events.npz"))
+    t = z["t"].copy()
+    t[10], t[11] = t[11] + 5, t[10]
+    _rewrite_events(root, t=t)
+    with pytest.raises(CaptureError, match=r"events\.npz.*'t' is not sorted"):
+        load(root)
+
+
+def test_non_finite_event_time(saved):
+    root, doc = saved
+    z = dict(np.load(root / "events.npz"))
+    t = z["t"].astype(np.float64)
+    t[3] = np.nan
+    _rewrite_events(root, t=t)
+    with pytest.raises(CaptureError, match=r"events\.npz.*non-finite"):
+        load(root)
+
+
+def test_pose_not_rigid_names_field(saved):
+    root, doc = saved
+    doc["frames"][0]["c2w"][0][0] = 1.5
+    _rewrite(root, doc)
+    with pytest.raises(CaptureError, match=r"capture\.json.*frames\[0\]\.c2w.*rigid"):
+        load(root)
+
+
+@pytest.mark.parametrize("edit, field", [
+    (lambda d: d.pop("format"), "format"),
+    (lambda d: d.update(format="other/2"), "format"),
+    (lambda d: d["intrinsics"].pop("fy"), "intrinsics.fy"),
+    (lambda d: d.update(width=-3), "width"),
+    (lambda d: d["frames"][1].update(t_start="soon"), r"frames\[1\]\.t_start"),
+    (lambda d: d["frames"][1].update(t_end=-1.0), r"frames\[1\]\.t_end"),
+    (lambda d: d["frames"][2].pop("c2w"), r"frames\[2\]\.c2w"),
+    (lambda d: d["events"].update(t_unit="fortnights"), r"events\.t_unit"),
+    (lambda d: d["test_views"][0].pop("t"), r"test_views\[0\]\.t"),
+    (lambda d: d.update(distortion=[1, 2]), "distortion"),
+])
+def test_bad_json_fields(saved, edit, field):
+    root, doc = saved
+    edit(doc)
+    _rewrite(root, doc)
+    with pytest.raises(CaptureError, match=rf"capture\.json.*{field}"):
+        load(root)
+
+
+def test_event_time_units_are_converted(saved):
+    root, doc = saved
+    z = dict(np.load(root / "events.npz"))
+    ref = z["t"].copy()
+    _rewrite_events(root, t=z["t"].astype(np.float64) * 1e-6)
+    doc["events"]["t_unit"] = "s"
+    _rewrite(root, doc)
+    np.testing.assert_array_equal(load(root).events.t, ref)
+
+
+def test_unknown_layout_and_missing_path(tmp_path):
+    with pytest.raises(CaptureError, match="no such file"):
+        load(tmp_path / "nothing")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(CaptureError, match="layout not recognised"):
+        load(tmp_path / "empty")
+
+
+def test_capture_validate_catches_bad_in_memory_fields():
+    cap = _capture()
+    cap.frames = cap.frames.astype(np.float64)
+    with pytest.raises(CaptureError, match="frames.*float32"):
+        cap.validate()
+    cap = _capture()
+    cap.exposures = cap.exposures[:2]
+    with pytest.raises(CaptureError, match="exposures"):
+        cap.validate()
+    cap = _capture()
+    cap.K = np.eye(3) * -1
+    with pytest.raises(CaptureError, match="K"):
+        cap.validate()
