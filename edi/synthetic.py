@@ -69,8 +69,13 @@ def moving_texture(
     lo: float = 0.05,
     hi: float = 0.9,
     gain: float = 3.0,
+    sigma_c: float = 0.0,
 ) -> SyntheticSequence:
-    """A seeded sequence of ``num_frames`` blurry frames, their exposures and ideal events."""
+    """A seeded sequence of ``num_frames`` blurry frames, their exposures and ideal events.
+
+    ``sigma_c`` > 0 draws every pixel's C+ and C- independently around ``c`` (std sigma_c,
+    at least c / 4), like a real sensor's mismatch; 0 gives every pixel exactly ``c``.
+    """
     rng = np.random.default_rng(seed)
     K = 12
     radius = rng.uniform(0.03, 0.16, K)  # cycles per pixel: periods of 6 to 33 px
@@ -80,6 +85,11 @@ def moving_texture(
     amps = rng.uniform(0.5, 1.0, K) / np.sqrt(K) * 2.0
     tex = Texture(height, width, channels, freqs, phases, amps, tuple(velocity), lo, hi, gain)
     c_pos, c_neg = (float(c), float(c)) if np.isscalar(c) else (float(c[0]), float(c[1]))
+    c_pos_px = np.full((height, width), c_pos)
+    c_neg_px = np.full((height, width), c_neg)
+    if sigma_c > 0:
+        c_pos_px = np.maximum(c_pos + sigma_c * rng.standard_normal((height, width)), c_pos / 4)
+        c_neg_px = np.maximum(c_neg + sigma_c * rng.standard_normal((height, width)), c_neg / 4)
 
     t_end_us = int(round(((num_frames - 1) * period + exposure) * 1e6))
     steps = np.arange(0, t_end_us + step_us, step_us, dtype=np.int64)
@@ -91,9 +101,9 @@ def moving_texture(
         images[int(tj)] = img
         lg = np.log(img.mean(axis=-1) + LOG_EPS)
         d = lg - ref
-        n_up = np.floor(np.maximum(d, 0) / c_pos).astype(np.int64)
-        n_dn = np.floor(np.maximum(-d, 0) / c_neg).astype(np.int64)
-        ref = ref + n_up * c_pos - n_dn * c_neg
+        n_up = np.floor(np.maximum(d, 0) / c_pos_px).astype(np.int64)
+        n_dn = np.floor(np.maximum(-d, 0) / c_neg_px).astype(np.int64)
+        ref = ref + n_up * c_pos_px - n_dn * c_neg_px
         for n, pol in ((n_up, 1), (n_dn, -1)):
             yy, xx = np.nonzero(n)
             reps = n[yy, xx]

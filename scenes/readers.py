@@ -292,7 +292,12 @@ def load_evdeblurnerf(root: Path) -> Capture:
         events = read_events(ev_file, width=w, height=h)
     except (ValueError, OSError) as exc:
         raise CaptureError(str(ev_file), "events", str(exc)) from None
-    return Capture(frames=frames, exposures=np.stack([start, end], 1).astype(np.float64), events=events, K=K,
-                   c2w=c2w, split=["train"] * f, names=[p.stem for p in files],
-                   meta={"source_layout": "evdeblurnerf", "source": str(root),
-                         "bounds": pb[:, 15:17].tolist()})
+    exps = np.stack([np.asarray(start, np.float64).reshape(-1), np.asarray(end, np.float64).reshape(-1)], 1)
+    if exps.shape != (f, 2) or not np.isfinite(exps).all():
+        raise CaptureError(str(ts_path), "start", f"need {f} finite start and end times, got shape {exps.shape}")
+    meta = {"source_layout": "evdeblurnerf", "source": str(root), "bounds": pb[:, 15:17].tolist()}
+    if exps.max() > 1e3:  # not seconds of a short capture: microseconds on the events' raw clock
+        exps = (exps - events.t0) * 1e-6
+        meta["timestamps_unit"] = "us (converted to seconds on the events' clock)"
+    return Capture(frames=frames, exposures=exps, events=events, K=K, c2w=c2w, split=["train"] * f,
+                   names=[p.stem for p in files], meta=meta)

@@ -23,6 +23,25 @@ _LOG_ALPHA_MIN = math.log(ALPHA_MIN)
 _REJECT_SLACK = 1e-3  # sigma beyond ln(o / ALPHA_MIN) + slack: alpha < ALPHA_MIN for sure, skip the exp
 
 
+@njit(cache=True, inline="always")
+def _row_span(mx, dy, ca, cb, cc, thr, px0, xa, xb):
+    """Columns lx in [xa, xb] of one row (offset dy = my - y) where sigma <= thr can hold.
+
+    sigma(dx) = 0.5 ca dx^2 + cb dy dx + 0.5 cc dy^2 with dx = mx - (px0 + lx + 0.5); the
+    quadratic's roots bound the span. thr carries slack, so no pixel with alpha >= ALPHA_MIN
+    is left out; every pixel is still checked exactly.
+    """
+    disc = (cb * dy) ** 2 - ca * (cc * dy * dy - 2.0 * thr)
+    if disc < 0.0 or ca <= 0.0:
+        return 1, 0
+    r = math.sqrt(disc)
+    dx_lo = (-cb * dy - r) / ca
+    dx_hi = (-cb * dy + r) / ca
+    lo = math.ceil(mx - dx_hi - 0.5 - px0)
+    hi = math.floor(mx - dx_lo - 0.5 - px0)
+    return max(xa, int(lo)) if lo > xa else xa, min(xb, int(hi)) if hi < xb else xb
+
+
 @njit(cache=True)
 def bin_tiles(
     order,  # [C, N] int64: per camera, Gaussian indices front to back (first n_valid[c] are valid)
@@ -107,7 +126,8 @@ def forward_tiles(
             yb = min(pix_box[cam, g, 3] - py0, ph - 1)
             for ly in range(ya, yb + 1):
                 dy = my - (py0 + ly + 0.5)
-                for lx in range(xa, xb + 1):
+                xl, xr = _row_span(mx, dy, ca, cb, cc, thr, px0, xa, xb)
+                for lx in range(xl, xr + 1):
                     i = ly * TILE + lx
                     if done[i]:
                         continue
@@ -211,7 +231,8 @@ def backward_tiles(
             hit = False
             for ly in range(ya, yb + 1):
                 dy = my - (py0 + ly + 0.5)
-                for lx in range(xa, xb + 1):
+                xl, xr = _row_span(mx, dy, ca, cb, cc, thr, px0, xa, xb)
+                for lx in range(xl, xr + 1):
                     i = ly * TILE + lx
                     if k > last[i]:
                         continue

@@ -93,3 +93,51 @@ def test_aedat4_loads_when_edi_reader_exists():
     assert cap.c2w is None and cap.meta["K_guessed"]
     assert np.all(cap.exposures[:, 1] >= cap.exposures[:, 0])
     assert len(cap.events) > 0
+
+
+def _write_evdeblurnerf(root: Path, cap, t_scale=1.0):
+    """An EvDeblurNeRF-style folder from a Capture (LLFF poses: columns down, right, backwards)."""
+    import h5py
+    from PIL import Image
+
+    (root / "images_1").mkdir(parents=True)
+    f, h, w, _ = cap.frames.shape
+    rows = []
+    for i in range(f):
+        c = cap.c2w[i]
+        r = np.stack([c[:3, 1], c[:3, 0], -c[:3, 2]], 1)
+        m = np.concatenate([r, c[:3, 3:4], np.array([[h], [w], [cap.K[0, 0]]])], 1)
+        rows.append(np.concatenate([m.ravel(), [0.5, 20.0]]))
+        Image.fromarray(np.round(cap.frames[i, ..., 0] * 255).astype(np.uint8)).save(root / "images_1" / f"{i:03d}.png")
+    np.save(root / "poses_bounds.npy", np.array(rows))
+    np.savez(root / "images_1" / "timestamps.npz", start=cap.exposures[:, 0] * t_scale, end=cap.exposures[:, 1] * t_scale)
+    with h5py.File(root / "events.h5", "w") as hf:
+        g = hf.create_group("events")
+        for k in "txyp":
+            g[k] = getattr(cap.events, k)
+        hf["width"], hf["height"] = w, h
+
+
+def test_evdeblurnerf_folder_loads(tmp_path):
+    from scenes import make_scene
+
+    cap = make_scene("boxes", "tiny", n_frames=3, n_test=0).capture
+    _write_evdeblurnerf(tmp_path / "e", cap)
+    assert detect_layout(tmp_path / "e") == "evdeblurnerf"
+    back = load(tmp_path / "e")
+    np.testing.assert_array_equal(back.frames, cap.frames)
+    np.testing.assert_allclose(back.c2w, cap.c2w, atol=1e-12)
+    np.testing.assert_allclose(back.K, cap.K)
+    np.testing.assert_allclose(back.exposures, cap.exposures)
+    np.testing.assert_array_equal(back.events.t, cap.events.t)
+    assert back.meta["bounds"][0] == [0.5, 20.0]
+
+
+def test_evdeblurnerf_missing_end_times_names_file_and_field(tmp_path):
+    from scenes import make_scene
+
+    cap = make_scene("boxes", "tiny", n_frames=2, n_test=0).capture
+    _write_evdeblurnerf(tmp_path / "e", cap)
+    np.savez(tmp_path / "e" / "images_1" / "timestamps.npz", start=cap.exposures[:, 0])
+    with pytest.raises(CaptureError, match=r"timestamps\.npz.*'end'.*missing"):
+        load(tmp_path / "e")
