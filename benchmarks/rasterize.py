@@ -11,6 +11,10 @@ Scene: N random Gaussians filling the view frustum at depth 2..6, scales log-uni
 are small translations of each other (the virtual views of one exposure). Timings are
 medians of repeated runs after one warm-up call, and noisy on a shared machine: compare the
 ratio column, taken in the same run.
+
+The measuring subprocesses run with OMP_WAIT_POLICY=PASSIVE unless --omp-wait-policy says
+otherwise: torch's and numba's OpenMP pools otherwise spin-wait between parallel regions, and
+on a 2-core machine shared with other work that spinning slowed forward+backward 5-15x.
 """
 
 from __future__ import annotations
@@ -109,10 +113,13 @@ def measure_one(cfg: dict) -> dict:
     }
 
 
-def _run_sub(cfg: dict, timeout: float) -> dict:
+def _run_sub(cfg: dict, timeout: float, wait_policy: str) -> dict:
     cmd = [sys.executable, __file__, "--one", json.dumps(cfg)]
+    env = dict(os.environ)
+    if wait_policy != "default":
+        env["OMP_WAIT_POLICY"] = wait_policy
     try:
-        out = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
+        out = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env)
     except subprocess.TimeoutExpired:
         return {**cfg, "skipped": f"took more than {timeout:.0f} s"}
     if out.returncode != 0:
@@ -127,6 +134,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-reference", action="store_true", help="time only the fast path")
     ap.add_argument("--reps", type=int, default=5, help="timed repetitions per configuration (median reported)")
     ap.add_argument("--timeout", type=float, default=300.0, help="seconds before a configuration is skipped")
+    ap.add_argument("--omp-wait-policy", default="PASSIVE", choices=["PASSIVE", "ACTIVE", "default"],
+                    help="OMP_WAIT_POLICY of the measuring subprocesses ('default': inherit)")
     ap.add_argument("--one", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.one:
@@ -144,13 +153,14 @@ def main(argv: list[str] | None = None) -> int:
     print("-" * len(hdr))
     for w, h, n, c, d in configs:
         cfg = {"width": w, "height": h, "n": n, "c": c, "d": d, "reps": args.reps}
-        fast = _run_sub({**cfg, "path": "fast"}, args.timeout)
+        fast = _run_sub({**cfg, "path": "fast"}, args.timeout, args.omp_wait_policy)
         if args.no_reference:
             ref = {"skipped": "--no-reference"}
         elif n * w * h * c > REF_LIMIT:
             ref = {"skipped": "too slow for the torch reference (see REF_LIMIT)"}
         else:
-            ref = _run_sub({**cfg, "path": "reference", "reps": max(1, min(args.reps, 2))}, args.timeout)
+            ref = _run_sub({**cfg, "path": "reference", "reps": max(1, min(args.reps, 2))}, args.timeout,
+                           args.omp_wait_policy)
         ratio = ref["fwd_bwd_ms"] / fast["fwd_bwd_ms"] if "fwd_bwd_ms" in ref and "fwd_bwd_ms" in fast else None
         rows.append({"config": cfg, "fast": fast, "reference": ref, "ratio_fwd_bwd": ratio})
 
@@ -163,10 +173,12 @@ def main(argv: list[str] | None = None) -> int:
     notes = sorted({r["reference"]["skipped"] for r in rows if "skipped" in r["reference"]})
     for note in notes:
         print(f"reference skipped: {note}")
-    print("times in ms (median), MB = peak resident memory of the measuring process (torch + numba included)")
+    print("times in ms (median), MB = peak resident memory of the measuring process (torch + numba included); "
+          f"OMP_WAIT_POLICY={args.omp_wait_policy}")
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"rows": rows, "cpu_count": os.cpu_count(), "quick": args.quick}, indent=1))
+    out.write_text(json.dumps({"rows": rows, "cpu_count": os.cpu_count(), "quick": args.quick,
+                                "omp_wait_policy": args.omp_wait_policy, "load_avg": os.getloadavg()}, indent=1))
     print(f"wrote {out}")
     return 0
 

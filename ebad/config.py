@@ -31,6 +31,8 @@ PoseSource = Literal["auto", "capture", "colmap"]
 class ModelConfig:
     """The Gaussians and how they start."""
 
+    init: Literal["stereo", "random"] = "stereo"  # fallback without SfM points: plane-sweep stereo
+    #   between the posed frames (gaussians.plane_sweep_points) or random depths along pixel rays
     init_points: int = 3000  # Gaussians of the fallback initialisation (no SfM points)
     init_depth: tuple[float, float] | None = None  # fallback depth range (near, far) in world units;
     #   None: from capture.meta["depth_range"] when present, else (0.5, 2.0) x the camera-spread scale
@@ -51,6 +53,8 @@ class TrajectoryConfig:
     init_noise: float = 1e-3  # std of the initial start/end perturbation (radians; x scene scale for
     #   translation) that breaks the zero-motion symmetry of the blur loss
     lr: float = 2e-3  # Adam learning rate of the knots (radians; translations in scene-scale units)
+    anchor_mid: Literal["auto", "yes", "no"] = "auto"  # keep the mid-exposure pose fixed (learn only
+    #   the motion); auto: yes when the poses come with the capture (trusted), no after SfM
     pose_source: PoseSource = "auto"  # auto: capture poses when present, else pycolmap SfM
 
 
@@ -65,6 +69,8 @@ class LossConfig:
     ssim_weight: float = 0.2  # the 0.2 in 0.8 L1 + 0.2 (1 - SSIM)
     ssim_window: int = 7  # SSIM window (odd; small images need a small one)
     contrast: float | None = None  # event contrast threshold c; None: edi.estimate_c from the data
+    learn_contrast: bool = True  # refine c (as log c) jointly, through L_ev
+    lr_contrast: float = 1e-2  # Adam learning rate of log c
 
 
 @dataclass

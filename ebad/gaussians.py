@@ -20,7 +20,7 @@ from torch import Tensor, nn
 
 from .lie import viewmat_from_c2w
 
-__all__ = ["SH_C0", "init_params", "points_from_frames", "knn_scale", "activate", "render",
+__all__ = ["SH_C0", "init_params", "points_from_frames", "plane_sweep_points", "knn_scale", "activate", "render",
            "num_gaussians", "scene_scale"]
 
 SH_C0 = 0.28209479177387814
@@ -152,3 +152,75 @@ def render(
     viewmats = viewmat_from_c2w(c2w.float())
     return splat_cpu.rasterize(a["means"], a["quats"], a["scales"], a["opacities"], a["colors"],
                                viewmats, Ks, int(width), int(height), background=bg)
+
+
+def plane_sweep_points(
+    frames: np.ndarray,  # [F, H, W, D]
+    c2w: np.ndarray,  # [F, 4, 4]
+    K: np.ndarray,  # [3, 3]
+    n: int,
+    depth_range: tuple[float, float],
+    n_depths: int = 32,
+    neighbours: int = 2,
+    patch: int = 5,
+    scale_px: float = 1.0,
+    seed: int = 0,
+) -> tuple[Tensor, Tensor, Tensor]:  # points [n, 3], colors [n, D], scales [n]
+    """Initial points from plane-sweep stereo between the posed frames (no SfM needed).
+
+    For every frame and every pixel, ``n_depths`` fronto-parallel planes uniform in inverse
+    depth over ``depth_range`` are tried; a depth's cost is the patch-averaged absolute
+    difference to the ``neighbours`` nearest frames (by camera centre) warped onto it. Each
+    pixel keeps its cheapest depth; pixels are then drawn with probability growing with
+    their confidence (mean cost / best cost) and local contrast, and back-projected.
+    """
+    import torch.nn.functional as tF
+
+    near, far = depth_range
+    if not 0 < near < far:
+        raise ValueError(f"depth_range must satisfy 0 < near < far, got {depth_range}")
+    F, H, W, D = frames.shape
+    if F < 2:
+        return points_from_frames(frames, c2w, K, n, depth_range, scale_px * 1.5, seed)
+    img = torch.from_numpy(np.ascontiguousarray(frames)).float().permute(0, 3, 1, 2)  # [F, D, H, W]
+    c2w_t = torch.from_numpy(c2w).float()
+    K_t = torch.from_numpy(K).float()
+    Kinv = torch.linalg.inv(K_t)
+    depths = 1.0 / torch.linspace(1.0 / near, 1.0 / far, n_depths)
+    ys, xs = torch.meshgrid(torch.arange(H) + 0.5, torch.arange(W) + 0.5, indexing="ij")
+    rays = (Kinv @ torch.stack([xs, ys, torch.ones_like(xs)]).reshape(3, -1))  # [3, HW], z = 1
+    centres = c2w_t[:, :3, 3]
+    all_pts, all_cols, all_w, all_z = [], [], [], []
+    for f in range(F):
+        dist = (centres - centres[f]).norm(dim=1)
+        dist[f] = float("inf")
+        nb = torch.argsort(dist)[:min(neighbours, F - 1)]
+        costs = []
+        for d in depths:
+            pw = c2w_t[f, :3, :3] @ (rays * d) + c2w_t[f, :3, 3:]  # [3, HW]
+            cost = torch.zeros(1, 1, H, W)
+            for g in nb.tolist():
+                R, t = c2w_t[g, :3, :3], c2w_t[g, :3, 3:]
+                pc = R.T @ (pw - t)
+                uv = (K_t @ pc)[:2] / pc[2:].clamp_min(1e-6)
+                grid = torch.stack([uv[0] / W * 2 - 1, uv[1] / H * 2 - 1], -1).reshape(1, H, W, 2)
+                warped = tF.grid_sample(img[g:g + 1], grid, align_corners=False, padding_mode="border")
+                diff = (warped - img[f:f + 1]).abs().mean(1, keepdim=True)
+                outside = ((grid.abs() > 1).any(-1) | (pc[2] <= 0).reshape(1, H, W))[:, None]
+                cost = cost + torch.where(outside, torch.full_like(diff, 0.25), diff)
+            costs.append(tF.avg_pool2d(cost, patch, 1, patch // 2, count_include_pad=False))
+        costs = torch.cat(costs, 1)[0]  # [n_depths, H, W]
+        best, arg = costs.min(0)
+        conf = costs.mean(0) / best.clamp_min(1e-4)
+        gy, gx = torch.gradient(img[f].mean(0))
+        contrast = (gx.abs() + gy.abs())
+        z = depths[arg]  # [H, W]
+        all_pts.append((c2w_t[f, :3, :3] @ (rays * z.reshape(1, -1)) + c2w_t[f, :3, 3:]).T)
+        all_cols.append(img[f].reshape(D, -1).T)
+        all_w.append(((conf - 1).clamp_min(0) * (contrast + 0.02)).reshape(-1))
+        all_z.append(z.reshape(-1))
+    pts, cols, w, zz = torch.cat(all_pts), torch.cat(all_cols), torch.cat(all_w), torch.cat(all_z)
+    g = torch.Generator().manual_seed(seed)
+    w = w + 1e-6
+    idx = torch.multinomial(w / w.sum(), min(n, len(w)), replacement=False, generator=g)
+    return pts[idx], cols[idx], scale_px * zz[idx] / float(K[0, 0])

@@ -20,7 +20,8 @@ from torch import Tensor, nn
 
 from .config import Config, preset
 from .errors import UserError
-from .gaussians import activate, init_params, num_gaussians, points_from_frames, render, scene_scale
+from .gaussians import (activate, init_params, num_gaussians, plane_sweep_points, points_from_frames, render,
+                        scene_scale)
 from .losses import blur_loss, edi_loss, event_loss
 from .metrics import psnr, ssim
 from .strategy import make_strategy
@@ -227,8 +228,12 @@ def init_gaussians(problem: Problem, cfg: Config) -> dict[str, nn.Parameter]:
             cols = torch.full((len(problem.points), problem.frames.shape[-1]), 0.5)
         return init_params(problem.points, cols, opacity=mc.init_opacity)
     src = problem.latents if problem.latents is not None else problem.targets
-    pts, cols, scales = points_from_frames(src.numpy(), problem.c2w.double().numpy(), problem.K.double().numpy(),
-                                           mc.init_points, problem.depth_range, mc.init_scale_px, seed=cfg.train.seed)
+    args = (src.numpy(), problem.c2w.double().numpy(), problem.K.double().numpy(), mc.init_points,
+            problem.depth_range)
+    if mc.init == "stereo":
+        pts, cols, scales = plane_sweep_points(*args, scale_px=mc.init_scale_px, seed=cfg.train.seed)
+    else:
+        pts, cols, scales = points_from_frames(*args, scale_px=mc.init_scale_px, seed=cfg.train.seed)
     return init_params(pts, cols, scales, opacity=mc.init_opacity)
 
 
@@ -240,7 +245,7 @@ def max_gaussians(cfg: Config, problem: Problem) -> int:
 
 
 def make_optimizers(params: dict[str, nn.Parameter], traj: ExposureTrajectories, cfg: Config,
-                    scale: float) -> dict[str, torch.optim.Optimizer]:
+                    scale: float, log_c: nn.Parameter | None = None) -> dict[str, torch.optim.Optimizer]:
     """One Adam per Gaussian parameter (so densification can edit its moments) and one for poses."""
     tc = cfg.train
     lrs = {"means": tc.lr_means * scale, "scales": tc.lr_scales, "quats": tc.lr_quats,
@@ -248,12 +253,15 @@ def make_optimizers(params: dict[str, nn.Parameter], traj: ExposureTrajectories,
     opts = {k: torch.optim.Adam([params[k]], lr=lrs[k], eps=1e-15) for k in lrs}
     if traj.knots.numel() > 0 and bool(traj.moving.any()):
         opts["poses"] = torch.optim.Adam([traj.knots], lr=cfg.trajectory.lr)
+    if log_c is not None and log_c.requires_grad:
+        opts["contrast"] = torch.optim.Adam([log_c], lr=cfg.loss.lr_contrast)
     return opts
 
 
 # --------------------------------------------------------------------------- one step
 
-def frame_losses(problem: Problem, params, traj: ExposureTrajectories, f: int, cfg: Config):
+def frame_losses(problem: Problem, params, traj: ExposureTrajectories, f: int, cfg: Config,
+                 log_c: Tensor | None = None):
     """Losses of frame ``f``: its V virtual views (plus the mid view when V is even and L_EDI
     is on) rendered in one batched call. Returns (total, parts dict, info for the strategy)."""
     lc = cfg.loss
@@ -268,7 +276,8 @@ def frame_losses(problem: Problem, params, traj: ExposureTrajectories, f: int, c
     parts = {"blur": blur_loss(renders, problem.targets[f], lc.ssim_weight, lc.ssim_window)}
     total = lc.w_blur * parts["blur"]
     if lc.w_event > 0 and problem.ev_sums[f] is not None:
-        parts["ev"] = event_loss(renders, problem.ev_sums[f], problem.c)
+        c = torch.exp(log_c) if log_c is not None else problem.c
+        parts["ev"] = event_loss(renders, problem.ev_sums[f], c)
         total = total + lc.w_event * parts["ev"]
     if problem.latents is not None and lc.w_edi > 0:
         mid = images[V] if need_mid else images[V // 2]
@@ -280,11 +289,11 @@ def frame_losses(problem: Problem, params, traj: ExposureTrajectories, f: int, c
 
 
 def train_step(problem: Problem, params, traj, optimizers, strategy, sstate, step: int, f: int,
-               cfg: Config) -> dict:
+               cfg: Config, log_c: Tensor | None = None) -> dict:
     """Forward, backward, Adam steps, densification; returns the step's scalar losses."""
     for opt in optimizers.values():
         opt.zero_grad(set_to_none=True)
-    total, parts, info = frame_losses(problem, params, traj, f, cfg)
+    total, parts, info = frame_losses(problem, params, traj, f, cfg, log_c)
     if not torch.isfinite(total):
         raise FloatingPointError(f"non-finite loss at step {step} (frame {problem.names[f]})")
     strategy.step_pre_backward(params, optimizers, sstate, step, info)
@@ -301,6 +310,8 @@ def train_step(problem: Problem, params, traj, optimizers, strategy, sstate, ste
     out = {"loss": float(total.detach()), **{k: float(v.detach()) for k, v in parts.items()},
            "train_psnr": psnr(info["mean_render"], problem.targets[f])}
     out.update({k: v for k, v in rep.items() if v})
+    if log_c is not None:
+        out["c"] = float(torch.exp(log_c.detach()))
     return out
 
 
@@ -397,9 +408,11 @@ def should_stop(history: list[dict], step: int, started: float, cfg: Config) -> 
     return None
 
 
-def _checkpoint(path: Path, run: Run, optimizers, sstate, order_rng: np.random.Generator) -> None:
+def _checkpoint(path: Path, run: Run, optimizers, sstate, order_rng: np.random.Generator,
+                log_c: Tensor | None = None) -> None:
     tmp = path.with_suffix(".tmp")
     torch.save({
+        "log_c": None if log_c is None else log_c.detach().clone(),
         "step": run.step,
         "params": {k: v.detach() for k, v in run.params.items()},
         "knots": run.trajectories.knots.detach(),
@@ -434,9 +447,16 @@ def reconstruct(capture, config: Config | str | None = None, out_dir: str | Path
     prep_s = time.perf_counter() - t_prep
     params = init_gaussians(problem, cfg)
     moving = torch.from_numpy(problem.V > 1)
+    am = cfg.trajectory.anchor_mid
+    anchored = am == "yes" or (am == "auto" and problem.report["pose_source"] == "capture")
     traj = ExposureTrajectories(problem.c2w, cfg.trajectory.kind if moving.any() else "fixed", moving,
-                                scale=problem.scale, init_noise=cfg.trajectory.init_noise, generator=gen)
-    optimizers = make_optimizers(params, traj, cfg, problem.scale)
+                                scale=problem.scale, init_noise=cfg.trajectory.init_noise, generator=gen,
+                                anchored=anchored)
+    problem.report["anchored_mid_poses"] = anchored
+    log_c = None
+    if problem.c is not None and any(e is not None for e in problem.ev_sums):
+        log_c = nn.Parameter(torch.tensor(math.log(problem.c)), requires_grad=cfg.loss.learn_contrast)
+    optimizers = make_optimizers(params, traj, cfg, problem.scale, log_c)
     strategy = make_strategy(cfg.strategy, problem.scale, max_gaussians(cfg, problem), gen)
     sstate = strategy.initialize_state(num_gaussians(params))
     order_rng = np.random.default_rng(cfg.train.seed)
@@ -451,7 +471,10 @@ def reconstruct(capture, config: Config | str | None = None, out_dir: str | Path
             params[k] = nn.Parameter(v.clone())
         with torch.no_grad():
             traj.knots.data = state["knots"].clone()
-        optimizers = make_optimizers(params, traj, cfg, problem.scale)
+        if log_c is not None and state.get("log_c") is not None:
+            with torch.no_grad():
+                log_c.data = state["log_c"].clone()
+        optimizers = make_optimizers(params, traj, cfg, problem.scale, log_c)
         for k, sd in state["optimizers"].items():
             if k in optimizers:
                 optimizers[k].load_state_dict(sd)
@@ -479,7 +502,7 @@ def reconstruct(capture, config: Config | str | None = None, out_dir: str | Path
             if not order:
                 order = list(order_rng.permutation(F))
             f = int(order.pop())
-            stats = train_step(problem, params, traj, optimizers, strategy, sstate, run.step, f, cfg)
+            stats = train_step(problem, params, traj, optimizers, strategy, sstate, run.step, f, cfg, log_c)
             run.step += 1
             stats["step"] = run.step
             stats["n"] = num_gaussians(params)
@@ -503,7 +526,7 @@ def reconstruct(capture, config: Config | str | None = None, out_dir: str | Path
                 on_step(run.step, stats)
             if ckpt is not None and cfg.train.checkpoint_every and run.step % cfg.train.checkpoint_every == 0:
                 ckpt.parent.mkdir(parents=True, exist_ok=True)
-                _checkpoint(ckpt, run, optimizers, sstate, order_rng)
+                _checkpoint(ckpt, run, optimizers, sstate, order_rng, log_c)
             reason = should_stop(run.history, run.step, started, cfg)
             if reason:
                 stop_reason = reason
@@ -514,12 +537,13 @@ def reconstruct(capture, config: Config | str | None = None, out_dir: str | Path
     run.params = params
     if ckpt is not None:
         ckpt.parent.mkdir(parents=True, exist_ok=True)
-        _checkpoint(ckpt, run, optimizers, sstate, order_rng)
+        _checkpoint(ckpt, run, optimizers, sstate, order_rng, log_c)
     final = evaluate_views(run, views)
     run.metrics = {
         "preset": cfg.name, "steps": run.step, "stop_reason": stop_reason,
         "train_seconds": run.history[-1]["time"] if run.history else 0.0, "prepare_seconds": prep_s,
         "gaussians": run.num_gaussians, "final_loss": run.history[-1]["loss"] if run.history else None,
         "test": final, "test_initial": init_eval, **{k: v for k, v in run.report.items()},
+        "c_final": None if log_c is None else float(torch.exp(log_c.detach())),
     }
     return run

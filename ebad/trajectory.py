@@ -93,6 +93,15 @@ def fixed_poses(
     return c2w_mid[:, None].expand(-1, u.shape[0], -1, -1)
 
 
+def _rigid_inverse(T: Tensor) -> Tensor:  # [..., 4, 4]
+    R = T[..., :3, :3].transpose(-1, -2)
+    out = torch.zeros_like(T)
+    out[..., :3, :3] = R
+    out[..., :3, 3] = -(R @ T[..., :3, 3:])[..., 0]
+    out[..., 3, 3] = 1
+    return out
+
+
 @dataclass(frozen=True)
 class TrajectoryModel:
     """A registered trajectory: its number of knots and its pose function."""
@@ -118,10 +127,14 @@ class ExposureTrajectories(nn.Module):
         moving: [F] bool; frames marked False keep their mid pose (sharp frames, V = 1).
         scale: scene scale; translations are learnt in these units.
         init_noise: std of the random initial knots (breaks the zero-motion symmetry).
+        anchored: keep every pose at u = 0.5 equal to ``c2w_mid`` (trusted mid-exposure poses):
+            the poses are left-multiplied by c2w_mid T(0.5)^-1, so only the motion inside the
+            exposure is learnt and the scene cannot drift away from the trusted cameras.
     """
 
     def __init__(self, c2w_mid: Tensor, kind: str = "linear", moving: Tensor | None = None,
-                 scale: float = 1.0, init_noise: float = 0.0, generator: torch.Generator | None = None):
+                 scale: float = 1.0, init_noise: float = 0.0, generator: torch.Generator | None = None,
+                 anchored: bool = False):
         super().__init__()
         if kind not in TRAJECTORIES:
             raise ValueError(f"unknown trajectory kind '{kind}'; choose one of {sorted(TRAJECTORIES)}")
@@ -131,6 +144,7 @@ class ExposureTrajectories(nn.Module):
         self.kind = kind
         self.model = TRAJECTORIES[kind]
         self.scale = float(scale)
+        self.anchored = bool(anchored)
         self.register_buffer("c2w_mid", c2w_mid.detach().clone().float())
         if moving is None:
             moving = torch.ones(F, dtype=torch.bool)
@@ -148,7 +162,12 @@ class ExposureTrajectories(nn.Module):
     def forward(self, frames: Tensor, u: Tensor) -> Tensor:  # [B] long, [V] -> [B, V, 4, 4]
         """Poses of ``frames`` at normalised instants ``u``."""
         knots = self.knots[frames] * self.moving[frames, None, None]
-        return self.model.poses(self.c2w_mid[frames], knots, u, self.scale)
+        mid = self.c2w_mid[frames]
+        poses = self.model.poses(mid, knots, u, self.scale)
+        if self.anchored and self.model.num_knots > 0:
+            at_half = self.model.poses(mid, knots, u.new_tensor([0.5]), self.scale)[:, 0]  # [B, 4, 4]
+            poses = (mid @ _rigid_inverse(at_half))[:, None] @ poses
+        return poses
 
     def mid_poses(self) -> Tensor:  # [F, 4, 4]
         """Every frame's pose at mid-exposure (u = 0.5)."""

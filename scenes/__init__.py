@@ -7,7 +7,7 @@ Public API::
     CaptureError                          # ValueError naming the file and the field
     simulate_events(images, times, ...)   # ESIM-style event simulator
     make_scene(name, size, ...) -> SynthScene, SCENES, write_scene(scene, out_dir)
-    scenes.colmap.estimate_poses(capture) # pycolmap SfM (imported lazily: ``import scenes.colmap``)
+    scenes.colmap.estimate_poses(capture) -> PoseEstimate   # pycolmap SfM, K fixed
 """
 from .capture import Capture, TestView
 from .errors import CaptureError
@@ -16,7 +16,8 @@ from .readers import detect_layout, load
 from .render import Quad, RayScene, Sphere, project_points, render
 from .simulate import simulate_events
 from .synth import SCENES, SIZES, SynthScene, make_scene, write_scene
+from . import colmap  # noqa: E402  (pycolmap itself is imported when estimate_poses runs)
 
 __all__ = ["Capture", "TestView", "CaptureError", "load", "save", "detect_layout", "simulate_events",
            "make_scene", "write_scene", "SynthScene", "SCENES", "SIZES", "render", "RayScene", "Quad",
-           "Sphere", "project_points"]
+           "Sphere", "project_points", "colmap"]

@@ -52,7 +52,7 @@ def write_image(path: Path, img: np.ndarray) -> Path:
     return out
 
 
-def _png_bit_depth(path: Path) -> int | None:
+def _png_bit_depth(path: Path) -> tuple[int, int] | None:  # (bit depth, colour type)
     with open(path, "rb") as fh:
         head = fh.read(29)
     if head[:8] != b"\x89PNG\r\n\x1a\n" or len(head) < 26:

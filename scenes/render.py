@@ -132,7 +132,7 @@ def project_points(pts: np.ndarray,  # [P, 3] world
 def render(scene: RayScene, c2w: np.ndarray,  # [C, 4, 4] or [4, 4]
            K: np.ndarray, width: int, height: int, return_depth: bool = False, batch_rays: int = 120_000):
     """Ray-cast ``scene`` from each camera: images [C, H, W, D] float32 linear (and, with
-    ``return_depth``, z-depth [C, H, W] float32, +inf where nothing is hit). A [4, 4] c2w gives
+    ``return_depth``, z-depth [C, H, W] float32, 0 where nothing is hit). A [4, 4] c2w gives
     [H, W, D] (and [H, W])."""
     single = np.asarray(c2w).ndim == 2
     c2ws = np.asarray(c2w, np.float64).reshape(-1, 4, 4)
@@ -141,7 +141,7 @@ def render(scene: RayScene, c2w: np.ndarray,  # [C, 4, 4] or [4, 4]
     npx = width * height
     d_ch = scene.channels
     img = np.full((len(c2ws), npx, d_ch), scene.background, np.float32)
-    depth = np.full((len(c2ws), npx), np.inf, np.float32)
+    depth = np.zeros((len(c2ws), npx), np.float32)
     per = max(1, batch_rays // npx)
     for b0 in range(0, len(c2ws), per):
         cams = c2ws[b0:b0 + per]

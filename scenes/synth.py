@@ -220,7 +220,7 @@ class SynthScene:
 
     capture: Capture  # what the trainer reads: blurry frames, exposures, events, K, mid-exposure c2w
     gt_frames: np.ndarray  # [F, H, W, D] float32 sharp renders at each frame's mid-exposure
-    gt_depths: np.ndarray  # [F, H, W] float32 z-depth at mid-exposure (+inf: background)
+    gt_depths: np.ndarray  # [F, H, W] float32 z-depth at mid-exposure (0: no surface)
     trajectory: Trajectory = field(repr=False)
     ray_scene: RayScene = field(repr=False)
     name: str = "boxes"
@@ -367,7 +367,10 @@ def write_scene(scene: SynthScene, out_dir: str | os.PathLike, overwrite: bool =
                 trajectory_samples: int = 9) -> Path:
     """Write ``out_dir/capture`` (ebad-capture/1, what the trainer reads) and ``out_dir/gt``
     (sharp mid-exposure frames as lossless images, depths, true thresholds and per-frame
-    trajectories in gt.json), atomically: both go to a temporary folder renamed at the end."""
+    trajectories in gt.json, and copies of the held-out test views), atomically: both go to a
+    temporary folder renamed at the end. The capture keeps its test views' images too (the
+    format's ``test_views[].file``): they are held-out poses the trainer evaluates on, never
+    trains on; the training frames' sharp renders exist only under gt/."""
     out = Path(out_dir)
     if out.exists() and any(out.iterdir()) and not overwrite:
         raise ValueError(f"out_dir: {out} already exists and is not empty (pass overwrite)")
@@ -380,6 +383,10 @@ def write_scene(scene: SynthScene, out_dir: str | os.PathLike, overwrite: bool =
         cap = scene.capture
         files = [write_image(gt / "frames" / cap.names[k], scene.gt_frames[k]).relative_to(gt).as_posix()
                  for k in range(cap.num_frames)]
+        (gt / "test").mkdir()
+        test_docs = [{"name": tv.name, "t": float(tv.t), "c2w": np.asarray(tv.c2w).tolist(),
+                      "file": write_image(gt / "test" / tv.name, tv.image).relative_to(gt).as_posix()}
+                     for tv in cap.test_views if tv.image is not None]
         np.save(gt / "depths.npy", scene.gt_depths)
         if scene.c_pos is not None:
             np.savez(gt / "thresholds.npz", c_pos=scene.c_pos, c_neg=scene.c_neg)
@@ -390,7 +397,7 @@ def write_scene(scene: SynthScene, out_dir: str | os.PathLike, overwrite: bool =
                            "trajectory": {"t": np.linspace(*cap.exposures[k], trajectory_samples).tolist(),
                                           "c2w": scene.gt_trajectory(k, trajectory_samples).tolist()}}
                           for k in range(cap.num_frames)],
-               "depths": "depths.npy", "thresholds": "thresholds.npz" if scene.c_pos is not None else None}
+               "test_views": test_docs, "depths": "depths.npy", "thresholds": "thresholds.npz" if scene.c_pos is not None else None}
         (gt / "gt.json").write_text(json.dumps(doc, indent=1))
         if out.exists():
             shutil.rmtree(out)

@@ -10,6 +10,8 @@ elsewhere; `rasterize_reference` always uses the reference.
 
 from __future__ import annotations
 
+import warnings
+
 from torch import Tensor
 
 from . import constants
@@ -17,6 +19,17 @@ from ._torch_impl import rasterize_reference as _reference
 from ._validate import validate_inputs
 
 __all__ = ["rasterize", "rasterize_reference", "constants"]
+
+
+def _fast_path():
+    """The numba path, or None (with a warning saying the fix) when numba cannot be imported."""
+    try:
+        from ._numba_impl import rasterize_numba
+    except ImportError as exc:  # pragma: no cover - numba is a declared dependency
+        warnings.warn(f"splat_cpu: numba unavailable ({exc}); using the slow torch reference. "
+                      "Install it with `pip install numba`.", RuntimeWarning, stacklevel=3)
+        return None
+    return rasterize_numba
 
 
 def rasterize(
@@ -56,10 +69,7 @@ def rasterize(
     """
     validate_inputs(means, quats, scales, opacities, colors, viewmats, Ks, width, height, background)
     if means.device.type == "cpu":
-        try:
-            from ._numba_impl import rasterize_numba
-        except ImportError:  # numba missing: fall back to the reference
-            rasterize_numba = None
+        rasterize_numba = _fast_path()
         if rasterize_numba is not None:
             return rasterize_numba(means, quats, scales, opacities, colors, viewmats, Ks, width, height, background)
     return _reference(means, quats, scales, opacities, colors, viewmats, Ks, width, height, background)

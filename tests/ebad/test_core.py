@@ -352,3 +352,18 @@ def test_ssim_matches_kornia_reference(shape, window):
     assert torch.allclose(ssim_map(a, b, window), ssim_map_kornia(a, b, window), atol=1e-9)
     a.requires_grad_(True)
     torch.autograd.gradcheck(lambda x: ssim_map(x, b, window).mean(), (a,))
+
+
+@pytest.mark.parametrize("kind", ["linear", "cubic"])
+def test_anchored_trajectory_keeps_mid_pose(kind):
+    c2w = _random_c2w(3)
+    traj = ExposureTrajectories(c2w, kind, scale=0.5, init_noise=0.0, anchored=True)
+    with torch.no_grad():
+        traj.knots.normal_(0, 0.05)
+    p = traj(torch.arange(3), torch.tensor([0.0, 0.5, 1.0]))
+    assert torch.allclose(p[:, 1], c2w, atol=1e-5)
+    assert not torch.allclose(p[:, 0], p[:, 2], atol=1e-3)
+    free = ExposureTrajectories(c2w, kind, scale=0.5)
+    with torch.no_grad():
+        free.knots.copy_(traj.knots)
+    assert not torch.allclose(free(torch.arange(3), torch.tensor([0.5]))[:, 0], c2w, atol=1e-3)

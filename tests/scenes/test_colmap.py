@@ -102,8 +102,11 @@ def test_sfm_on_a_tiny_blurry_scene_is_better_on_edi_deblurred_frames():
     edi_est = estimate_poses(cap)  # deblur=True by default
     assert edi_est.report["deblurred"] == 12 and edi_est.registered.all()
     e_edi = pose_errors(edi_est.c2w, cap.c2w)
-    raw = estimate_poses(cap, ColmapConfig(deblur=False))
-    e_raw = pose_errors(raw.c2w[raw.registered], cap.c2w[raw.registered])
     assert e_edi["ate_rmse"] < 0.03 * e_edi["trajectory_extent"]
+    try:
+        raw = estimate_poses(cap, ColmapConfig(deblur=False))
+    except SfMError:
+        return  # SfM on the blurry frames failed outright: EDI did better
+    e_raw = pose_errors(raw.c2w[raw.registered], cap.c2w[raw.registered])
     assert e_edi["ate_rmse"] < 0.6 * e_raw["ate_rmse"]
     assert len(edi_est.points) > len(raw.points)

@@ -1,6 +1,5 @@
 """ebad-capture/1: lossless round trip, atomic writes, errors that name the file and the field."""
 import json
-import shutil
 from pathlib import Path
 
 import numpy as np
@@ -269,3 +268,29 @@ def test_capture_validate_catches_bad_in_memory_fields():
     cap.K = np.eye(3) * -1
     with pytest.raises(CaptureError, match="K"):
         cap.validate()
+
+
+def test_h5_events_in_seconds_are_read(saved):
+    import h5py
+
+    root, doc = saved
+    z = dict(np.load(root / "events.npz"))
+    with h5py.File(root / "ev.h5", "w") as hf:
+        g = hf.create_group("events")
+        g["t"] = z["t"].astype(np.float64) * 1e-6
+        g["x"], g["y"] = z["x"], z["y"]
+        g["p"] = (z["p"] > 0).astype(np.uint8)  # {0, 1} polarities
+    doc["events"] = {"file": "ev.h5", "t_unit": "s"}
+    _rewrite(root, doc)
+    cap = load(root)
+    np.testing.assert_array_equal(cap.events.t, z["t"])
+    np.testing.assert_array_equal(cap.events.p, z["p"])
+
+
+def test_missing_event_array_names_file_and_field(saved):
+    root, _ = saved
+    z = dict(np.load(root / "events.npz"))
+    del z["p"]
+    np.savez(root / "events.npz", **z)
+    with pytest.raises(CaptureError, match=r"events\.npz.*'p'.*missing"):
+        load(root)

@@ -31,7 +31,7 @@ def test_tiny_scene_shapes_and_ground_truth(boxes):
         np.testing.assert_allclose(cap.c2w[k], boxes.gt_c2w_at(k, mids[k]), atol=1e-12)
         np.testing.assert_array_equal(boxes.gt_frames[k], np.clip(boxes.render(cap.c2w[k]), 0, 1))
     # a textured scene: every frame has plenty of contrast, and no pixel sees the void
-    assert np.isfinite(boxes.gt_depths).all()
+    assert (boxes.gt_depths > 0).all()
     assert all(f.std() > 0.1 for f in boxes.gt_frames)
     assert cap.meta["c"] == 0.2
     # test views are held out: away from every training pose, with sharp images
@@ -146,6 +146,14 @@ def test_write_scene_keeps_ground_truth_apart(tmp_path, boxes):
         np.testing.assert_array_equal(tv.image, tv0.image)
     assert not any("gt" in p.name for p in (out / "capture").rglob("*"))
     assert (out / "gt" / "gt.json").is_file() and len(list((out / "gt" / "frames").iterdir())) == 10
+    import json
+
+    from scenes.images import read_image
+
+    doc = json.loads((out / "gt" / "gt.json").read_text())
+    np.testing.assert_array_equal(read_image(out / "gt" / doc["frames"][3]["file"]), boxes.gt_frames[3])
+    np.testing.assert_allclose(doc["frames"][3]["trajectory"]["c2w"], boxes.gt_trajectory(3, 9))
+    assert len(doc["test_views"]) == 3
     with pytest.raises(ValueError, match="out_dir"):
         write_scene(boxes, tmp_path / "s")
 
@@ -159,3 +167,15 @@ def test_cli_synth(tmp_path, capsys):
     rc = main(["synth", "spheres", "--out", str(tmp_path / "o")])
     assert rc == 2
     assert "out_dir" in capsys.readouterr().err
+
+
+def test_write_scene_failing_midway_leaves_nothing(tmp_path, boxes, monkeypatch):
+    import scenes.synth as synth
+
+    def boom(*a, **k):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(synth, "write_image", boom)
+    with pytest.raises(OSError, match="disk full"):
+        write_scene(boxes, tmp_path / "s")
+    assert list(tmp_path.iterdir()) == []

@@ -1,0 +1,81 @@
+"""``ebad render``: 16-bit PNG renders of a run's test views or of a smooth camera path."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+NAME = "render"
+HELP = "render a run's test views (16-bit PNG per view name) or a smooth camera path"
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("run", help="run folder written by 'ebad reconstruct'")
+    parser.add_argument("--capture", default=None, help="capture whose views to render (needed for --split test)")
+    parser.add_argument("--split", default="test", choices=["test", "train"],
+                        help="test: the capture's test views; train: the training frames at mid-exposure")
+    parser.add_argument("--path", type=int, default=0, metavar="N",
+                        help="instead, N frames along a smooth path through the training cameras")
+    parser.add_argument("--out", required=True, help="folder for the PNGs")
+
+
+def smooth_path(c2w: np.ndarray, n: int) -> np.ndarray:  # [F, 4, 4] -> [n, 4, 4]
+    """Catmull-Rom through the camera centres (ordered as given); rotations slerped between
+    neighbours through so(3)."""
+    import torch
+
+    from ..lie import so3_exp, so3_log
+
+    F = len(c2w)
+    if F == 1:
+        return np.repeat(c2w, n, 0)
+    s = np.linspace(0, F - 1, n)
+    out = np.zeros((n, 4, 4))
+    P = c2w[:, :3, 3]
+    for j, sj in enumerate(s):
+        i = min(int(np.floor(sj)), F - 2)
+        u = sj - i
+        p0, p1, p2, p3 = P[max(i - 1, 0)], P[i], P[i + 1], P[min(i + 2, F - 1)]
+        pos = 0.5 * ((2 * p1) + (-p0 + p2) * u + (2 * p0 - 5 * p1 + 4 * p2 - p3) * u ** 2 + (-p0 + 3 * p1 - 3 * p2 + p3) * u ** 3)
+        R0 = torch.tensor(c2w[i, :3, :3])
+        R1 = torch.tensor(c2w[i + 1, :3, :3])
+        R = (R0 @ so3_exp(u * so3_log(R0.T @ R1))).numpy()
+        out[j, :3, :3] = R
+        out[j, :3, 3] = pos
+        out[j, 3, 3] = 1
+    return out
+
+
+def run(args) -> int:
+    from ..io import write_png16
+    from ..runfolder import load_run
+
+    run_ = load_run(args.run)
+    out = Path(args.out)
+    if args.path:
+        if args.path < 2:
+            raise ValueError(f"--path needs at least 2 frames, got {args.path}")
+        poses = smooth_path(run_.trajectories.mid_poses().numpy().astype(np.float64), args.path)
+        imgs = run_.render(poses)
+        for i, img in enumerate(imgs):
+            write_png16(out / f"path_{i:04d}.png", img)
+        print(f"ebad render: {len(imgs)} path frames -> {out}")
+        return 0
+    if args.split == "train":
+        imgs = run_.deblurred_frames()
+        for name, img in zip(run_.names, imgs):
+            write_png16(out / f"{name}.png", img)
+        print(f"ebad render: {len(imgs)} training frames (mid-exposure) -> {out}")
+        return 0
+    if args.capture is None:
+        raise ValueError("--capture is required for --split test (the test views live in the capture)")
+    import scenes
+
+    cap = scenes.load(args.capture)
+    if not cap.test_views:
+        raise ValueError(f"capture {args.capture} has no test_views to render")
+    imgs = run_.render(np.stack([v.c2w for v in cap.test_views]))
+    for v, img in zip(cap.test_views, imgs):
+        write_png16(out / f"{v.name}.png", img)
+    print(f"ebad render: {len(imgs)} test views -> {out}")
+    return 0
