@@ -1,5 +1,30 @@
-"""ebad: EBAD-Gaussian reconstruction from blurry event-camera captures, on a CPU."""
+"""ebad: EBAD-Gaussian reconstruction from blurry event-camera captures, on a CPU.
+
+    run = ebad.reconstruct(capture, ebad.preset("ebad"))   # -> ebad.Run
+    image = run.render(c2w, K, width, height)               # [H, W, D] numpy, linear [0, 1]
+
+The heavy parts (torch, the trainer) are imported on first use, so ``ebad --help`` stays quick.
+"""
 from .errors import UserError
 
-__all__ = ["UserError"]
+__all__ = ["UserError", "reconstruct", "Run", "Config", "preset", "PRESETS", "load_run", "evaluate"]
 __version__ = "0.1.0"
+
+_LAZY = {
+    "reconstruct": ("trainer", "reconstruct"),
+    "Run": ("trainer", "Run"),
+    "Config": ("config", "Config"),
+    "preset": ("config", "preset"),
+    "PRESETS": ("config", "PRESETS"),
+    "load_run": ("runfolder", "load_run"),
+    "evaluate": ("evaluate", "evaluate"),
+}
+
+
+def __getattr__(name):
+    if name in _LAZY:
+        import importlib
+
+        mod, attr = _LAZY[name]
+        return getattr(importlib.import_module(f".{mod}", __name__), attr)
+    raise AttributeError(f"module 'ebad' has no attribute {name!r}")

@@ -35,8 +35,8 @@ def refine_pose(run, c2w: np.ndarray, image: np.ndarray, iters: int = 60, lr: fl
         pose = base @ delta
         img, _, _ = render(params, pose[None], K, run.width, run.height, run.config.model.background)
         loss = l1_ssim(img[0], target)
-        if float(loss) < best_loss:
-            best_loss, best = float(loss), pose.detach().clone()
+        if float(loss.detach()) < best_loss:
+            best_loss, best = float(loss.detach()), pose.detach().clone()
         opt.zero_grad()
         loss.backward()
         opt.step()

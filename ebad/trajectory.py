@@ -172,4 +172,5 @@ class ExposureTrajectories(nn.Module):
     def mid_poses(self) -> Tensor:  # [F, 4, 4]
         """Every frame's pose at mid-exposure (u = 0.5)."""
         idx = torch.arange(self.num_frames)
-        return self.forward(idx, torch.tensor([0.5]))[:, 0]
+        with torch.no_grad():
+            return self.forward(idx, torch.tensor([0.5]))[:, 0]

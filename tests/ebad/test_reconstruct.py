@@ -1,0 +1,130 @@
+"""End-to-end: a short reconstruction on the tiny synthetic scene, the skip rules, and the
+command line (reconstruct with --resume, render, eval) on a written capture."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+import scenes
+from ebad import reconstruct
+from ebad.cli import main
+from ebad.config import preset
+from ebad.io import read_png16
+from ebad.metrics import psnr
+from ebad.trainer import prepare
+
+
+@pytest.fixture(scope="module")
+def tiny():
+    return scenes.make_scene("boxes", size="tiny", seed=0, n_frames=6, n_test=2)
+
+
+def _cfg(name, iters):
+    cfg = preset(name)
+    cfg.train.iters = iters
+    cfg.train.progress = False
+    cfg.train.eval_every = 0
+    return cfg
+
+
+@pytest.mark.slow
+def test_short_ebad_run_improves_and_beats_blurry(tiny):
+    torch.manual_seed(0)
+    run = reconstruct(tiny.capture, _cfg("ebad", 200))
+    m = run.metrics
+    assert m["steps"] == 200 and m["stop_reason"] == "iters"
+    assert m["test"]["psnr"] > m["test_initial"]["psnr"] + 3.0
+    sharp = run.deblurred_frames()
+    assert np.isfinite(sharp).all() and sharp.shape == tiny.gt_frames.shape
+    ebad_db = np.mean([psnr(a, b) for a, b in zip(sharp, tiny.gt_frames)])
+    blurry_db = np.mean([psnr(a, b) for a, b in zip(tiny.capture.frames, tiny.gt_frames)])
+    assert ebad_db > blurry_db + 1.0, (ebad_db, blurry_db)
+    img = run.render(tiny.capture.test_views[0].c2w)
+    assert img.shape == (48, 64, 1) and np.isfinite(img).all()
+
+
+def test_skip_rules_are_decided_and_recorded(tiny):
+    import copy
+
+    # sharp frames get one view, blurry ones V
+    sc = scenes.make_scene("boxes", size="tiny", seed=1, n_frames=6, n_test=1, sharp_fraction=0.5)
+    p = prepare(sc.capture, _cfg("ebad", 1))
+    sharp = set(sc.capture.meta["sharp_frames"])
+    assert sharp and all((p.V[i] == 1) == (i in sharp) for i in range(6)), (p.V, sharp)
+    assert p.report["renders_per_pass"] < p.report["renders_without_skip"]
+    assert p.ev_sums[sorted(sharp)[0]] is None
+    # grey stays one channel
+    assert p.frames.shape[-1] == 1 and p.report["channels"] == 1
+    # no events: no L_ev, no L_EDI, V from exposures only
+    cap = copy.copy(tiny.capture)
+    from edi import EventStream
+    cap.events = EventStream.empty(cap.width, cap.height)
+    q = prepare(cap, _cfg("ebad", 1))
+    assert q.latents is None and all(e is None for e in q.ev_sums) and "skipped" in q.report
+    # trusted poses from the capture anchor the mid-exposure poses
+    r = reconstruct(tiny.capture, _cfg("bad", 2))
+    assert r.report["anchored_mid_poses"] is True
+    assert torch.allclose(r.trajectories.mid_poses(), torch.from_numpy(tiny.capture.c2w).float(), atol=1e-4)
+
+
+def test_plateau_and_time_budget_stop(tiny):
+    cfg = _cfg("3dgs", 10_000)
+    cfg.train.max_seconds = 2.0
+    r = reconstruct(tiny.capture, cfg)
+    assert r.metrics["stop_reason"] == "time" and r.metrics["steps"] < 10_000
+    cfg = _cfg("3dgs", 10_000)
+    cfg.train.plateau_patience = 1
+    cfg.train.plateau_every = 5
+    cfg.train.plateau_tol = 10.0  # any window counts as "no progress": stops at the first check that can
+    r = reconstruct(tiny.capture, cfg)
+    assert r.metrics["stop_reason"] == "plateau" and r.metrics["steps"] == 10
+
+
+def test_bad_capture_errors_name_the_field(tiny):
+    import copy
+
+    cap = copy.copy(tiny.capture)
+    cap.frames = cap.frames[..., 0]
+    with pytest.raises(ValueError, match="capture.frames"):
+        reconstruct(cap, _cfg("3dgs", 1))
+    cap = copy.copy(tiny.capture)
+    cap.split = ["test"] * cap.num_frames
+    with pytest.raises(ValueError, match="train"):
+        reconstruct(cap, _cfg("3dgs", 1))
+    with pytest.raises(ValueError, match="preset"):
+        reconstruct(tiny.capture, "sharpest")
+
+
+@pytest.mark.slow
+def test_cli_reconstruct_resume_render_eval(tiny, tmp_path, capsys):
+    scenes.write_scene(tiny, tmp_path / "scene")
+    cap = str(tmp_path / "scene" / "capture")
+    run = tmp_path / "run"
+    args = ["reconstruct", cap, "--out", str(run), "--iters", "20", "--no-progress", "--train.checkpoint_every", "10"]
+    assert main(args) == 0
+    for name in ["config.json", "metrics.json", "point_cloud.ply", "trajectories.json", "trajectories.png",
+                 "checkpoints/last.pt", "model.json"]:
+        assert (run / name).exists(), name
+    assert len(list((run / "deblurred").glob("*.png"))) == 6
+    assert json.loads((run / "metrics.json").read_text())["steps"] == 20
+    assert main(args) == 2  # refuses to overwrite a run without --resume
+    assert "--resume" in capsys.readouterr().err
+    assert main(["reconstruct", cap, "--out", str(run), "--iters", "30", "--no-progress", "--resume"]) == 0
+    m = json.loads((run / "metrics.json").read_text())
+    assert m["steps"] == 30 and m["resumed_from"] == 20
+    out = tmp_path / "renders"
+    assert main(["render", str(run), "--capture", cap, "--split", "test", "--out", str(out)]) == 0
+    names = sorted(p.stem for p in out.glob("*.png"))
+    assert names == sorted(v.name for v in tiny.capture.test_views)
+    img = read_png16(out / f"{names[0]}.png")
+    assert img.shape == (48, 64, 1)
+    assert main(["render", str(run), "--path", "5", "--out", str(tmp_path / "path")]) == 0
+    assert len(list((tmp_path / "path").glob("path_*.png"))) == 5
+    assert main(["eval", str(run), cap, "--refine-poses", "--refine-iters", "5"]) == 0
+    res = json.loads((run / "eval.json").read_text())
+    assert {"test", "test_refined", "deblurred"} <= set(res)
+    assert res["test_refined"]["psnr"] >= res["test"]["psnr"] - 1e-6  # refinement keeps the best pose
+    assert main(["render", str(tmp_path / "nope"), "--out", str(out)]) == 2
