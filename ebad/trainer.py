@@ -289,7 +289,7 @@ def frame_losses(problem: Problem, params, traj: ExposureTrajectories, f: int, c
 
 
 def train_step(problem: Problem, params, traj, optimizers, strategy, sstate, step: int, f: int,
-               cfg: Config, log_c: Tensor | None = None) -> dict:
+               cfg: Config, log_c: Tensor | None = None, started: float | None = None) -> dict:
     """Forward, backward, Adam steps, densification; returns the step's scalar losses."""
     for opt in optimizers.values():
         opt.zero_grad(set_to_none=True)
@@ -298,7 +298,10 @@ def train_step(problem: Problem, params, traj, optimizers, strategy, sstate, ste
         raise FloatingPointError(f"non-finite loss at step {step} (frame {problem.names[f]})")
     strategy.step_pre_backward(params, optimizers, sstate, step, info)
     total.backward()
-    lr_decay = 0.1 ** (step / max(cfg.train.iters, 1))
+    frac = step / max(cfg.train.iters, 1)
+    if cfg.train.max_seconds and started is not None:  # a time budget: decay over the budget too
+        frac = max(frac, (time.perf_counter() - started) / cfg.train.max_seconds)
+    lr_decay = 0.1 ** min(frac, 1.0)
     optimizers["means"].param_groups[0]["lr"] = cfg.train.lr_means * problem.scale * lr_decay
     for name, opt in optimizers.items():
         if name == "poses" and step < cfg.train.pose_warmup:
@@ -502,7 +505,7 @@ def reconstruct(capture, config: Config | str | None = None, out_dir: str | Path
             if not order:
                 order = list(order_rng.permutation(F))
             f = int(order.pop())
-            stats = train_step(problem, params, traj, optimizers, strategy, sstate, run.step, f, cfg, log_c)
+            stats = train_step(problem, params, traj, optimizers, strategy, sstate, run.step, f, cfg, log_c, started)
             run.step += 1
             stats["step"] = run.step
             stats["n"] = num_gaussians(params)

@@ -31,6 +31,12 @@ def _np(x: Tensor) -> np.ndarray:
 
 
 class _Composite(torch.autograd.Function):
+    """Screen-space Gaussians -> images [C, H, W, D], alphas [C, H, W, 1]; hand-written backward.
+
+    Gradients go to means2d, conics, opacities, colors and background; the projection's
+    autograd graph carries them on to means, quats, scales and viewmats.
+    """
+
     @staticmethod
     def forward(ctx, means2d, conics, opacities, colors, background, plan: _Plan):  # noqa: D401
         p = plan

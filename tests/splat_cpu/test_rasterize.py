@@ -3,15 +3,13 @@ batching, invalid input, stress cases (kornia-style battery)."""
 
 from __future__ import annotations
 
-import math
-
 import pytest
 import torch
 
 import splat_cpu
 from splat_cpu._numba_impl import rasterize_numba
 from splat_cpu._torch_impl import rasterize_reference as _reference
-from splat_cpu.constants import ALPHA_MAX, T_MIN
+from splat_cpu.constants import T_MIN
 
 from .brute import brute_render
 from .conftest import make_scene
