@@ -2,11 +2,10 @@
 
 Two energies, both functions of c only (each evaluation runs EDI on the frames):
 
-* ``single`` (one blurry frame; the EDI paper's): the total variation of the mid-exposure
-  latent (relative to its mean) minus ``edge_weight`` times the normalised
-  cross-correlation of the Sobel edge magnitudes of the latent and of the event integral
-  (1/T) integral (E(t) - E(f)) dt. A wrong c leaves ghost edges (more TV) that the events
-  do not explain (less correlation).
+* ``single`` (one blurry frame; after the EDI paper's edge term): minus the normalised
+  cross-correlation of the Sobel edges of the mid-exposure latent with the map of events
+  fired in a short window around mid-exposure (where the sensor saw edges at that instant),
+  optionally plus a total-variation term. See ``_single_energy``.
 * ``consistency`` (two or more frames; mEDI's relation): for consecutive frames i, i+1
   with latents L_i, L_{i+1} at their exposure centres,
   log(L_{i+1} + eps) - log(L_i + eps) = E(centre_i -> centre_{i+1}); the energy is the mean
@@ -95,27 +94,48 @@ def _ncc(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> float:
     return float((a * b).sum() / den) if den > 0 else 0.0
 
 
-def _single_energy(b: np.ndarray, exposure, events: EventStream, edge_weight: float, ratio: float):
-    """energy(c) for one blurry frame b [H, W, D]."""
+def _single_energy(b: np.ndarray, exposure, events: EventStream, edge_window: float, tv_weight: float, ratio: float):
+    """energy(c) for one blurry frame b [H, W, D].
+
+    The latent at the mid-exposure instant f must have its edges where the sensor saw edges
+    at f: the energy is minus the normalised cross-correlation of the Sobel magnitude of the
+    latent and the (lightly smoothed) map of events fired within ``edge_window`` x T around f,
+    plus ``tv_weight`` times the latent's total variation relative to the blurry frame's.
+    Too small a c leaves the edges smeared, too large a c adds ghost edges at the positions
+    of other instants. Measured on ``edi.synthetic.moving_texture`` with sigma_c 0.03: the
+    minimum lands within 10% of the true c (0.15, 0.2, 0.3). On real DAVIS frames whose
+    intensity is not linear (gamma, offset) it can run to the end of the bracket; the
+    report's ``at_bound`` says so. (The EDI paper's variant, correlating with the event
+    integral over the whole exposure, grows monotonically with c on this data: any c
+    adds more of the integral's own edges to the latent.)
+    """
+    from scipy import ndimage
+
     t_s, t_e = exposure
     mid = np.array([0.5 * (t_s + t_e)])
-    # event integral (1/T) int (N(t) - N(f)) dt with unit c: c-independent edge map
-    r_unit, _ = edi_log_ratio(events, (t_s, t_e), mid, (1.0, 1.0 / ratio), impl="fast")
+    half = 0.5 * edge_window * (t_e - t_s)
+    near = events.slice_time(mid[0] - half, mid[0] + half)
+    edge_map = ndimage.gaussian_filter((near.count_image(1) + near.count_image(-1)).astype(np.float64), 1.0)
     grey_b = b.mean(axis=-1)
     valid = (b < SATURATION).all(axis=-1)
-    # the event integral's edge map: -r at unit c is log mean exp(E - E_f) ~ (1/T) int (E - E_f)
-    ev_edges = _sobel_mag(-r_unit[0])
     mask = valid.copy()
-    mask[0, :] = mask[-1, :] = False
-    mask[:, 0] = mask[:, -1] = False
+    mask[:2, :] = mask[-2:, :] = False
+    mask[:, :2] = mask[:, -2:] = False
+
+    def tv(img: np.ndarray) -> float:
+        gy, gx = np.gradient(img)
+        return float((np.abs(gx) + np.abs(gy))[mask].mean() / max(img[mask].mean(), 1e-6))
+
+    tv_b = max(tv(grey_b), 1e-12)
 
     def energy(c: float) -> float:
         r, _ = edi_log_ratio(events, (t_s, t_e), mid, (c * math.sqrt(ratio), c / math.sqrt(ratio)))
         lat, _ = latent_from_ratio(grey_b[..., None], r)
         L = lat[0, ..., 0]
-        gy, gx = np.gradient(L)
-        tv = float((np.abs(gx) + np.abs(gy))[mask].mean() / max(L[mask].mean(), 1e-6))
-        return tv - edge_weight * _ncc(_sobel_mag(L), ev_edges, mask)
+        e = -_ncc(_sobel_mag(ndimage.gaussian_filter(L, 0.7)), edge_map, mask)
+        if tv_weight:
+            e += tv_weight * tv(L) / tv_b
+        return e
 
     return energy, 1.0 - valid.mean()
 
@@ -178,7 +198,8 @@ def estimate_c(
     method: Literal["auto", "single", "consistency"] = "auto",
     bracket: tuple[float, float] = (0.03, 1.5),  # DAVIS sensors: 0.1 to 0.5 typically
     tol: float = 1e-3,
-    edge_weight: float = 1.0,
+    edge_window: float = 0.1,
+    tv_weight: float = 0.0,
     min_events: int = 1,
     monotone_only: bool = True,
     polarity: bool = False,
@@ -195,7 +216,9 @@ def estimate_c(
             some pixel fired between frame centres, else single).
         bracket: search interval for c.
         tol: final bracket width in log c.
-        edge_weight: weight of the edge-correlation term of the single-frame energy.
+        edge_window: single-frame energy: the fraction of the exposure, centred on its
+            middle, whose events mark where the sharp latent's edges must be.
+        tv_weight: single-frame energy: weight of the latent's relative total variation.
         min_events: consistency uses pixels with at least this many events between centres.
         monotone_only: consistency uses only pixels whose events between two centres share
             one polarity (see ``_consistency_energy``); False uses every pixel that fired.
@@ -246,7 +269,7 @@ def estimate_c(
         i = int(np.argmax(ex[:, 1] - ex[:, 0]))  # the most blurred frame
         if ex[i, 1] <= ex[i, 0] or len(events.slice_time(ex[i, 0], ex[i, 1])) == 0:
             raise ValueError("estimate_c: no blurry frame with events in its exposure and fewer than two frames to compare")
-        energy, sat = _single_energy(fr[i], (ex[i, 0], ex[i, 1]), events, edge_weight, ratio)
+        energy, sat = _single_energy(fr[i], (ex[i, 0], ex[i, 1]), events, edge_window, tv_weight, ratio)
         return energy, sat, "single"
 
     energy, sat, used = build(1.0)

@@ -244,8 +244,7 @@ def test_estimate_c_sharp_frames():
 
 
 def test_estimate_c_single_frame_improves_the_frame(seq1):
-    """The EDI-paper energy on one frame: its c is biased low on this texture (measured about
-    0.6x the true c), so we check what it is for: the latent is much sharper than the blur."""
+    """One blurry frame: the estimated c gives a latent much sharper than the blur."""
     B, ex = seq1.frames[0], seq1.exposures[0]
     c, rep = estimate_c(B, ex, seq1.events, return_report=True)
     assert rep.method == "single" and rep.bracket[0] <= c <= rep.bracket[1]
@@ -306,3 +305,13 @@ def test_estimate_c_with_per_pixel_threshold_mismatch():
     c_all = estimate_c(s.frames, s.exposures, s.events, monotone_only=False)
     assert abs(c_mono - 0.2) < 0.1 * 0.2, (c_mono, c_all)
     assert abs(c_mono - 0.2) < abs(c_all - 0.2), (c_mono, c_all)
+
+
+@pytest.mark.parametrize("c_true, seed", [(0.15, 2), (0.2, 0), (0.3, 1)])
+def test_estimate_c_single_frame_within_ten_percent(c_true, seed):
+    """The single-frame energy (edges of the latent against the events around mid-exposure),
+    with per-pixel threshold mismatch in the sensor."""
+    s = moving_texture(num_frames=1, seed=seed, c=c_true, sigma_c=0.03)
+    c, rep = estimate_c(s.frames[0], s.exposures[0], s.events, return_report=True)
+    assert rep.method == "single" and not rep.at_bound
+    assert abs(c - c_true) < 0.1 * c_true, (c, c_true)
