@@ -18,6 +18,10 @@ import sys
 import time
 from pathlib import Path
 
+# benchmarks/edi.py would shadow the edi package when this file runs as a script
+_HERE = Path(__file__).resolve().parent
+sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != _HERE]
+
 import numpy as np
 import torch
 

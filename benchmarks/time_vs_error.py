@@ -20,6 +20,10 @@ import sys
 import time
 from pathlib import Path
 
+# benchmarks/edi.py would shadow the edi package when this file runs as a script
+_HERE = Path(__file__).resolve().parent
+sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != _HERE]
+
 import numpy as np
 import torch
 
@@ -149,8 +153,12 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     import scenes
 
-    sys.path.insert(0, str(Path(__file__).parent))
-    from ablation import warm_up
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("_ebad_ablation", _HERE / "ablation.py")
+    ablation = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(ablation)
+    warm_up = ablation.warm_up
 
     size = "tiny" if args.quick else "small"
     seconds = args.seconds if args.seconds is not None else (20.0 if args.quick else 120.0)

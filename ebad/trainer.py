@@ -20,7 +20,7 @@ from torch import Tensor, nn
 
 from .config import Config, preset
 from .errors import UserError
-from .gaussians import (activate, init_params, num_gaussians, plane_sweep_points, points_from_frames, render,
+from .gaussians import (init_params, num_gaussians, plane_sweep_points, points_from_frames, render,
                         scene_scale)
 from .losses import blur_loss, edi_loss, event_loss
 from .metrics import psnr, ssim
@@ -428,6 +428,31 @@ def _checkpoint(path: Path, run: Run, optimizers, sstate, order_rng: np.random.G
     tmp.replace(path)
 
 
+def validate_config(cfg: Config) -> Config:
+    """Raise ``UserError`` naming the field for settings that cannot work."""
+    from .strategy import STRATEGIES
+    from .trajectory import TRAJECTORIES
+
+    if not isinstance(cfg, Config):
+        raise UserError(f"config must be an ebad.Config or a preset name, got {type(cfg).__name__}")
+    checks = [
+        (cfg.trajectory.kind in TRAJECTORIES, f"trajectory.kind must be one of {sorted(TRAJECTORIES)}, got '{cfg.trajectory.kind}'"),
+        (cfg.strategy.kind in STRATEGIES, f"strategy.kind must be one of {sorted(STRATEGIES)}, got '{cfg.strategy.kind}'"),
+        (cfg.trajectory.num_views >= 1, f"trajectory.num_views must be >= 1, got {cfg.trajectory.num_views}"),
+        (cfg.train.iters >= 1, f"train.iters must be >= 1, got {cfg.train.iters}"),
+        (min(cfg.loss.w_blur, cfg.loss.w_event, cfg.loss.w_edi) >= 0, "loss weights must be >= 0"),
+        (cfg.loss.target in ("blurry", "edi"), f"loss.target must be 'blurry' or 'edi', got '{cfg.loss.target}'"),
+        (cfg.loss.contrast is None or cfg.loss.contrast > 0, f"loss.contrast must be > 0, got {cfg.loss.contrast}"),
+        (cfg.train.max_seconds is None or cfg.train.max_seconds > 0, f"train.max_seconds must be > 0, got {cfg.train.max_seconds}"),
+        (0 < cfg.model.init_opacity < 1, f"model.init_opacity must be in (0, 1), got {cfg.model.init_opacity}"),
+        (cfg.model.init_points >= 1, f"model.init_points must be >= 1, got {cfg.model.init_points}"),
+    ]
+    for ok, msg in checks:
+        if not ok:
+            raise UserError(msg)
+    return cfg
+
+
 def reconstruct(capture, config: Config | str | None = None, out_dir: str | Path | None = None,
                 resume: bool = False, gt_views=None, on_step=None) -> Run:
     """Recover Gaussians and per-exposure trajectories from ``capture``.
@@ -443,6 +468,7 @@ def reconstruct(capture, config: Config | str | None = None, out_dir: str | Path
         on_step: optional callback(step, stats) after every step.
     """
     cfg = preset("ebad") if config is None else (preset(config) if isinstance(config, str) else config)
+    validate_config(cfg)
     torch.manual_seed(cfg.train.seed)
     gen = torch.Generator().manual_seed(cfg.train.seed)
     t_prep = time.perf_counter()

@@ -9,16 +9,16 @@ from pathlib import Path
 import numpy as np
 
 NAME = "demo"
-HELP = "reconstruct a tiny synthetic blurry scene with ebad and with 3dgs, and compare (~2 minutes)"
+HELP = "reconstruct a tiny synthetic blurry scene with ebad and with 3dgs, and compare (about 1 minute)"
 
 
 def add_arguments(parser) -> None:
     parser.add_argument("--out", default="ebad_demo", help="output folder (default ./ebad_demo)")
     parser.add_argument("--scene", default="boxes", help="synthetic scene name (default boxes)")
     parser.add_argument("--rgb", action="store_true", help="a colour scene (default grey, like a DAVIS346)")
-    parser.add_argument("--iters", type=int, default=400, help="optimisation steps per method (default 400)")
-    parser.add_argument("--max-seconds", type=float, default=75.0,
-                        help="wall-time cap per method, so the demo ends in time on a busy machine (default 75)")
+    parser.add_argument("--iters", type=int, default=1000, help="optimisation steps per method (default 1000)")
+    parser.add_argument("--max-seconds", type=float, default=70.0,
+                        help="wall-time cap per method, so the demo ends in time on a busy machine (default 70)")
     parser.add_argument("--seed", type=int, default=0, help="scene seed")
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
 

@@ -96,6 +96,10 @@ def test_bad_capture_errors_name_the_field(tiny):
         reconstruct(cap, _cfg("3dgs", 1))
     with pytest.raises(ValueError, match="preset"):
         reconstruct(tiny.capture, "sharpest")
+    cfg = _cfg("ebad", 1)
+    cfg.trajectory.kind = "zigzag"
+    with pytest.raises(ValueError, match="trajectory.kind"):
+        reconstruct(tiny.capture, cfg)
 
 
 @pytest.mark.slow
@@ -128,3 +132,18 @@ def test_cli_reconstruct_resume_render_eval(tiny, tmp_path, capsys):
     assert {"test", "test_refined", "deblurred"} <= set(res)
     assert res["test_refined"]["psnr"] >= res["test"]["psnr"] - 1e-6  # refinement keeps the best pose
     assert main(["render", str(tmp_path / "nope"), "--out", str(out)]) == 2
+
+
+@pytest.mark.slow
+def test_demo_smoke(tmp_path, capsys):
+    out = tmp_path / "demo"
+    assert main(["demo", "--out", str(out), "--iters", "5", "--no-progress"]) == 0
+    text = capsys.readouterr().out
+    assert "novel views" in text and "ebad (EBAD-Gaussian)" in text
+    res = json.loads((out / "results.json").read_text())
+    assert {"blurry_input", "3dgs", "ebad"} <= set(res)
+    from PIL import Image
+    im = np.array(Image.open(out / "comparison.png"))
+    assert im.ndim == 3 and im.shape[2] == 3 and im.shape[0] > 48 * 4
+    assert len(list((out / "renders" / "ebad").glob("*.png"))) == 3
+    assert (out / "run_ebad" / "point_cloud.ply").exists()
