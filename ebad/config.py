@@ -24,7 +24,7 @@ __all__ = [
 ]
 
 Target = Literal["blurry", "edi"]
-PoseSource = Literal["auto", "capture", "colmap"]
+PoseSource = Literal["auto", "capture", "colmap", "static"]
 
 
 @dataclass
@@ -55,7 +55,7 @@ class TrajectoryConfig:
     lr: float = 2e-3  # Adam learning rate of the knots (radians; translations in scene-scale units)
     anchor_mid: Literal["auto", "yes", "no"] = "auto"  # keep the mid-exposure pose fixed (learn only
     #   the motion); auto: yes when the poses come with the capture (trusted), no after SfM
-    pose_source: PoseSource = "auto"  # auto: capture poses when present, else pycolmap SfM
+    pose_source: PoseSource = "auto"  # auto: capture poses when present, else pycolmap SfM; static: a camera on a tripod (every frame at the identity pose)
 
 
 @dataclass

@@ -93,15 +93,21 @@ def _poses(capture, cfg: Config, idx: list[int]):
         return np.asarray(capture.c2w, dtype=np.float64)[idx], None, None, "capture", idx
     if src == "capture":
         raise UserError("trajectory.pose_source is 'capture' but the capture has no poses (c2w)")
+    if src == "static":
+        return np.repeat(np.eye(4)[None], len(idx), axis=0), None, None, "static", idx
     try:
         from scenes.colmap import estimate_poses
     except ImportError as exc:  # pragma: no cover - depends on the scenes package
         raise UserError(f"the capture has no poses and scenes.colmap is unavailable: {exc}") from exc
-    est = estimate_poses(capture)
+    try:
+        est = estimate_poses(capture)
+    except ValueError as exc:  # scenes.colmap.SfMError: too few frames registered
+        raise UserError(f"{exc} (for a camera that did not move, use --trajectory.pose_source static)") from exc
     reg = np.asarray(getattr(est, "registered", np.ones(capture.num_frames, bool)), dtype=bool)
     keep = [i for i in idx if reg[i]]
     if len(keep) < 2:
-        raise UserError(f"pycolmap registered only {len(keep)} training frame(s); cannot reconstruct")
+        raise UserError(f"pycolmap registered only {len(keep)} training frame(s); cannot reconstruct "
+                        "(for a camera that did not move, use --trajectory.pose_source static)")
     pts = torch.from_numpy(np.asarray(est.points, dtype=np.float32)) if len(est.points) else None
     cols = None
     if pts is not None:

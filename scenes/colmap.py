@@ -74,6 +74,16 @@ def _sfm_frames(capture: Capture, deblur: bool, report: dict) -> np.ndarray:
         report["deblur_note"] = "edi.deblur not available: raw frames used"
         return frames
     c = capture.meta.get("c")
+    if c is None and capture.num_frames >= 2 and len(capture.events):
+        # one c for the whole capture from the consistency between frames: cheaper and far
+        # more reliable than a single-frame estimate per frame
+        from edi import estimate_c
+
+        try:
+            c = float(estimate_c(capture.frames, capture.exposures, capture.events))
+            report["c_estimated"] = c
+        except ValueError as exc:  # no pixel fired between frames: fall back to per frame
+            report["c_note"] = f"joint estimate failed ({exc}); per-frame estimates"
     out = frames.copy()
     for i in range(capture.num_frames):
         t0, t1 = capture.exposures[i]
