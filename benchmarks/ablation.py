@@ -12,6 +12,11 @@ compare presets within one run.
 """
 from __future__ import annotations
 
+import os
+
+# before torch is imported: torch's spinning OpenMP threads slow the numba kernels (see ebad/cli)
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
 import argparse
 import json
 import sys

@@ -11,6 +11,11 @@ events exist). Prints novel-view PSNR / SSIM and writes JSON.
 """
 from __future__ import annotations
 
+import os
+
+# before torch is imported: torch's spinning OpenMP threads slow the numba kernels (see ebad/cli)
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
 import argparse
 import copy
 import json

@@ -13,6 +13,11 @@ the same step count, on a capture where half of the frames are sharp:
 """
 from __future__ import annotations
 
+import os
+
+# before torch is imported: torch's spinning OpenMP threads slow the numba kernels (see ebad/cli)
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
 import argparse
 import copy
 import json
