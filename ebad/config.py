@@ -244,6 +244,38 @@ def _scalar_type(t):
     return None, None
 
 
+def field_comments(cls) -> dict[str, str]:
+    """The comment documenting each field of a dataclass: its inline ``# ...`` comment, or the
+    comment lines just above it. Used as the command-line help of the field."""
+    import inspect
+    import re
+
+    try:
+        lines = inspect.getsource(cls).splitlines()
+    except (OSError, TypeError):  # no source (frozen app): no help text
+        return {}
+    out: dict[str, str] = {}
+    above: list[str] = []
+    last = None  # the field whose inline comment a "#   ..." line continues
+    for line in lines[1:]:
+        stripped = line.strip()
+        if stripped.startswith("#"):
+            text = stripped.lstrip("#").strip()
+            if last is not None and stripped.startswith("#  "):
+                out[last] = f"{out[last]} {text}"
+            else:
+                above.append(text)
+                last = None
+            continue
+        m = re.match(r"\s+(\w+)\s*:[^#]*(?:#\s*(.*))?$", line)
+        last = None
+        if m and not stripped.startswith(("def ", "@")) and m.group(1) not in out:
+            out[m.group(1)] = m.group(2) or " ".join(above)
+            last = m.group(1) if m.group(2) else None
+        above = []
+    return {k: v for k, v in out.items() if v}
+
+
 def add_dataclass_arguments(parser: argparse.ArgumentParser, cls=Config, prefix: str = "") -> None:
     """Add one ``--section.field`` option per scalar field of ``cls`` (nested dataclasses recurse).
 
@@ -251,6 +283,7 @@ def add_dataclass_arguments(parser: argparse.ArgumentParser, cls=Config, prefix:
     Tuple-valued fields are left to JSON configs.
     """
     hints = typing.get_type_hints(cls)
+    docs = field_comments(cls)
     group = parser.add_argument_group(prefix.rstrip(".") or "config") if not prefix else parser
     for f in dataclasses.fields(cls):
         t = hints[f.name]
@@ -262,13 +295,13 @@ def add_dataclass_arguments(parser: argparse.ArgumentParser, cls=Config, prefix:
             continue
         if t is bool:
             group.add_argument(f"--{name}", dest=name, default=None, metavar="BOOL",
-                               type=_parse_bool, help=f"(bool) {cls.__name__}.{f.name}")
+                               type=_parse_bool, help=f"(true/false) {docs.get(f.name, '')}".rstrip())
             continue
         conv, choices = _scalar_type(t)
         if conv is None:
             continue
         group.add_argument(f"--{name}", dest=name, default=None, type=conv, choices=choices,
-                           help=f"{cls.__name__}.{f.name}")
+                           help=docs.get(f.name, f"{cls.__name__}.{f.name}"))
 
 
 def _parse_bool(s: str) -> bool:

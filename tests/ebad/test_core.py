@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
 
 import numpy as np
 import pytest
@@ -376,3 +377,28 @@ def test_anchored_trajectory_keeps_mid_pose(kind):
     with torch.no_grad():
         free.knots.copy_(traj.knots)
     assert not torch.allclose(free(torch.arange(3), torch.tensor([0.5]))[:, 0], c2w, atol=1e-3)
+
+
+def test_every_config_option_has_its_field_comment_as_help():
+    import argparse
+    import dataclasses
+
+    from ebad.config import Config, add_dataclass_arguments, field_comments
+
+    @dataclasses.dataclass
+    class Demo:
+        a: int = 1  # inline help
+        #   continued here
+        # help above b
+        b: float = 2.0
+        c: bool = False  # help of c
+
+    assert field_comments(Demo) == {"a": "inline help continued here", "b": "help above b", "c": "help of c"}
+    parser = argparse.ArgumentParser()
+    add_dataclass_arguments(parser, Config)
+    helps = {a.dest: a.help for a in parser._actions if a.dest != "help"}
+    assert helps, "no options generated"
+    fallback = re.compile(r"^(\(true/false\))?\s*([A-Z]\w*\.\w+)?$")  # empty, or the Class.field stand-in
+    undocumented = [k for k, h in helps.items() if fallback.match(h or "")]
+    assert not undocumented, undocumented
+    assert "tripod" in helps["trajectory.pose_source"]
