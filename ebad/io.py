@@ -1,6 +1,6 @@
 """Run-folder files: 16-bit PNGs, the 3DGS ``point_cloud.ply``, trajectories (JSON and plot).
 
-PNG: written with a tiny encoder (zlib, filter 0) because Pillow cannot write 16-bit colour;
+PNG: ``scenes.images.write_png16`` (a tiny encoder: Pillow cannot write 16-bit colour);
 values are linear intensity, ``round(v * 65535)``.
 
 PLY: the standard 3DGS layout (binary little-endian float32): ``x y z nx ny nz f_dc_0 f_dc_1
@@ -23,56 +23,8 @@ __all__ = ["write_png16", "read_png16", "write_ply", "read_ply", "write_trajecto
 
 # --------------------------------------------------------------------------- PNG
 
-def _chunk(kind: bytes, data: bytes) -> bytes:
-    return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
-
-
-def write_png16(path: str | Path, img: np.ndarray) -> Path:  # [H, W, D] or [H, W], D in {1, 3}
-    """Write linear [0, 1] intensity as a 16-bit grey or RGB PNG."""
-    a = np.asarray(img, dtype=np.float64)
-    if a.ndim == 2:
-        a = a[..., None]
-    if a.ndim != 3 or a.shape[2] not in (1, 3):
-        raise ValueError(f"image must be [H, W] or [H, W, 1|3], got {a.shape}")
-    if not np.isfinite(a).all():
-        raise ValueError(f"image for {path} has non-finite values")
-    H, W, D = a.shape
-    q = np.round(np.clip(a, 0, 1) * 65535).astype(">u2")
-    raw = b"".join(b"\x00" + q[y].tobytes() for y in range(H))
-    colour_type = 0 if D == 1 else 2
-    png = (b"\x89PNG\r\n\x1a\n" + _chunk(b"IHDR", struct.pack(">IIBBBBB", W, H, 16, colour_type, 0, 0, 0))
-           + _chunk(b"IDAT", zlib.compress(raw, 6)) + _chunk(b"IEND", b""))
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_bytes(png)
-    return path
-
-
-def read_png16(path: str | Path) -> np.ndarray:  # -> [H, W, D] float32
-    """Read a PNG as float32 [H, W, D] in [0, 1] (any bit depth Pillow or imageio reads)."""
-    import imageio.v3 as iio
-
-    path = Path(path)
-    data = path.read_bytes()
-    if data[12:16] == b"IHDR" and data[24] == 16 and data[25] in (0, 2) and data[28] == 0:
-        W, H = struct.unpack(">II", data[16:24])
-        D = 1 if data[25] == 0 else 3
-        pos, idat = 8, b""
-        while pos < len(data):
-            n = struct.unpack(">I", data[pos:pos + 4])[0]
-            kind = data[pos + 4:pos + 8]
-            if kind == b"IDAT":
-                idat += data[pos + 8:pos + 8 + n]
-            pos += 12 + n
-        raw = zlib.decompress(idat)
-        stride = 1 + W * D * 2
-        rows = [np.frombuffer(raw[y * stride + 1:(y + 1) * stride], dtype=">u2") for y in range(H)]
-        if all(raw[y * stride] == 0 for y in range(H)):
-            return (np.stack(rows).reshape(H, W, D).astype(np.float32) / 65535.0)
-    a = np.asarray(iio.imread(path))
-    scale = 65535.0 if a.dtype == np.uint16 else 255.0
-    a = a.astype(np.float32) / scale
-    return a[..., None] if a.ndim == 2 else a
+# one 16-bit PNG codec for the project (frames in captures, renders in runs)
+from scenes.images import read_png16, write_png16  # noqa: E402
 
 
 # --------------------------------------------------------------------------- PLY

@@ -3,7 +3,7 @@
 See docs/conventions.md for the layout. Extra keys this writer adds (ignored by other
 readers, read back here so that save -> load is lossless): per frame ``name``; top level
 ``events.t0_us`` (the stream's t0), ``meta`` (JSON-serialisable entries of Capture.meta).
-Frames are written as 8-bit PNG when every value is k/255, 16-bit grey PNG when k/65535,
+Frames are written as 8-bit PNG when every value is k/255, 16-bit PNG (grey or RGB) when k/65535,
 and float32 ``.npy`` otherwise.
 """
 from __future__ import annotations

@@ -4,13 +4,80 @@ Convention: PNG values are linear intensity (no sRGB curve), ``v / 255`` or ``v 
 """
 from __future__ import annotations
 
+import struct
+import zlib
 from pathlib import Path
 
 import numpy as np
 
 from .errors import CaptureError
 
-__all__ = ["read_image", "write_image", "quantize"]
+__all__ = ["read_image", "write_image", "quantize", "write_png16", "read_png16"]
+
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def _chunk(kind: bytes, data: bytes) -> bytes:
+    return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
+
+
+def write_png16(path: str | Path, img: np.ndarray) -> Path:  # [H, W, D] or [H, W], D in {1, 3}
+    """Write linear [0, 1] intensity as a 16-bit grey or RGB PNG, ``round(v * 65535)``.
+
+    A tiny encoder (zlib, filter 0 on every row) because Pillow cannot write 16-bit colour."""
+    a = np.asarray(img, dtype=np.float64)
+    if a.ndim == 2:
+        a = a[..., None]
+    if a.ndim != 3 or a.shape[2] not in (1, 3):
+        raise ValueError(f"image must be [H, W] or [H, W, 1|3], got {a.shape}")
+    if not np.isfinite(a).all():
+        raise ValueError(f"image for {path} has non-finite values")
+    H, W, D = a.shape
+    q = np.round(np.clip(a, 0, 1) * 65535).astype(">u2")
+    raw = b"".join(b"\x00" + q[y].tobytes() for y in range(H))
+    colour_type = 0 if D == 1 else 2
+    png = (_PNG_SIGNATURE + _chunk(b"IHDR", struct.pack(">IIBBBBB", W, H, 16, colour_type, 0, 0, 0))
+           + _chunk(b"IDAT", zlib.compress(raw, 6)) + _chunk(b"IEND", b""))
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(png)
+    return path
+
+
+def _decode_png16(data: bytes) -> np.ndarray | None:  # -> [H, W, D] uint16, or None
+    """Decode a non-interlaced 16-bit grey/RGB PNG whose rows all use filter 0 (what
+    ``write_png16`` writes); None for anything else."""
+    if data[:8] != _PNG_SIGNATURE or data[12:16] != b"IHDR" or len(data) < 33:
+        return None
+    if not (data[24] == 16 and data[25] in (0, 2) and data[28] == 0):
+        return None
+    W, H = struct.unpack(">II", data[16:24])
+    D = 1 if data[25] == 0 else 3
+    pos, idat = 8, b""
+    while pos + 8 <= len(data):
+        n = struct.unpack(">I", data[pos:pos + 4])[0]
+        if data[pos + 4:pos + 8] == b"IDAT":
+            idat += data[pos + 8:pos + 8 + n]
+        pos += 12 + n
+    try:
+        raw = zlib.decompress(idat)
+    except zlib.error:
+        return None
+    stride = 1 + W * D * 2
+    if len(raw) != H * stride or any(raw[y * stride] != 0 for y in range(H)):
+        return None
+    rows = np.frombuffer(raw, dtype=np.uint8).reshape(H, stride)[:, 1:]
+    return np.ascontiguousarray(rows).view(">u2").reshape(H, W, D).astype(np.uint16)
+
+
+def read_png16(path: str | Path) -> np.ndarray:  # -> [H, W, D] float32
+    """Read a PNG as float32 [H, W, D] in [0, 1]: ``write_png16``'s output, or anything
+    :func:`read_image` reads."""
+    path = Path(path)
+    q = _decode_png16(path.read_bytes()) if path.is_file() else None
+    if q is not None:
+        return q.astype(np.float32) / np.float32(65535)
+    return read_image(path)
 
 
 def quantize(img: np.ndarray, bits: int = 8) -> np.ndarray:
@@ -31,7 +98,7 @@ def _exact(img: np.ndarray, bits: int) -> np.ndarray | None:
 
 def write_image(path: Path, img: np.ndarray) -> Path:
     """Write [H, W, D] float32 in [0, 1] losslessly; returns the path written, whose suffix is
-    .png (8-bit when every value is k/255, 16-bit grey when k/65535) or .npy (anything else).
+    .png (8-bit when every value is k/255, 16-bit when k/65535) or .npy (anything else).
     ``path`` is given without caring for its suffix."""
     from PIL import Image
 
@@ -39,11 +106,11 @@ def write_image(path: Path, img: np.ndarray) -> Path:
     img = np.asarray(img, dtype=np.float32)
     d = img.shape[2]
     for bits in (8, 16):
-        if bits == 16 and d != 1:  # Pillow cannot write 16-bit colour PNG
-            break
         ints = _exact(img, bits)
         if ints is not None:
             out = path.with_suffix(".png")
+            if bits == 16 and d != 1:  # Pillow cannot write 16-bit colour PNG
+                return write_png16(out, ints.astype(np.float64) / 65535.0)
             arr = ints[..., 0] if d == 1 else ints
             Image.fromarray(arr).save(out, format="PNG")
             return out
@@ -83,8 +150,12 @@ def read_image(path: Path, field: str = "file") -> np.ndarray:
         return a
     info = _png_bit_depth(path) if path.suffix.lower() == ".png" else None
     if info is not None and info[0] == 16 and info[1] in (2, 6):
-        raise CaptureError(str(path), field, "16-bit colour PNG is not supported (Pillow truncates it); "
-                                             "use 8-bit PNG or a float32 .npy")
+        q = _decode_png16(path.read_bytes())
+        if q is None:
+            raise CaptureError(str(path), field, "only 16-bit colour PNGs written by ebad (unfiltered rows, no "
+                                                 "alpha) are supported (Pillow truncates them); use 8-bit PNG "
+                                                 "or a float32 .npy")
+        return q.astype(np.float32) / np.float32(65535)
     try:
         with Image.open(path) as im:
             im.load()
