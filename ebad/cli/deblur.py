@@ -22,8 +22,9 @@ INPUT is one of
 
 Writes DIR/sharp/NAME.png (mid-exposure), DIR/instants/NAME_KK.png (with --times N: N
 instants per exposure at the centres of N equal sub-intervals), DIR/side_by_side/NAME.png
-(blurry | sharp) and DIR/c.json (the contrast threshold used per frame). PNGs are written
-as they are read: linear intensity, 8 bit."""
+(blurry | sharp) and DIR/c.json (the contrast threshold used per frame). PNG values are
+linear intensity; the sharp frames and instants are 16-bit (``--bits 8`` for 8-bit), the
+side-by-side images 8-bit."""
 
 _IMAGE_EXT = {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".pgm"}
 
@@ -38,6 +39,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--t-unit", choices=["s", "ms", "us", "ns"], help="time unit of --events (default: inferred)")
     p.add_argument("--max-frames", type=int, default=0, help="deblur only the first N frames (0: all)")
     p.add_argument("--skip-sharp", action="store_true", help="skip frames without events or with t_start == t_end")
+    p.add_argument("--bits", type=int, choices=(8, 16), default=16,
+                   help="bit depth of the sharp frames and instants (default 16; side-by-side images are 8-bit)")
 
 
 def _parse_c(s: str):
@@ -112,11 +115,16 @@ def _load_input(args):
     raise UserError(f"{path}: INPUT must be a capture folder, an .aedat4 file or a frame image")
 
 
-def _save(path: Path, img: np.ndarray) -> None:
+def _save(path: Path, img: np.ndarray, bits: int = 8) -> None:
     from skimage import io
 
     path.parent.mkdir(parents=True, exist_ok=True)
     a = np.clip(np.asarray(img, np.float64), 0, 1)
+    if bits == 16:
+        from scenes.images import write_png16
+
+        write_png16(path, a)
+        return
     if a.ndim == 3 and a.shape[-1] == 1:
         a = a[..., 0]
     io.imsave(str(path), (a * 255.0 + 0.5).astype(np.uint8), check_contrast=False)
@@ -154,13 +162,13 @@ def run(args) -> int:
         c_i = c_arg if c_arg is not None else c_global
         src = c_source if c_arg is not None or c_global is not None else "estimated on this frame"
         lat, rep = edi.deblur(frames[i], (t_s, t_e), events, c=c_i, return_report=True)
-        _save(out / "sharp" / f"{names[i]}.png", lat)
+        _save(out / "sharp" / f"{names[i]}.png", lat, args.bits)
         _save(out / "side_by_side" / f"{names[i]}.png", np.concatenate([frames[i], lat], axis=1))
         if args.times > 0 and t_e > t_s:
             ts = t_s + (np.arange(args.times) + 0.5) * (t_e - t_s) / args.times
             lats = edi.deblur(frames[i], (t_s, t_e), events, times=ts, c=rep.c)
             for k in range(args.times):
-                _save(out / "instants" / f"{names[i]}_{k:02d}.png", lats[k])
+                _save(out / "instants" / f"{names[i]}_{k:02d}.png", lats[k], args.bits)
         per_frame.append({
             "name": names[i],
             "t_start": t_s,

@@ -86,7 +86,12 @@ def test_cli_deblur_frame_and_mat_events(tmp_path):
     rc = main(["deblur", str(NI / "toy.png"), "--events", str(NI / "toy.mat"), "--out", str(out), "--c", "0.25", "--times", "3"])
     assert rc == 0
     sharp = io.imread(out / "sharp" / "toy.png")
-    assert sharp.shape == (260, 346) and sharp.dtype == np.uint8
+    assert sharp.shape == (260, 346) and sharp.dtype == np.uint16  # 16-bit by default
+    rc = main(["deblur", str(NI / "toy.png"), "--events", str(NI / "toy.mat"), "--out", str(tmp_path / "o8"),
+               "--c", "0.25", "--bits", "8"])
+    sharp8 = io.imread(tmp_path / "o8" / "sharp" / "toy.png")
+    assert rc == 0 and sharp8.dtype == np.uint8
+    assert np.abs(sharp8 / 255.0 - sharp / 65535.0).max() <= 0.5 / 255 + 1e-6  # the same image
     assert io.imread(out / "side_by_side" / "toy.png").shape == (260, 692)
     assert sorted(p.name for p in (out / "instants").iterdir()) == ["toy_00.png", "toy_01.png", "toy_02.png"]
     meta = json.loads((out / "c.json").read_text())
