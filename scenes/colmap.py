@@ -176,6 +176,8 @@ def estimate_poses(capture: Capture, config: ColmapConfig | None = None, frames:
         reader.camera_model = "PINHOLE"
         reader.camera_params = ",".join(f"{v:.10g}" for v in (K[0, 0] * scale, K[1, 1] * scale, K[0, 2] * scale,
                                                                K[1, 2] * scale))
+        if hasattr(pycolmap, "set_random_seed"):  # RANSAC in matching and mapping; bit-exact only with 1 thread
+            pycolmap.set_random_seed(cfg.seed)
         ext = pycolmap.FeatureExtractionOptions()
         ext.num_threads = cfg.num_threads
         ext.use_gpu = False

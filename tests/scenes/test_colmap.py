@@ -78,7 +78,7 @@ def test_sfm_on_slider_depth_agrees_with_ground_truth():
 
     cap = scenes.load(SLIDER)
     idx = list(range(0, 87, 2))  # 44 frames, about 2.3 cm apart (sequential matching)
-    est = estimate_poses(cap, frames=idx)
+    est = estimate_poses(cap, ColmapConfig(num_threads=1), frames=idx)  # one thread: deterministic
     assert est.registered.all()
     assert est.c2w.shape == (len(idx), 4, 4) and np.isfinite(est.c2w).all()
     assert len(est.points) > 300 and est.colors.shape == (len(est.points), 1)
@@ -99,12 +99,14 @@ def test_sfm_on_a_tiny_blurry_scene_is_better_on_edi_deblurred_frames():
 
     sc = scenes.make_scene("boxes", "tiny", n_frames=12, sigma_c=0.0)
     cap = sc.capture
-    edi_est = estimate_poses(cap)  # deblur=True by default
+    # one thread and a fixed seed: COLMAP's multi-threaded matching and bundle adjustment are
+    # not deterministic, and on 64x48 frames an unlucky run can lose the track
+    edi_est = estimate_poses(cap, ColmapConfig(num_threads=1))  # deblur=True by default
     assert edi_est.report["deblurred"] == 12 and edi_est.registered.all()
     e_edi = pose_errors(edi_est.c2w, cap.c2w)
     assert e_edi["ate_rmse"] < 0.03 * e_edi["trajectory_extent"]
     try:
-        raw = estimate_poses(cap, ColmapConfig(deblur=False))
+        raw = estimate_poses(cap, ColmapConfig(deblur=False, num_threads=1))
     except SfMError:
         return  # SfM on the blurry frames failed outright: EDI did better
     e_raw = pose_errors(raw.c2w[raw.registered], cap.c2w[raw.registered])
