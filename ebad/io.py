@@ -11,20 +11,15 @@ so viewers show grey, and records ``comment ebad channels 1`` so it reads back a
 from __future__ import annotations
 
 import json
-import struct
-import zlib
 from pathlib import Path
 
 import numpy as np
 import torch
 
-__all__ = ["write_png16", "read_png16", "write_ply", "read_ply", "write_trajectories", "plot_trajectories"]
-
-
-# --------------------------------------------------------------------------- PNG
-
 # one 16-bit PNG codec for the project (frames in captures, renders in runs)
-from scenes.images import read_png16, write_png16  # noqa: E402
+from scenes.images import read_png16, write_png16
+
+__all__ = ["write_png16", "read_png16", "write_ply", "read_ply", "write_trajectories", "plot_trajectories"]
 
 
 # --------------------------------------------------------------------------- PLY
