@@ -12,12 +12,14 @@ Public API::
 """
 from .contrast import ContrastReport, estimate_c
 from .deblur import LOG_EPS, SATURATION, DeblurReport, deblur
-from .events import EventError, EventStream, seconds_to_us
+from .errors import EbadError, EventError
+from .events import EventStream, seconds_to_us
 from .io import AedatRecording, infer_time_unit, read_aedat4, read_events
 from .medi import medi
 
 __all__ = [
     "EventStream",
+    "EbadError",
     "EventError",
     "seconds_to_us",
     "LOG_EPS",

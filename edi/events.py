@@ -12,11 +12,11 @@ from typing import Any
 
 import numpy as np
 
+from .errors import EventError
+
 __all__ = ["EventStream", "EventError"]
 
 
-class EventError(ValueError):
-    """An event array is malformed; the message names the field and the first bad index."""
 
 
 def _to_numpy(a: Any, name: str) -> np.ndarray:

@@ -18,12 +18,14 @@ from typing import Literal
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
+from edi.errors import EbadError
+
 from .capture import Capture
 
 __all__ = ["ColmapConfig", "PoseEstimate", "SfMError", "estimate_poses", "align_similarity", "pose_errors"]
 
 
-class SfMError(ValueError):
+class SfMError(EbadError, ValueError):
     """Structure from motion failed (too few frames registered); the message says how many."""
 
 

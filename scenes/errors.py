@@ -1,10 +1,12 @@
 """The one exception every capture reader and writer raises for bad input."""
 from __future__ import annotations
 
-__all__ = ["CaptureError"]
+from edi.errors import EbadError
+
+__all__ = ["CaptureError", "EbadError"]
 
 
-class CaptureError(ValueError):
+class CaptureError(EbadError, ValueError):
     """A capture on disk or in memory is malformed.
 
     The message names the file and the field (``capture.json: frames[3].t_end: missing``);

@@ -7,9 +7,10 @@ Each subcommand lives in its own module in this package and exposes::
     def add_arguments(parser): ... # fill an argparse parser
     def run(args) -> int: ...      # do the work, return an exit code
 
-Modules are discovered, so adding a command touches no other file. User mistakes raise
-``ebad.errors.UserError`` (or ``ValueError``/``FileNotFoundError`` with a message that
-names the file, field or argument); ``main`` prints the message, not a traceback.
+Modules are discovered, so adding a command touches no other file. User mistakes raise a
+subclass of ``ebad.errors.EbadError`` whose message names the file, field or argument, and
+file-system failures raise ``OSError`` with the path; ``main`` prints those as one line and
+exits 2. Anything else is a bug and shows its traceback.
 """
 from __future__ import annotations
 
@@ -26,7 +27,7 @@ import importlib  # noqa: E402
 import pkgutil  # noqa: E402
 import sys  # noqa: E402
 
-from ..errors import UserError  # noqa: E402
+from ..errors import EbadError  # noqa: E402
 
 
 def _commands():
@@ -65,11 +66,18 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("ebad: interrupted", file=sys.stderr)
         return 130
-    except (UserError, ValueError, FileNotFoundError, NotADirectoryError, IsADirectoryError) as exc:
+    except (EbadError, OSError) as exc:
         if args.traceback:
             raise
-        print(f"ebad {args.command}: error: {exc}", file=sys.stderr)
+        print(f"ebad {args.command}: error: {_one_line(exc)}", file=sys.stderr)
         return 2
+
+
+def _one_line(exc: BaseException) -> str:
+    """The message of a user mistake or an OSError, with the path an OSError carries."""
+    if isinstance(exc, OSError) and not isinstance(exc, EbadError) and exc.filename is not None:
+        return f"{exc.filename}: {exc.strerror or exc}"
+    return str(exc)
 
 
 if __name__ == "__main__":  # pragma: no cover
