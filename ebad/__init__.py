@@ -5,13 +5,16 @@
 
 The heavy parts (torch, the trainer) are imported on first use, so ``ebad --help`` stays quick.
 """
-from .errors import UserError
+from .errors import ConfigError, EbadError, UserError
 
-__all__ = ["UserError", "reconstruct", "Run", "Config", "preset", "PRESETS", "load_run", "evaluate"]
+__all__ = ["EbadError", "UserError", "ConfigError", "reconstruct", "Run", "Config", "preset", "PRESETS", "load_run",
+           "evaluate", "prepare", "TrainState"]
 __version__ = "0.1.0"
 
 _LAZY = {
     "reconstruct": ("trainer", "reconstruct"),
+    "prepare": ("data", "prepare"),
+    "TrainState": ("state", "TrainState"),
     "Run": ("trainer", "Run"),
     "Config": ("config", "Config"),
     "preset": ("config", "preset"),

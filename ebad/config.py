@@ -1,61 +1,105 @@
-"""Reconstruction settings as dataclasses, the preset registry, JSON and argparse helpers.
+"""Reconstruction settings as dataclasses, the preset registry and JSON round trips.
 
-Every field carries a comment; ``Config`` nests one dataclass per concern. Presets are named
-functions in ``PRESETS`` returning a full ``Config``; a run saves the resolved config as JSON
-beside its outputs, and ``config_from_dict`` reads it back (unknown keys are errors that name
-the key; nothing is ``eval``-ed).
+Every field carries a comment, which is also its command-line help: the command line is
+generated from these dataclasses by tyro (``ebad.cli.reconstruct``), so every field is an
+option (``--train.iters 300``, ``--model.init_depth 0.5 2.0``). ``Config`` nests one dataclass
+per concern; each section's ``check()`` refuses values that cannot work, naming the option.
+Presets are named functions in ``PRESETS`` returning a full ``Config``; a run saves the
+resolved config as JSON beside its outputs, and ``config_from_dict`` reads it back (unknown
+keys and values of the wrong type are errors that name the key; nothing is ``eval``-ed).
 """
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
+import math
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Literal
 
-from .errors import UserError
+from .errors import ConfigError
 
 __all__ = [
     "ModelConfig", "TrajectoryConfig", "LossConfig", "StrategyConfig", "TrainConfig", "Config",
     "PRESETS", "preset", "config_to_dict", "config_from_dict", "save_config", "load_config",
-    "add_dataclass_arguments", "apply_dataclass_arguments",
+    "config_diff", "RESUMABLE_FIELDS",
 ]
 
 Target = Literal["blurry", "edi"]
 PoseSource = Literal["auto", "capture", "colmap", "static"]
+TrajectoryKind = Literal["linear", "cubic", "fixed"]
+StrategyKind = Literal["default", "none"]
+
+
+def _require(ok: bool, option: str, problem: str) -> None:
+    if not ok:
+        raise ConfigError(f"--{option}: {problem}")
+
+
+def _finite(section: object, prefix: str) -> None:
+    """Every float field of ``section`` is finite (``--train.lr_means nan`` names the option)."""
+    for f in dataclasses.fields(section):
+        v = getattr(section, f.name)
+        if isinstance(v, float) and not math.isfinite(v):
+            raise ConfigError(f"--{prefix}.{f.name}: must be a finite number, got {v}")
+        if isinstance(v, tuple) and any(isinstance(x, float) and not math.isfinite(x) for x in v):
+            raise ConfigError(f"--{prefix}.{f.name}: must be finite numbers, got {v}")
 
 
 @dataclass
 class ModelConfig:
     """The Gaussians and how they start."""
 
-    init: Literal["stereo", "random"] = "stereo"  # fallback without SfM points: plane-sweep stereo
-    #   between the posed frames (gaussians.plane_sweep_points) or random depths along pixel rays
+    init: Literal["stereo", "random"] = "stereo"  # fallback without SfM points: plane-sweep stereo between the posed frames (gaussians.plane_sweep_points) or random depths along pixel rays
     init_points: int = 3000  # Gaussians of the fallback initialisation (no SfM points)
-    init_depth: tuple[float, float] | None = None  # fallback depth range (near, far) in world units;
-    #   None: from capture.meta["depth_range"] when present, else (0.5, 2.0) x the camera-spread scale
+    init_depth: tuple[float, float] | None = None  # fallback depth range (near, far) in world units; None: from the focus point of the cameras' optical axes (FOCUS_DEPTH_RANGE x its depth), else SPREAD_DEPTH_RANGE x the camera-spread scale
     init_opacity: float = 0.3  # activated opacity of every initial Gaussian
     init_scale_px: float = 1.5  # initial Gaussian radius in pixels at its depth (fallback init)
-    max_gaussians: int = 0  # densification stops growing N beyond this; 0: 2 x pixels, in [4000, 60000]
-    background: float = 0.0  # background intensity (every channel)
+    min_sfm_points: int = 16  # SfM point clouds with fewer points than this are ignored (fallback init instead)
+    stereo_depths: int = 32  # plane-sweep initialisation: depth planes, uniform in inverse depth
+    stereo_neighbours: int = 2  # plane-sweep initialisation: nearest frames each frame is compared with
+    stereo_patch: int = 5  # plane-sweep initialisation: side of the cost-averaging patch in pixels (odd)
+    max_gaussians: int = 0  # densification stops growing N beyond this; 0: AUTO_CAP_PER_PIXEL x pixels, clamped to AUTO_CAP_RANGE (2 x pixels in [4000, 60000])
+    background: float = 0.0  # background intensity (every channel), in [0, 1]
+
+    def check(self) -> None:
+        _finite(self, "model")
+        _require(self.init_points >= 1, "model.init_points", f"must be >= 1, got {self.init_points}")
+        _require(0 < self.init_opacity < 1, "model.init_opacity", f"must be in (0, 1), got {self.init_opacity}")
+        _require(self.init_scale_px > 0, "model.init_scale_px", f"must be > 0, got {self.init_scale_px}")
+        if self.init_depth is not None:
+            _require(len(self.init_depth) == 2 and 0 < self.init_depth[0] < self.init_depth[1], "model.init_depth",
+                     f"must be two depths 0 < near < far, got {self.init_depth}")
+        _require(self.min_sfm_points >= 1, "model.min_sfm_points", f"must be >= 1, got {self.min_sfm_points}")
+        _require(self.stereo_depths >= 2, "model.stereo_depths", f"must be >= 2, got {self.stereo_depths}")
+        _require(self.stereo_neighbours >= 1, "model.stereo_neighbours", f"must be >= 1, got {self.stereo_neighbours}")
+        _require(self.stereo_patch >= 1 and self.stereo_patch % 2 == 1, "model.stereo_patch",
+                 f"must be an odd number >= 1, got {self.stereo_patch}")
+        _require(self.max_gaussians >= 0, "model.max_gaussians", f"must be >= 0 (0: automatic), got {self.max_gaussians}")
+        _require(0 <= self.background <= 1, "model.background", f"must be in [0, 1], got {self.background}")
 
 
 @dataclass
 class TrajectoryConfig:
     """Camera motion inside each exposure."""
 
-    kind: str = "linear"  # registered trajectory model: linear | cubic | fixed
+    kind: TrajectoryKind = "linear"  # trajectory model (ebad.trajectory.TRAJECTORIES): linear | cubic | fixed
     num_views: int = 5  # V, virtual views per blurry exposure (uniform instants)
     adaptive_views: bool = True  # V from event activity: a frame with few events renders V = 1
     sharp_events_per_pixel: float = 0.05  # below this many events per pixel an exposure is sharp
-    init_noise: float = 1e-3  # std of the initial start/end perturbation (radians; x scene scale for
-    #   translation) that breaks the zero-motion symmetry of the blur loss
+    init_noise: float = 1e-3  # std of the initial start/end perturbation (radians; x scene scale for translation) that breaks the zero-motion symmetry of the blur loss
     lr: float = 2e-3  # Adam learning rate of the knots (radians; translations in scene-scale units)
-    anchor_mid: Literal["auto", "yes", "no"] = "auto"  # keep the mid-exposure pose fixed (learn only
-    #   the motion); auto: yes when the poses come with the capture (trusted), no after SfM
+    anchor_mid: Literal["auto", "yes", "no"] = "auto"  # keep the mid-exposure pose fixed (learn only the motion); auto: yes when the poses come with the capture (trusted), no after SfM
     pose_source: PoseSource = "auto"  # auto: capture poses when present, else pycolmap SfM; static: a camera on a tripod (every frame at the identity pose)
+
+    def check(self) -> None:
+        _finite(self, "trajectory")
+        _require(self.num_views >= 1, "trajectory.num_views", f"must be >= 1, got {self.num_views}")
+        _require(self.sharp_events_per_pixel >= 0, "trajectory.sharp_events_per_pixel",
+                 f"must be >= 0, got {self.sharp_events_per_pixel}")
+        _require(self.init_noise >= 0, "trajectory.init_noise", f"must be >= 0, got {self.init_noise}")
+        _require(self.lr >= 0, "trajectory.lr", f"must be >= 0, got {self.lr}")
 
 
 @dataclass
@@ -73,17 +117,28 @@ class LossConfig:
     # degenerate minimum of L_ev and c drifts towards it (benchmarks/learn_contrast.py, small
     # grey scene, true c 0.2, 60 s: c 0.187 -> 0.07 in two runs), while novel-view PSNR is
     # equal within run-to-run noise (learnt minus fixed: -0.24 dB in one run, +0.26 dB in another)
-    learn_contrast: bool = False
+    learn_contrast: bool = False  # refine c (as log c) jointly through L_ev (off: c drifts to a degenerate minimum)
     lr_contrast: float = 1e-2  # Adam learning rate of log c
+
+    def check(self) -> None:
+        _finite(self, "loss")
+        for name in ("w_blur", "w_event", "w_edi"):
+            _require(getattr(self, name) >= 0, f"loss.{name}", f"must be >= 0, got {getattr(self, name)}")
+        _require(0 <= self.ssim_weight <= 1, "loss.ssim_weight", f"must be in [0, 1], got {self.ssim_weight}")
+        _require(self.ssim_window >= 1 and self.ssim_window % 2 == 1, "loss.ssim_window",
+                 f"must be an odd number >= 1, got {self.ssim_window}")
+        _require(self.contrast is None or self.contrast > 0, "loss.contrast", f"must be > 0, got {self.contrast}")
+        _require(self.lr_contrast >= 0, "loss.lr_contrast", f"must be >= 0, got {self.lr_contrast}")
 
 
 @dataclass
 class StrategyConfig:
     """Densification and pruning (gsplat's default strategy)."""
 
-    kind: str = "default"  # registered strategy: default | none
+    kind: StrategyKind = "default"  # densification strategy (ebad.strategy.STRATEGIES): default | none
     grad_threshold: float = 2e-4  # mean screen-space gradient norm (NDC units) that triggers clone/split
     split_scale: float = 0.01  # Gaussians larger than this x scene scale split, smaller ones clone
+    split_shrink: float = 1.6  # a split Gaussian becomes two, each this many times smaller (3DGS: 0.8 x 2)
     prune_opacity: float = 0.01  # Gaussians below this activated opacity are removed
     prune_scale: float = 0.2  # Gaussians larger than this x scene scale are removed (after a reset)
     refine_start: int = 50  # first step that refines
@@ -92,6 +147,15 @@ class StrategyConfig:
     reset_every: int = 600  # steps between opacity resets (0: never)
     reset_opacity: float = 0.05  # opacities are clamped to at most this at a reset
 
+    def check(self) -> None:
+        _finite(self, "strategy")
+        _require(self.grad_threshold > 0, "strategy.grad_threshold", f"must be > 0, got {self.grad_threshold}")
+        _require(self.split_shrink > 1, "strategy.split_shrink", f"must be > 1, got {self.split_shrink}")
+        _require(0 <= self.prune_opacity < 1, "strategy.prune_opacity", f"must be in [0, 1), got {self.prune_opacity}")
+        _require(self.refine_every >= 1, "strategy.refine_every", f"must be >= 1, got {self.refine_every}")
+        _require(self.reset_every >= 0, "strategy.reset_every", f"must be >= 0, got {self.reset_every}")
+        _require(0 < self.reset_opacity < 1, "strategy.reset_opacity", f"must be in (0, 1), got {self.reset_opacity}")
+
 
 @dataclass
 class TrainConfig:
@@ -99,10 +163,11 @@ class TrainConfig:
 
     iters: int = 600  # optimisation steps (one frame per step)
     max_seconds: float | None = None  # wall-time budget; the loop stops when it is spent
-    plateau_patience: int = 0  # stop after this many evaluations without improvement (0: never)
+    plateau_patience: int = 0  # stop after this many loss windows without improvement (0: never)
     plateau_every: int = 50  # steps between plateau checks (mean loss over the window)
     plateau_tol: float = 1e-3  # relative improvement that counts as progress
-    lr_means: float = 1.6e-3  # Adam lr of means, times the scene scale (decays x0.1 over the run)
+    lr_means: float = 1.6e-3  # Adam lr of means, times the scene scale (decays to lr_means_final x itself over the run)
+    lr_means_final: float = 0.1  # the means' learning rate decays exponentially to this fraction of lr_means (3DGS: 0.01)
     lr_scales: float = 1e-2  # Adam lr of log-scales
     lr_quats: float = 2e-3  # Adam lr of quaternions
     lr_opacities: float = 5e-2  # Adam lr of opacity logits
@@ -112,6 +177,22 @@ class TrainConfig:
     checkpoint_every: int = 200  # steps between checkpoints of a run folder (0: only at the end)
     seed: int = 0  # torch / numpy seed of the run
     progress: bool = True  # tqdm progress bar
+
+    def check(self) -> None:
+        _finite(self, "train")
+        _require(self.iters >= 1, "train.iters", f"must be >= 1, got {self.iters}")
+        _require(self.max_seconds is None or self.max_seconds > 0, "train.max_seconds",
+                 f"must be > 0, got {self.max_seconds}")
+        _require(self.plateau_patience >= 0, "train.plateau_patience", f"must be >= 0, got {self.plateau_patience}")
+        _require(self.plateau_every >= 1, "train.plateau_every", f"must be >= 1, got {self.plateau_every}")
+        _require(self.plateau_tol >= 0, "train.plateau_tol", f"must be >= 0, got {self.plateau_tol}")
+        for name in ("lr_means", "lr_scales", "lr_quats", "lr_opacities", "lr_colors"):
+            _require(getattr(self, name) >= 0, f"train.{name}", f"must be >= 0, got {getattr(self, name)}")
+        _require(0 < self.lr_means_final <= 1, "train.lr_means_final", f"must be in (0, 1], got {self.lr_means_final}")
+        _require(self.pose_warmup >= 0, "train.pose_warmup", f"must be >= 0, got {self.pose_warmup}")
+        _require(self.eval_every >= 0, "train.eval_every", f"must be >= 0 (0: never), got {self.eval_every}")
+        _require(self.checkpoint_every >= 0, "train.checkpoint_every",
+                 f"must be >= 0 (0: only at the end), got {self.checkpoint_every}")
 
 
 @dataclass
@@ -124,6 +205,12 @@ class Config:
     loss: LossConfig = field(default_factory=LossConfig)
     strategy: StrategyConfig = field(default_factory=StrategyConfig)
     train: TrainConfig = field(default_factory=TrainConfig)
+
+    def check(self) -> "Config":
+        """Raise ``ConfigError`` naming the first option whose value cannot work; return self."""
+        for section in (self.model, self.trajectory, self.loss, self.strategy, self.train):
+            section.check()
+        return self
 
 
 # --------------------------------------------------------------------------- presets
@@ -159,7 +246,7 @@ def _edi_3dgs() -> Config:
 
 def _oracle() -> Config:
     # Fed a capture whose frames are the sharp mid-exposure ground truth (see
-    # ebad.synthetic.oracle_capture): plain 3DGS with trusted poses.
+    # ebad.evaluate.oracle_capture): plain 3DGS with trusted poses.
     c = _3dgs()
     c.name = "oracle"
     return c
@@ -177,7 +264,7 @@ PRESETS: dict[str, Callable[[], Config]] = {
 def preset(name: str) -> Config:
     """A fresh ``Config`` for the preset ``name`` (one of ``PRESETS``)."""
     if name not in PRESETS:
-        raise UserError(f"unknown preset '{name}'; choose one of {sorted(PRESETS)}")
+        raise ConfigError(f"unknown preset '{name}'; choose one of {sorted(PRESETS)}")
     return PRESETS[name]()
 
 
@@ -187,35 +274,72 @@ def config_to_dict(cfg: Config) -> dict[str, Any]:
     return dataclasses.asdict(cfg)
 
 
+def _value(v: Any, t: Any, where: str) -> Any:
+    """``v`` read from JSON as the field type ``t``, or ``ConfigError`` naming ``where``."""
+    origin, args = typing.get_origin(t), typing.get_args(t)
+    if origin in (typing.Union, getattr(__import__("types"), "UnionType", None)):
+        if v is None and type(None) in args:
+            return None
+        inner = [a for a in args if a is not type(None)]
+        return _value(v, inner[0], where)
+    if origin is Literal:
+        if v not in args:
+            raise ConfigError(f"{where}: must be one of {list(args)}, got {v!r}")
+        return v
+    if origin is tuple:
+        if not isinstance(v, (list, tuple)) or len(v) != len(args):
+            raise ConfigError(f"{where}: must be a list of {len(args)} values, got {v!r}")
+        return tuple(_value(x, a, where) for x, a in zip(v, args))
+    if t is bool:
+        if not isinstance(v, bool):
+            raise ConfigError(f"{where}: must be true or false, got {v!r}")
+        return v
+    if t is int:
+        if isinstance(v, bool) or not isinstance(v, int):
+            raise ConfigError(f"{where}: must be an integer, got {v!r}")
+        return v
+    if t is float:
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise ConfigError(f"{where}: must be a number, got {v!r}")
+        return float(v)
+    if t is str:
+        if not isinstance(v, str):
+            raise ConfigError(f"{where}: must be a string, got {v!r}")
+        return v
+    raise TypeError(f"config field {where} has a type the JSON reader does not handle: {t}")  # a bug
+
+
 def _from_dict(cls, data: dict[str, Any], where: str):
     if not isinstance(data, dict):
-        raise UserError(f"config section '{where}' must be an object, got {type(data).__name__}")
+        raise ConfigError(f"config section '{where}' must be an object, got {type(data).__name__}")
     hints = typing.get_type_hints(cls)
     names = {f.name for f in dataclasses.fields(cls)}
     unknown = set(data) - names
     if unknown:
-        raise UserError(f"config section '{where}' has unknown key(s) {sorted(unknown)}")
+        raise ConfigError(f"config section '{where or 'top level'}' has unknown key(s) {sorted(unknown)}")
     kwargs = {}
     for f in dataclasses.fields(cls):
         if f.name not in data:
             continue
-        v = data[f.name]
+        key = f"{where}.{f.name}" if where else f.name
         t = hints[f.name]
         if dataclasses.is_dataclass(t):
-            v = _from_dict(t, v, f"{where}.{f.name}" if where else f.name)
-        elif isinstance(v, list):
-            v = tuple(v)
-        kwargs[f.name] = v
+            kwargs[f.name] = _from_dict(t, data[f.name], key)
+        else:
+            kwargs[f.name] = _value(data[f.name], t, key)
     return cls(**kwargs)
 
 
 def config_from_dict(data: dict[str, Any]) -> Config:
-    """Inverse of ``config_to_dict``; unknown keys raise ``UserError`` naming them."""
+    """Inverse of ``config_to_dict``; unknown keys and mistyped values raise ``ConfigError`` naming them."""
     return _from_dict(Config, data, "")
 
 
 def save_config(cfg: Config, path: str | Path) -> None:
-    Path(path).write_text(json.dumps(config_to_dict(cfg), indent=2) + "\n")
+    """Write ``cfg`` as JSON, atomically (a temporary file renamed into place)."""
+    from .runfolder import write_text_atomic
+
+    write_text_atomic(Path(path), json.dumps(config_to_dict(cfg), indent=2) + "\n")
 
 
 def load_config(path: str | Path) -> Config:
@@ -223,104 +347,30 @@ def load_config(path: str | Path) -> Config:
     try:
         data = json.loads(path.read_text())
     except json.JSONDecodeError as exc:
-        raise UserError(f"{path}: not valid JSON: {exc}") from exc
-    return config_from_dict(data)
-
-
-# --------------------------------------------------------------------------- argparse
-
-def _scalar_type(t):
-    origin = typing.get_origin(t)
-    args = typing.get_args(t)
-    if origin is Literal:
-        return str, list(args)
-    if origin in (typing.Union, getattr(__import__("types"), "UnionType", None)):
-        inner = [a for a in args if a is not type(None)]
-        if len(inner) == 1:
-            return _scalar_type(inner[0])
-        return None, None
-    if t in (int, float, str):
-        return t, None
-    return None, None
-
-
-def field_comments(cls) -> dict[str, str]:
-    """The comment documenting each field of a dataclass: its inline ``# ...`` comment, or the
-    comment lines just above it. Used as the command-line help of the field."""
-    import inspect
-    import re
-
+        raise ConfigError(f"{path}: not valid JSON: {exc}") from exc
     try:
-        lines = inspect.getsource(cls).splitlines()
-    except (OSError, TypeError):  # no source (frozen app): no help text
-        return {}
-    out: dict[str, str] = {}
-    above: list[str] = []
-    last = None  # the field whose inline comment a "#   ..." line continues
-    for line in lines[1:]:
-        stripped = line.strip()
-        if stripped.startswith("#"):
-            text = stripped.lstrip("#").strip()
-            if last is not None and stripped.startswith("#  "):
-                out[last] = f"{out[last]} {text}"
-            else:
-                above.append(text)
-                last = None
-            continue
-        m = re.match(r"\s+(\w+)\s*:[^#]*(?:#\s*(.*))?$", line)
-        last = None
-        if m and not stripped.startswith(("def ", "@")) and m.group(1) not in out:
-            out[m.group(1)] = m.group(2) or " ".join(above)
-            last = m.group(1) if m.group(2) else None
-        above = []
-    return {k: v for k, v in out.items() if v}
+        return config_from_dict(data)
+    except ConfigError as exc:
+        raise ConfigError(f"{path}: {exc}") from exc
 
 
-def add_dataclass_arguments(parser: argparse.ArgumentParser, cls=Config, prefix: str = "") -> None:
-    """Add one ``--section.field`` option per scalar field of ``cls`` (nested dataclasses recurse).
+# --------------------------------------------------------------------------- resume
 
-    Options default to ``None`` (meaning "keep the preset's value"); bools take true/false.
-    Tuple-valued fields are left to JSON configs.
-    """
-    hints = typing.get_type_hints(cls)
-    docs = field_comments(cls)
-    group = parser.add_argument_group(prefix.rstrip(".") or "config") if not prefix else parser
-    for f in dataclasses.fields(cls):
-        t = hints[f.name]
-        name = f"{prefix}{f.name}"
-        if dataclasses.is_dataclass(t):
-            add_dataclass_arguments(parser, t, prefix=f"{name}.")
-            continue
-        if name == "name":
-            continue
-        if t is bool:
-            group.add_argument(f"--{name}", dest=name, default=None, metavar="BOOL",
-                               type=_parse_bool, help=f"(true/false) {docs.get(f.name, '')}".rstrip())
-            continue
-        conv, choices = _scalar_type(t)
-        if conv is None:
-            continue
-        group.add_argument(f"--{name}", dest=name, default=None, type=conv, choices=choices,
-                           help=docs.get(f.name, f"{cls.__name__}.{f.name}"))
+# What ``--resume`` may change: how long to go on and how to watch it, nothing that changes
+# what is being optimised.
+RESUMABLE_FIELDS = frozenset({"train.iters", "train.max_seconds", "train.progress", "train.eval_every",
+                              "train.checkpoint_every", "train.plateau_patience"})
 
 
-def _parse_bool(s: str) -> bool:
-    low = s.lower()
-    if low in ("1", "true", "yes", "on"):
-        return True
-    if low in ("0", "false", "no", "off"):
-        return False
-    raise argparse.ArgumentTypeError(f"expected true/false, got '{s}'")
-
-
-def apply_dataclass_arguments(cfg: Config, args: argparse.Namespace) -> Config:
-    """Overwrite the fields of ``cfg`` whose ``--section.field`` option was given."""
-    for key, value in vars(args).items():
-        if value is None or "." not in key:
-            continue
-        section, fname = key.split(".", 1)
-        obj = getattr(cfg, section, None)
-        if obj is None or not hasattr(obj, fname):
-            continue
-        setattr(obj, fname, value)
-    return cfg
+def config_diff(a: Config, b: Config) -> dict[str, tuple[Any, Any]]:
+    """``{"section.field": (value in a, value in b)}`` for every field that differs."""
+    da, db = config_to_dict(a), config_to_dict(b)
+    out: dict[str, tuple[Any, Any]] = {}
+    for key in da:
+        if isinstance(da[key], dict):
+            for sub in da[key]:
+                if da[key][sub] != db[key][sub]:
+                    out[f"{key}.{sub}"] = (da[key][sub], db[key][sub])
+        elif da[key] != db[key]:
+            out[key] = (da[key], db[key])
+    return out

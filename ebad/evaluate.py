@@ -8,12 +8,14 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from .errors import UserError
 from .gaussians import render
 from .lie import compose_pose, so3_exp
 from .losses import l1_ssim
 from .metrics import psnr, ssim
+from .trainer import ViewScores, score_views
 
-__all__ = ["refine_pose", "evaluate", "load_gt_frames", "oracle_capture"]
+__all__ = ["refine_pose", "evaluate", "load_gt_frames", "oracle_capture", "score_frames"]
 
 
 def refine_pose(run, c2w: np.ndarray, image: np.ndarray, iters: int = 60, lr: float = 2e-3) -> np.ndarray:
@@ -62,29 +64,26 @@ def evaluate(run, capture=None, refine: bool = False, gt_frames: np.ndarray | No
              refine_iters: int = 60) -> dict:
     """PSNR / SSIM of the capture's test views that carry an image (before and, with ``refine``,
     after test-pose refinement) and of the run's deblurred frames against ``gt_frames``."""
-    out: dict = {}
+    out: dict[str, ViewScores] = {}
     views = [v for v in (capture.test_views if capture is not None else []) if v.image is not None]
     if views:
-        imgs = run.render(np.stack([v.c2w for v in views]))
-        per = {v.name: {"psnr": psnr(imgs[i], v.image), "ssim": ssim(imgs[i], v.image)} for i, v in enumerate(views)}
-        out["test"] = {"psnr": float(np.mean([p["psnr"] for p in per.values()])),
-                       "ssim": float(np.mean([p["ssim"] for p in per.values()])), "n": len(views), "per_view": per}
+        out["test"] = score_views(run.render(np.stack([v.c2w for v in views])), views)
         if refine:
-            per_r = {}
-            for v in views:
-                pose = refine_pose(run, v.c2w, v.image, refine_iters)
-                img = run.render(pose)
-                per_r[v.name] = {"psnr": psnr(img, v.image), "ssim": ssim(img, v.image)}
-            out["test_refined"] = {"psnr": float(np.mean([p["psnr"] for p in per_r.values()])),
-                                   "ssim": float(np.mean([p["ssim"] for p in per_r.values()])), "n": len(views),
-                                   "per_view": per_r}
+            poses = np.stack([refine_pose(run, v.c2w, v.image, refine_iters) for v in views])
+            out["test_refined"] = score_views(run.render(poses), views)
     if gt_frames is not None:
         db = run.deblurred_frames()
         if db.shape != gt_frames.shape:
-            raise ValueError(f"gt frames {gt_frames.shape} do not match the run's frames {db.shape}")
-        out["deblurred"] = {"psnr": float(np.mean([psnr(a, b) for a, b in zip(db, gt_frames)])),
-                            "ssim": float(np.mean([ssim(a, b) for a, b in zip(db, gt_frames)])), "n": len(db)}
+            raise UserError(f"ground-truth frames {gt_frames.shape} do not match the run's frames {db.shape}")
+        out["deblurred"] = score_frames(db, gt_frames)
     return out
+
+
+def score_frames(images: np.ndarray, truth: np.ndarray) -> ViewScores:  # [F, H, W, D] x2
+    """Mean PSNR / SSIM of frames against their ground truth, in order."""
+    ps = [psnr(a, b) for a, b in zip(images, truth)]
+    ss = [ssim(a, b) for a, b in zip(images, truth)]
+    return ViewScores(psnr=float(np.mean(ps)), ssim=float(np.mean(ss)), n=len(ps))
 
 
 def oracle_capture(scene):

@@ -2,18 +2,27 @@
 
 Layout::
 
-    RUN/config.json            resolved Config
-    RUN/metrics.json           Run.metrics (+ per-step history in history.json)
-    RUN/checkpoints/last.pt    resumable state (every train.checkpoint_every steps)
+    RUN/config.json            resolved Config (written once, when the run starts)
+    RUN/checkpoints/last.pt    resumable TrainState (every train.checkpoint_every steps and at the end)
     RUN/point_cloud.ply        standard 3DGS layout (see ebad.io)
-    RUN/model.json             K, image size, frame names, exposures, V per frame
+    RUN/model.json             K, image size, frame names, exposures, V per frame, trajectories
+    RUN/history.json           one StepStats per step
     RUN/trajectories.json      camera-to-world poses sampled over every exposure
     RUN/trajectories.png       their plot
     RUN/deblurred/NAME.png     every training frame rendered sharp at mid-exposure (16-bit)
+    RUN/metrics.json           RunMetrics; written LAST: its "complete" says whether the run finished
+    RUN/.lock                  while a process writes the run: its pid and host
+
+Every file is written to a temporary name and renamed into place, so a crash never leaves a
+half-written file under a final name; ``metrics.json`` is written after every other file, so a
+folder without it (or with ``"complete": false``) is an unfinished run, which ``load_run``
+refuses with the command that resumes it.
 """
 from __future__ import annotations
 
 import json
+import os
+import socket
 from pathlib import Path
 
 import numpy as np
@@ -25,11 +34,17 @@ from .errors import UserError
 from .io import plot_trajectories, read_ply, write_png16, write_ply, write_trajectories
 from .trajectory import ExposureTrajectories
 
-__all__ = ["write_run", "load_run", "json_safe"]
+__all__ = ["write_run", "load_run", "json_safe", "write_text_atomic", "RunLock", "check_out_dir"]
+
+LOCK_NAME = ".lock"
 
 
 def json_safe(x):
-    """Numbers, lists and dicts only (numpy scalars and arrays converted)."""
+    """Numbers, lists and dicts only (numpy scalars and arrays, dataclasses converted)."""
+    import dataclasses
+
+    if dataclasses.is_dataclass(x) and not isinstance(x, type):
+        return json_safe(dataclasses.asdict(x))
     if isinstance(x, dict):
         return {str(k): json_safe(v) for k, v in x.items()}
     if isinstance(x, (list, tuple)):
@@ -43,36 +58,142 @@ def json_safe(x):
     return x
 
 
+def write_text_atomic(path: Path, text: str) -> None:
+    """``path.write_text(text)`` through a temporary file unique to this process, renamed into place."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        tmp.write_text(text)
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def _atomic(path: Path, write) -> None:
+    """``write(tmp_path)`` then rename into ``path``; the temporary keeps the suffix for writers that look at it."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def check_out_dir(out: Path) -> None:
+    """``out`` can be a run folder: not an existing file, and writable."""
+    if out.exists() and not out.is_dir():
+        raise UserError(f"--out {out}: exists and is not a folder")
+    probe = out if out.exists() else next((p for p in out.parents if p.exists()), Path("."))
+    if not os.access(probe, os.W_OK):
+        raise UserError(f"--out {out}: {probe} is not writable")
+
+
+class RunLock:
+    """An advisory lock on a run folder: ``RUN/.lock`` holds the pid and host of the writer.
+
+    A second process is refused with a message naming the holder; a lock left by a process of
+    this host that no longer exists is taken over, with a message."""
+
+    def __init__(self, folder: Path, say=print):
+        self.path = Path(folder) / LOCK_NAME
+        self.say = say
+        self.held = False
+
+    def _holder(self) -> tuple[int, str] | None:
+        try:
+            pid, host = self.path.read_text().split()[:2]
+            return int(pid), host
+        except (OSError, ValueError):
+            return None
+
+    def acquire(self) -> "RunLock":
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        me = f"{os.getpid()} {socket.gethostname()}\n"
+        for _ in range(2):
+            try:
+                fd = os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+            except FileExistsError:
+                holder = self._holder()
+                if holder is not None and holder[1] == socket.gethostname() and not _alive(holder[0]):
+                    self.say(f"ebad: taking over the lock of {self.path.parent} left by process {holder[0]}, "
+                             "which no longer runs")
+                    self.path.unlink(missing_ok=True)
+                    continue
+                who = f"process {holder[0]} on {holder[1]}" if holder else "another process"
+                raise UserError(f"{self.path.parent} is in use by {who} (lock file {self.path}); wait for it to "
+                                "finish or choose another --out")
+            with os.fdopen(fd, "w") as fh:
+                fh.write(me)
+            self.held = True
+            return self
+        raise UserError(f"could not lock {self.path.parent} (lock file {self.path})")
+
+    def release(self) -> None:
+        if self.held:
+            self.path.unlink(missing_ok=True)
+            self.held = False
+
+    def __enter__(self) -> "RunLock":
+        return self.acquire()
+
+    def __exit__(self, *exc) -> bool:
+        self.release()
+        return False
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
 def write_run(run, out: str | Path, gt_trajectories: np.ndarray | None = None) -> Path:
-    """Write every file of the run folder except the checkpoint (written while training)."""
+    """Write every file of the run folder except the checkpoint (written while training);
+    ``config.json`` only when the run start did not already write it, ``metrics.json`` last."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    save_config(run.config, out / "config.json")
-    (out / "metrics.json").write_text(json.dumps(json_safe(run.metrics), indent=2) + "\n")
-    (out / "history.json").write_text(json.dumps(json_safe(run.history)) + "\n")
-    write_ply(out / "point_cloud.ply", run.params)
+    if not (out / "config.json").exists():
+        save_config(run.config, out / "config.json")
+    write_text_atomic(out / "history.json", json.dumps(json_safe([h.to_dict() for h in run.history])) + "\n")
+    _atomic(out / "point_cloud.ply", lambda p: write_ply(p, run.params))
     model = {"K": run.K.tolist(), "width": run.width, "height": run.height, "names": run.names,
              "exposures": run.exposures.tolist(), "views": run.V.tolist(), "kind": run.trajectories.kind,
              "anchored": run.trajectories.anchored, "scale": run.trajectories.scale,
              "c2w_mid": run.trajectories.c2w_mid.tolist(), "knots": run.trajectories.knots.detach().tolist(),
              "moving": run.trajectories.moving.tolist(), "channels": run.channels}
-    (out / "model.json").write_text(json.dumps(model) + "\n")
+    write_text_atomic(out / "model.json", json.dumps(model) + "\n")
     poses, u = run.exposure_poses()
-    write_trajectories(out / "trajectories.json", run.names, run.exposures, poses, u)
-    plot_trajectories(out / "trajectories.png", poses, gt_trajectories)
+    _atomic(out / "trajectories.json", lambda p: write_trajectories(p, run.names, run.exposures, poses, u))
+    _atomic(out / "trajectories.png", lambda p: plot_trajectories(p, poses, gt_trajectories))
     for name, img in zip(run.names, run.deblurred_frames()):
-        write_png16(out / "deblurred" / f"{name}.png", img)
+        _atomic(out / "deblurred" / f"{name}.png", lambda p: write_png16(p, img))
+    metrics = json_safe(run.metrics.to_dict() if run.metrics is not None else {"complete": False})
+    write_text_atomic(out / "metrics.json", json.dumps(metrics, indent=2) + "\n")
     return out
 
 
 def load_run(path: str | Path):
-    """A ``Run`` from a run folder (for rendering and evaluation)."""
+    """A ``Run`` from a finished run folder (for rendering and evaluation)."""
     from .trainer import Run
 
     path = Path(path)
+    if not path.is_dir():
+        raise UserError(f"{path} is not a run folder (run 'ebad reconstruct CAPTURE --out {path}' first)")
+    metrics_path = path / "metrics.json"
+    if not metrics_path.exists() or not json.loads(metrics_path.read_text()).get("complete", False):
+        hint = (f"resume it with 'ebad reconstruct CAPTURE --out {path} --resume'"
+                if (path / "checkpoints" / "last.pt").exists() else f"run 'ebad reconstruct CAPTURE --out {path}'")
+        raise UserError(f"{path} holds an unfinished run: {hint}")
     for name in ("config.json", "model.json", "point_cloud.ply"):
         if not (path / name).exists():
-            raise UserError(f"{path} is not a run folder: {name} is missing (run 'ebad reconstruct' first)")
+            raise UserError(f"{path} is not a complete run folder: {name} is missing")
     cfg = load_config(path / "config.json")
     model = json.loads((path / "model.json").read_text())
     params = {k: nn.Parameter(v) for k, v in read_ply(path / "point_cloud.ply").items()}
@@ -82,7 +203,7 @@ def load_run(path: str | Path):
                                 scale=model["scale"], anchored=model["anchored"])
     with torch.no_grad():
         traj.knots.data = torch.tensor(model["knots"]).reshape(traj.knots.shape)
-    metrics = json.loads((path / "metrics.json").read_text()) if (path / "metrics.json").exists() else {}
+    metrics = json.loads(metrics_path.read_text())
     return Run(params=params, trajectories=traj, config=cfg, K=np.array(model["K"]), width=model["width"],
                height=model["height"], names=model["names"], exposures=np.array(model["exposures"]),
-               V=np.array(model["views"]), metrics=metrics, step=int(metrics.get("steps", 0)))
+               V=np.array(model["views"]), metrics=None, step=int(metrics.get("steps", 0)))

@@ -1,7 +1,9 @@
 """Densification and pruning behind gsplat's small strategy interface.
 
-A strategy has ``initialize_state(n)``, ``step_pre_backward(params, optimizers, state, step,
-info)`` and ``step_post_backward(...) -> dict`` (a report of what it did). ``DefaultStrategy``
+A strategy implements the ``Strategy`` protocol: ``check_sanity(params, optimizers)`` once
+before training, ``initialize_state(n) -> StrategyState``, ``step_pre_backward(params,
+optimizers, state, step, info)`` and ``step_post_backward(...) -> RefineReport``, where
+``info`` is the ``RenderInfo`` of the step's rasteriser call. ``DefaultStrategy``
 follows gsplat's default: screen-space gradients of the projected means are accumulated over
 EVERY camera of each rasteriser call (all V virtual views of an exposure, not only the last),
 and every ``refine_every`` steps Gaussians with a high mean gradient are cloned (small) or
@@ -14,8 +16,8 @@ keep each Adam optimizer's moments aligned with its parameter.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from typing import Callable
+from dataclasses import dataclass, field
+from typing import Callable, Protocol
 
 import torch
 from torch import Tensor, nn
@@ -23,11 +25,77 @@ from torch import Tensor, nn
 from .config import StrategyConfig
 from .lie import quat_to_rotmat
 
-__all__ = ["DefaultStrategy", "NoStrategy", "STRATEGIES", "make_strategy", "duplicate", "split",
-           "remove", "reset_opacity", "screen_grads"]
+__all__ = ["Strategy", "StrategyState", "RenderInfo", "RefineReport", "DefaultStrategy", "NoStrategy",
+           "STRATEGIES", "make_strategy", "duplicate", "split", "remove", "reset_opacity", "screen_grads",
+           "PARAM_NAMES"]
 
 Params = dict[str, nn.Parameter]
 Optims = dict[str, torch.optim.Optimizer]
+PARAM_NAMES = ("means", "scales", "quats", "opacities", "colors")  # a Gaussian's parameters, each [N, ...]
+
+
+@dataclass
+class RenderInfo:
+    """What one step's rasteriser call hands the strategy (gsplat's ``info``)."""
+
+    means2d: Tensor | None  # [C, N, 2] projected means; the backward fills ``.grad``
+    radii: Tensor | None  # [C, N] or [C, N, 2] screen radii (0: not visible)
+    width: int
+    height: int
+
+
+@dataclass
+class StrategyState:
+    """Accumulated screen-space statistics between refinements."""
+
+    grad2d: Tensor = field(default_factory=lambda: torch.zeros(0))  # [N] summed gradient norms
+    count: Tensor = field(default_factory=lambda: torch.zeros(0))  # [N] cameras that saw each Gaussian
+
+    def to_dict(self) -> dict[str, Tensor]:
+        return {"grad2d": self.grad2d, "count": self.count}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Tensor]) -> "StrategyState":
+        return cls(grad2d=d["grad2d"], count=d["count"])
+
+
+@dataclass
+class RefineReport:
+    """What one ``step_post_backward`` did."""
+
+    cloned: int = 0
+    split: int = 0
+    pruned: int = 0
+    reset: bool = False
+
+
+class Strategy(Protocol):
+    """gsplat's strategy interface."""
+
+    def check_sanity(self, params: Params, optimizers: Optims) -> None: ...
+
+    def initialize_state(self, n: int) -> StrategyState: ...
+
+    def step_pre_backward(self, params: Params, optimizers: Optims, state: StrategyState, step: int,
+                          info: RenderInfo) -> None: ...
+
+    def step_post_backward(self, params: Params, optimizers: Optims, state: StrategyState, step: int,
+                           info: RenderInfo) -> RefineReport: ...
+
+
+def _check_params(params: Params, optimizers: Optims) -> None:
+    """Every Gaussian parameter is present with one row per Gaussian, and has its own optimizer."""
+    missing = [k for k in PARAM_NAMES if k not in params]
+    if missing:
+        raise ValueError(f"strategy: Gaussian parameters {missing} are missing")
+    n = params["means"].shape[0]
+    for k in PARAM_NAMES:
+        if params[k].shape[0] != n:
+            raise ValueError(f"strategy: params['{k}'] has {params[k].shape[0]} rows, means has {n}")
+        opt = optimizers.get(k)
+        group = opt.param_groups[0]["params"] if opt is not None and len(opt.param_groups) == 1 else []
+        if len(group) != 1 or group[0] is not params[k]:
+            raise ValueError(f"strategy: optimizers['{k}'] must hold exactly params['{k}']")
 
 
 def _surgery(params: Params, optimizers: Optims, param_fn: Callable[[str, Tensor], Tensor],
@@ -55,7 +123,7 @@ def duplicate(params: Params, optimizers: Optims, mask: Tensor) -> None:  # mask
 
 
 def split(params: Params, optimizers: Optims, mask: Tensor, generator: torch.Generator | None = None,
-          shrink: float = 1.6) -> None:  # mask [N] bool
+          shrink: float = 1.6) -> None:  # mask [N] bool; shrink: StrategyConfig.split_shrink
     """Replace every selected Gaussian by two, sampled from it, each ``shrink`` times smaller."""
     idx = torch.nonzero(mask).squeeze(1)
     keep = ~mask
@@ -92,19 +160,19 @@ def reset_opacity(params: Params, optimizers: Optims, value: float) -> None:
              names=["opacities"])
 
 
-def screen_grads(info: dict) -> tuple[Tensor, Tensor] | None:
+def screen_grads(info: RenderInfo) -> tuple[Tensor, Tensor] | None:
     """Per-camera screen-space gradient norms [C, N] (NDC units, as gsplat) and visibility [C, N].
 
-    ``info`` holds ``means2d`` [C, N, 2] (whose ``.grad`` the backward filled), ``radii``
-    [C, N] or [C, N, 2], ``width`` and ``height``. Returns None when there is no gradient.
+    ``info.means2d`` [C, N, 2] carries the ``.grad`` the backward filled. Returns None when
+    there is no gradient.
     """
-    m2d = info.get("means2d")
+    m2d = info.means2d
     if m2d is None or m2d.grad is None:
         return None
     g = m2d.grad.detach().clone()
-    g[..., 0] *= info["width"] / 2.0
-    g[..., 1] *= info["height"] / 2.0
-    radii = info["radii"]
+    g[..., 0] *= info.width / 2.0
+    g[..., 1] *= info.height / 2.0
+    radii = info.radii
     visible = (radii > 0).all(-1) if radii.ndim == 3 else radii > 0
     return g.norm(dim=-1) * visible, visible
 
@@ -118,40 +186,45 @@ class DefaultStrategy:
     max_gaussians: int = 1_000_000
     generator: torch.Generator | None = None
 
-    def initialize_state(self, n: int) -> dict:
-        return {"grad2d": torch.zeros(n), "count": torch.zeros(n)}
+    def check_sanity(self, params: Params, optimizers: Optims) -> None:
+        _check_params(params, optimizers)
 
-    def step_pre_backward(self, params: Params, optimizers: Optims, state: dict, step: int, info: dict) -> None:
-        m2d = info.get("means2d")
+    def initialize_state(self, n: int) -> StrategyState:
+        return StrategyState(grad2d=torch.zeros(n), count=torch.zeros(n))
+
+    def step_pre_backward(self, params: Params, optimizers: Optims, state: StrategyState, step: int,
+                          info: RenderInfo) -> None:
+        m2d = info.means2d
         if m2d is not None and m2d.requires_grad:
             m2d.retain_grad()
 
-    def accumulate(self, state: dict, info: dict) -> None:
+    def accumulate(self, state: StrategyState, info: RenderInfo) -> None:
         """Add this step's per-camera gradient norms (every camera of the batch) to the state."""
         out = screen_grads(info)
         if out is None:
             return
         norms, visible = out  # [C, N]
-        state["grad2d"] += norms.sum(0)
-        state["count"] += visible.sum(0).float()
+        state.grad2d += norms.sum(0)
+        state.count += visible.sum(0).float()
 
-    def step_post_backward(self, params: Params, optimizers: Optims, state: dict, step: int, info: dict) -> dict:
+    def step_post_backward(self, params: Params, optimizers: Optims, state: StrategyState, step: int,
+                           info: RenderInfo) -> RefineReport:
         cfg = self.cfg
-        report = {"cloned": 0, "split": 0, "pruned": 0, "reset": False}
+        report = RefineReport()
         if step >= cfg.refine_stop:
             return report
         self.accumulate(state, info)
         if step > cfg.refine_start and step % cfg.refine_every == 0:
-            report.update(self.refine(params, optimizers, state, step))
+            report = self.refine(params, optimizers, state, step)
         if cfg.reset_every > 0 and step > 0 and step % cfg.reset_every == 0:
             reset_opacity(params, optimizers, cfg.reset_opacity)
-            report["reset"] = True
+            report.reset = True
         return report
 
-    def refine(self, params: Params, optimizers: Optims, state: dict, step: int) -> dict:
+    def refine(self, params: Params, optimizers: Optims, state: StrategyState, step: int) -> RefineReport:
         cfg = self.cfg
         n0 = params["means"].shape[0]
-        avg = state["grad2d"] / state["count"].clamp_min(1)
+        avg = state.grad2d / state.count.clamp_min(1)
         high = avg > cfg.grad_threshold
         big = torch.exp(params["scales"].detach()).max(-1).values > cfg.split_scale * self.scene_scale
         clone_mask = high & ~big
@@ -171,7 +244,7 @@ class DefaultStrategy:
             duplicate(params, optimizers, clone_mask)
         if n_split:
             split_mask = torch.cat([split_mask, torch.zeros(n_clone, dtype=torch.bool)])
-            split(params, optimizers, split_mask, generator=self.generator)
+            split(params, optimizers, split_mask, generator=self.generator, shrink=cfg.split_shrink)
         with torch.no_grad():
             prune = torch.sigmoid(params["opacities"]) < cfg.prune_opacity
             if cfg.reset_every > 0 and step > cfg.reset_every:
@@ -182,9 +255,9 @@ class DefaultStrategy:
         else:
             n_prune = 0
         n = params["means"].shape[0]
-        state["grad2d"] = torch.zeros(n)
-        state["count"] = torch.zeros(n)
-        return {"cloned": n_clone, "split": n_split, "pruned": n_prune}
+        state.grad2d = torch.zeros(n)
+        state.count = torch.zeros(n)
+        return RefineReport(cloned=n_clone, split=n_split, pruned=n_prune)
 
 
 @dataclass
@@ -196,21 +269,23 @@ class NoStrategy:
     max_gaussians: int = 0
     generator: torch.Generator | None = None
 
-    def initialize_state(self, n: int) -> dict:
-        return {}
+    def check_sanity(self, params: Params, optimizers: Optims) -> None:
+        _check_params(params, optimizers)
+
+    def initialize_state(self, n: int) -> StrategyState:
+        return StrategyState()
 
     def step_pre_backward(self, params, optimizers, state, step, info) -> None:
         return None
 
-    def step_post_backward(self, params, optimizers, state, step, info) -> dict:
-        return {"cloned": 0, "split": 0, "pruned": 0, "reset": False}
+    def step_post_backward(self, params, optimizers, state, step, info) -> RefineReport:
+        return RefineReport()
 
 
-STRATEGIES = {"default": DefaultStrategy, "none": NoStrategy}
+STRATEGIES: dict[str, Callable[..., Strategy]] = {"default": DefaultStrategy, "none": NoStrategy}
 
 
 def make_strategy(cfg: StrategyConfig, scene_scale: float, max_gaussians: int,
-                  generator: torch.Generator | None = None):
-    if cfg.kind not in STRATEGIES:
-        raise ValueError(f"unknown strategy '{cfg.kind}'; choose one of {sorted(STRATEGIES)}")
-    return STRATEGIES[cfg.kind](cfg, scene_scale, max_gaussians, generator)
+                  generator: torch.Generator | None = None) -> Strategy:
+    """The registered strategy ``cfg.kind`` (a ``Literal`` checked by the config)."""
+    return STRATEGIES[cfg.kind](cfg=cfg, scene_scale=scene_scale, max_gaussians=max_gaussians, generator=generator)

@@ -7,6 +7,9 @@ Each subcommand lives in its own module in this package and exposes::
     def add_arguments(parser): ... # fill an argparse parser
     def run(args) -> int: ...      # do the work, return an exit code
 
+or, for a command whose options are generated from dataclasses (``reconstruct``, by tyro),
+``def main(argv: list[str]) -> int`` that parses its own arguments.
+
 Modules are discovered, so adding a command touches no other file. User mistakes raise a
 subclass of ``ebad.errors.EbadError`` whose message names the file, field or argument, and
 file-system failures raise ``OSError`` with the path; ``main`` prints those as one line and
@@ -49,15 +52,20 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--traceback", action="store_true", help="show full tracebacks on errors")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for mod in _commands():
-        p = sub.add_parser(mod.NAME, help=mod.HELP, description=getattr(mod, "DESCRIPTION", mod.HELP))
-        mod.add_arguments(p)
-        p.set_defaults(_run=mod.run)
+        p = sub.add_parser(mod.NAME, help=mod.HELP, description=getattr(mod, "DESCRIPTION", mod.HELP),
+                           add_help=not hasattr(mod, "main"))
+        if hasattr(mod, "main"):  # parses its own arguments: everything after the command goes to it
+            p.add_argument("rest", nargs=argparse.REMAINDER)
+            p.set_defaults(_run=lambda args, m=mod: m.main(args.rest))
+        else:
+            mod.add_arguments(p)
+            p.set_defaults(_run=mod.run)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args = parser.parse_args(sys.argv[1:] if argv is None else argv)
     if not getattr(args, "_run", None):
         parser.print_help()
         return 2

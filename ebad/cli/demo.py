@@ -50,13 +50,14 @@ def run(args) -> int:
     import scenes
 
     from ..config import preset
+    from ..errors import ConfigError
     from ..io import write_png16
-    from ..metrics import psnr, ssim
+    from ..evaluate import score_frames
     from ..runfolder import json_safe, write_run
-    from ..trainer import reconstruct
+    from ..trainer import reconstruct, score_views
 
     if args.iters < 1:
-        raise ValueError(f"--iters must be >= 1, got {args.iters}")
+        raise ConfigError(f"--iters must be >= 1, got {args.iters}")
     t_all = time.perf_counter()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -67,8 +68,8 @@ def run(args) -> int:
           f"{len(cap.test_views)} held-out views", flush=True)
     views = [v for v in cap.test_views if v.image is not None]
     results, runs = {}, {}
-    blurry = {"train_psnr": float(np.mean([psnr(a, b) for a, b in zip(cap.frames, scene.gt_frames)])),
-              "train_ssim": float(np.mean([ssim(a, b) for a, b in zip(cap.frames, scene.gt_frames)]))}
+    blurry_scores = score_frames(cap.frames, scene.gt_frames)
+    blurry = {"train_psnr": blurry_scores.psnr, "train_ssim": blurry_scores.ssim}
     for name in ("3dgs", "ebad"):
         cfg = preset(name)
         cfg.train.iters = args.iters
@@ -80,13 +81,11 @@ def run(args) -> int:
         r = reconstruct(cap, cfg)
         runs[name] = r
         imgs = r.render(np.stack([v.c2w for v in views]))
-        db = r.deblurred_frames()
+        test = score_views(imgs, views)
+        train = score_frames(r.deblurred_frames(), scene.gt_frames)
         results[name] = {
-            "test_psnr": float(np.mean([psnr(i, v.image) for i, v in zip(imgs, views)])),
-            "test_ssim": float(np.mean([ssim(i, v.image) for i, v in zip(imgs, views)])),
-            "train_psnr": float(np.mean([psnr(a, b) for a, b in zip(db, scene.gt_frames)])),
-            "train_ssim": float(np.mean([ssim(a, b) for a, b in zip(db, scene.gt_frames)])),
-            "seconds": r.metrics["train_seconds"], "steps": r.metrics["steps"], "gaussians": r.num_gaussians,
+            "test_psnr": test.psnr, "test_ssim": test.ssim, "train_psnr": train.psnr, "train_ssim": train.ssim,
+            "seconds": r.metrics.train_seconds, "steps": r.metrics.steps, "gaussians": r.num_gaussians,
         }
         for v, img in zip(views, imgs):
             write_png16(out / "renders" / name / f"{v.name}.png", img)

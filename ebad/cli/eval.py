@@ -23,21 +23,22 @@ def run(args) -> int:
     import scenes
 
     from ..evaluate import evaluate, load_gt_frames
+    from ..errors import UserError
     from ..runfolder import json_safe, load_run
 
     run_ = load_run(args.run)
     cap = scenes.load(args.capture)
     gt_dir = Path(args.gt) if args.gt else Path(args.capture).resolve().parent / "gt"
     if args.gt and not (gt_dir / "gt.json").exists():
-        raise ValueError(f"--gt {gt_dir}: no gt.json there")
+        raise UserError(f"--gt {gt_dir}: no gt.json there")
     gt = load_gt_frames(gt_dir, run_.names) if gt_dir.exists() else None
     res = evaluate(run_, cap, refine=args.refine_poses, gt_frames=gt, refine_iters=args.refine_iters)
     if not res:
-        raise ValueError(f"nothing to evaluate: capture {args.capture} has no test images and no ground truth was found")
+        raise UserError(f"nothing to evaluate: capture {args.capture} has no test images and no ground truth was found")
     for key, label in [("test", "test views"), ("test_refined", "test views, poses refined"),
                        ("deblurred", "deblurred training frames")]:
         if key in res:
-            print(f"{label:28s} PSNR {res[key]['psnr']:6.2f} dB  SSIM {res[key]['ssim']:.4f}  (n={res[key]['n']})")
+            print(f"{label:28s} PSNR {res[key].psnr:6.2f} dB  SSIM {res[key].ssim:.4f}  (n={res[key].n})")
     out = Path(args.out) if args.out else Path(args.run) / "eval.json"
     out.write_text(json.dumps(json_safe(res), indent=2) + "\n")
     return 0

@@ -1,0 +1,228 @@
+"""The training data: a capture prepared for the loop, with every "skip" decision made once.
+
+``prepare(capture, cfg) -> TrainingData`` validates the capture, finds the training frames'
+poses (the capture's, pycolmap SfM, or a static camera), chooses V per frame, estimates the
+contrast threshold, sums the events between virtual instants and computes the EDI latents.
+What it decided is the typed ``PrepareReport`` (written to ``metrics.json``).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from .config import Config
+from .errors import UserError
+from .gaussians import scene_scale
+from .virtual_views import choose_num_views, event_sums, events_per_pixel
+
+__all__ = ["TrainingData", "PrepareReport", "prepare", "focus_depth", "depth_range",
+           "FOCUS_DEPTH_RANGE", "SPREAD_DEPTH_RANGE"]
+
+# The initial depth range when neither the config nor SfM points give one, as factors of:
+FOCUS_DEPTH_RANGE = (0.4, 2.5)  # the depth of the point the optical axes converge on (inward-facing captures)
+SPREAD_DEPTH_RANGE = (0.5, 2.0)  # the camera-spread scene scale (forward-facing captures: no such point)
+
+
+@dataclass
+class PrepareReport:
+    """What ``prepare`` decided (every "skip what the scene does not need" decision)."""
+
+    pose_source: str  # where the mid-exposure poses came from: capture | colmap | static
+    train_frames: int  # frames trained on
+    channels: int  # D: 1 renders one channel (grey capture), 3 colour
+    views: list[int]  # V per training frame (1: sharp, no trajectory)
+    renders_per_pass: int  # sum of V: renders of one pass over the frames
+    renders_without_skip: int  # what a pass would cost with the configured V for every frame
+    c: float | None = None  # contrast threshold in use (None: no events used)
+    c_source: str | None = None  # config | edi.estimate_c
+    skipped: str | None = None  # a loss switched off for lack of data, and why
+    events_per_pixel: list[float] | None = None  # events during each exposure per sensor pixel
+    anchored_mid_poses: bool | None = None  # the trajectories keep the given mid-exposure poses
+
+
+@dataclass
+class TrainingData:
+    """Everything the loop needs, precomputed from a capture (training frames only)."""
+
+    frames: Tensor  # [F, H, W, D] blurry training frames
+    targets: Tensor  # [F, H, W, D] what L_blur compares to (frames or EDI latents)
+    latents: Tensor | None  # [F, H, W, D] EDI latents at mid-exposure, or None (no L_EDI)
+    exposures: np.ndarray  # [F, 2] seconds
+    names: list[str]
+    c2w: Tensor  # [F, 4, 4] initial mid-exposure poses
+    K: Tensor  # [3, 3]
+    V: np.ndarray  # [F] virtual views per frame
+    ev_sums: list[Tensor | None]  # per frame [V - 1, H, W] or None (no L_ev)
+    c: float | None  # contrast threshold in use (None: no events used)
+    scale: float  # scene scale (world units)
+    depth_range: tuple[float, float]
+    report: PrepareReport
+    points: Tensor | None = None  # [P, 3] SfM points, when any
+    point_colors: Tensor | None = None  # [P, D]
+    test_views: list = field(default_factory=list)
+
+    @property
+    def height(self) -> int:
+        return int(self.frames.shape[1])
+
+    @property
+    def width(self) -> int:
+        return int(self.frames.shape[2])
+
+    @property
+    def num_frames(self) -> int:
+        return int(self.frames.shape[0])
+
+
+def _train_indices(capture) -> list[int]:
+    if not capture.split:
+        return list(range(capture.num_frames))
+    idx = [i for i, s in enumerate(capture.split) if s == "train"]
+    if not idx:
+        raise UserError("capture has no frame with split 'train'")
+    return idx
+
+
+def _check_capture(capture) -> None:
+    fr = capture.frames
+    if not isinstance(fr, np.ndarray) or fr.ndim != 4 or fr.shape[-1] not in (1, 3):
+        raise UserError(f"capture.frames must be [F, H, W, 1|3], got {getattr(fr, 'shape', type(fr))}")
+    if not np.isfinite(fr).all():
+        raise UserError("capture.frames has non-finite values")
+    ex = np.asarray(capture.exposures)
+    if ex.shape != (fr.shape[0], 2):
+        raise UserError(f"capture.exposures must be [F, 2] = {(fr.shape[0], 2)}, got {ex.shape}")
+    if np.asarray(capture.K).shape != (3, 3):
+        raise UserError(f"capture.K must be [3, 3], got {np.asarray(capture.K).shape}")
+
+
+def _poses(capture, cfg: Config, idx: list[int]):
+    """Mid-exposure poses of the training frames, and SfM points when SfM ran."""
+    src = cfg.trajectory.pose_source
+    if src in ("auto", "capture") and capture.c2w is not None:
+        return np.asarray(capture.c2w, dtype=np.float64)[idx], None, None, "capture", idx
+    if src == "capture":
+        raise UserError("--trajectory.pose_source is 'capture' but the capture has no poses (c2w)")
+    if src == "static":
+        return np.repeat(np.eye(4)[None], len(idx), axis=0), None, None, "static", idx
+    from scenes.colmap import SfMError, estimate_poses
+
+    try:
+        est = estimate_poses(capture)
+    except SfMError as exc:
+        raise SfMError(f"{exc} (for a camera that did not move, use --trajectory.pose_source static)") from exc
+    keep = [i for i in idx if est.registered[i]]
+    if len(keep) < 2:
+        raise SfMError(f"pycolmap registered only {len(keep)} training frame(s); cannot reconstruct "
+                       "(for a camera that did not move, use --trajectory.pose_source static)")
+    pts = torch.from_numpy(np.asarray(est.points, dtype=np.float32)) if len(est.points) else None
+    cols = None
+    if pts is not None:
+        cols = np.asarray(est.colors, dtype=np.float32)
+        if cols.max() > 1.0:
+            cols = cols / 255.0
+        if capture.channels == 1 and cols.shape[1] == 3:
+            cols = cols.mean(1, keepdims=True)
+        cols = torch.from_numpy(cols)
+    return np.asarray(est.c2w, dtype=np.float64)[keep], pts, cols, "colmap", keep
+
+
+def depth_range(capture, cfg: Config, c2w: np.ndarray,  # [F, 4, 4]
+                points: Tensor | None) -> tuple[float, float]:  # [P, 3]
+    """The depth range of the fallback initialisation: the config's, else the capture's, else the
+    5th-95th percentile of SfM point depths, else ``FOCUS_DEPTH_RANGE`` x the focus depth, else
+    ``SPREAD_DEPTH_RANGE`` x the camera-spread scale."""
+    if cfg.model.init_depth is not None:
+        return tuple(float(v) for v in cfg.model.init_depth)
+    if "depth_range" in capture.meta:
+        lo, hi = capture.meta["depth_range"]
+        return float(lo), float(hi)
+    if points is not None and len(points) > 0:
+        R, t = c2w[:, :3, :3], c2w[:, :3, 3]
+        z = np.einsum("fji,fnj->fni", R, points.numpy()[None] - t[:, None])[..., 2]
+        z = z[z > 0]
+        if z.size:
+            return float(np.percentile(z, 5)), float(np.percentile(z, 95))
+    d0 = focus_depth(c2w)
+    if d0 is not None:
+        return FOCUS_DEPTH_RANGE[0] * d0, FOCUS_DEPTH_RANGE[1] * d0
+    s = scene_scale(c2w)
+    return SPREAD_DEPTH_RANGE[0] * s, SPREAD_DEPTH_RANGE[1] * s
+
+
+def focus_depth(c2w: np.ndarray) -> float | None:  # [F, 4, 4]
+    """Median depth of the point the optical axes point at (least squares), or None when the
+    axes are near parallel (forward-facing captures) or the point is not in front of them."""
+    a = c2w[:, :3, 2]
+    cen = c2w[:, :3, 3]
+    P = np.eye(3)[None] - a[:, :, None] * a[:, None, :]  # [F, 3, 3]
+    A = P.sum(0)
+    b = np.einsum("fij,fj->i", P, cen)
+    w = np.linalg.eigvalsh(A)
+    if w[0] < 1e-3 * len(c2w):  # ill-conditioned: near parallel axes
+        return None
+    p = np.linalg.solve(A, b)
+    z = np.einsum("fi,fi->f", p[None] - cen, a)
+    if (z <= 0).any():
+        return None
+    return float(np.median(z))
+
+
+def prepare(capture, cfg: Config) -> TrainingData:
+    """Validate the capture and make every "skip what is not needed" decision (``TrainingData.report``)."""
+    _check_capture(capture)
+    idx = _train_indices(capture)
+    c2w, points, point_colors, pose_src, idx = _poses(capture, cfg, idx)
+    frames_np = np.asarray(capture.frames, dtype=np.float32)[idx]
+    exposures = np.asarray(capture.exposures, dtype=np.float64)[idx]
+    events = capture.events
+    has_events = events is not None and len(events) > 0
+    lc, tc = cfg.loss, cfg.trajectory
+    wants_events = lc.w_event > 0 or lc.w_edi > 0 or lc.target == "edi"
+    use_events = wants_events and has_events
+
+    c, c_source = None, None
+    if use_events:
+        if lc.contrast is not None:
+            c, c_source = float(lc.contrast), "config"
+        else:
+            import edi
+
+            c, c_source = float(edi.estimate_c(frames_np, exposures, events)), "edi.estimate_c"
+
+    V = choose_num_views(exposures, events if tc.adaptive_views else None, tc.num_views,
+                         tc.adaptive_views, tc.sharp_events_per_pixel)
+    if tc.kind == "fixed":  # no motion model: one render per frame whatever the blur
+        V[:] = 1
+    report = PrepareReport(
+        pose_source=pose_src, train_frames=len(idx), channels=int(frames_np.shape[-1]), views=V.tolist(),
+        renders_per_pass=int(V.sum()), renders_without_skip=int(tc.num_views * len(V)), c=c, c_source=c_source,
+        skipped="no events: L_ev and L_EDI off, EDI target = frames" if wants_events and not has_events else None,
+        events_per_pixel=([round(float(v), 4) for v in events_per_pixel(events, exposures)] if has_events else None),
+    )
+
+    latents = None
+    if use_events and (lc.w_edi > 0 or lc.target == "edi"):
+        import edi
+
+        lat = []
+        for f in range(len(idx)):
+            t0, t1 = exposures[f]
+            lat.append(np.asarray(edi.deblur(frames_np[f], (t0, t1), events, times=0.5 * (t0 + t1), c=c),
+                                  dtype=np.float32).reshape(frames_np.shape[1:]))
+        latents = torch.from_numpy(np.clip(np.stack(lat), 0, 1))
+    frames_t = torch.from_numpy(frames_np)
+    targets = latents if (lc.target == "edi" and latents is not None) else frames_t
+    ev = [event_sums(events, exposures[f], int(V[f])) if (use_events and lc.w_event > 0 and V[f] > 1) else None
+          for f in range(len(idx))]
+    d_range = depth_range(capture, cfg, c2w, points)
+    return TrainingData(
+        frames=frames_t, targets=targets, latents=latents if lc.w_edi > 0 else None,
+        exposures=exposures, names=[(capture.names[i] if capture.names else f"{i:04d}") for i in idx],
+        c2w=torch.from_numpy(c2w).float(), K=torch.from_numpy(np.asarray(capture.K, dtype=np.float32)),
+        V=V, ev_sums=ev, c=c, scale=scene_scale(c2w, d_range), depth_range=d_range, report=report,
+        points=points, point_colors=point_colors, test_views=list(capture.test_views),
+    )

@@ -1,0 +1,263 @@
+"""The loop's state as one typed object, with ``save`` / ``load`` that are each other's inverse.
+
+``TrainState`` holds everything a step changes: the Gaussian parameters and their optimisers,
+the exposure trajectories, the contrast threshold, the densification statistics, every random
+generator, the step, the frame order of the current pass and the history. ``TrainState.create``
+starts a run from ``TrainingData``; ``save(path)`` writes a checkpoint atomically and
+``TrainState.load(path, data, cfg)`` restores it so that the next step is the step the saved
+run would have taken (tested: save, load, one step equals one step without the round trip).
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import Tensor, nn
+
+from .config import Config
+from .data import TrainingData
+from .errors import UserError
+from .gaussians import init_params, num_gaussians, plane_sweep_points, points_from_frames
+from .strategy import PARAM_NAMES, RefineReport, StrategyState
+from .trajectory import ExposureTrajectories
+
+__all__ = ["StepStats", "TrainState", "init_gaussians", "make_optimizers", "max_gaussians", "capture_fingerprint",
+           "fingerprint_diff",
+           "AUTO_CAP_PER_PIXEL", "AUTO_CAP_RANGE", "CHECKPOINT_FORMAT"]
+
+# ModelConfig.max_gaussians = 0: the cap is this many Gaussians per pixel, clamped to the range
+# (the small scenes need room to grow; at DAVIS size 2 x 346 x 260 = 180k would be too slow).
+AUTO_CAP_PER_PIXEL = 2
+AUTO_CAP_RANGE = (4000, 60000)
+CHECKPOINT_FORMAT = "ebad-checkpoint/1"
+
+
+@dataclass
+class StepStats:
+    """What one step reports (one entry of the run's history)."""
+
+    step: int  # 1-based: steps done after this one
+    frame: str  # the training frame of the step
+    loss: float  # the weighted total
+    blur: float  # L_blur
+    train_psnr: float  # PSNR of the mean render against the step's L_blur target
+    gaussians: int  # N after the step's densification
+    time: float  # training seconds since the run started (resumes included)
+    ev: float | None = None  # L_ev, when on for this frame
+    edi: float | None = None  # L_EDI, when on
+    c: float | None = None  # the contrast threshold, when learnt
+    test_psnr: float | None = None  # mean test-view PSNR, on evaluation steps
+    refine: RefineReport = field(default_factory=RefineReport)  # what densification did
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "StepStats":
+        d = dict(d)
+        d["refine"] = RefineReport(**d.get("refine", {}))
+        return cls(**d)
+
+
+def max_gaussians(cfg: Config, data: TrainingData) -> int:
+    """The configured cap, or ``AUTO_CAP_PER_PIXEL`` x pixels clamped to ``AUTO_CAP_RANGE`` when it is 0."""
+    if cfg.model.max_gaussians > 0:
+        return int(cfg.model.max_gaussians)
+    lo, hi = AUTO_CAP_RANGE
+    return int(min(hi, max(lo, AUTO_CAP_PER_PIXEL * data.width * data.height)))
+
+
+def init_gaussians(data: TrainingData, cfg: Config) -> dict[str, nn.Parameter]:
+    """From SfM points when there are at least ``model.min_sfm_points``, else from the frames
+    (plane-sweep stereo or random depths, ``model.init``)."""
+    mc = cfg.model
+    if data.points is not None and len(data.points) >= mc.min_sfm_points:
+        cols = data.point_colors
+        if cols is None or cols.shape[1] != data.frames.shape[-1]:
+            cols = torch.full((len(data.points), data.frames.shape[-1]), 0.5)
+        return init_params(data.points, cols, opacity=mc.init_opacity)
+    src = data.latents if data.latents is not None else data.targets
+    args = (src.numpy(), data.c2w.double().numpy(), data.K.double().numpy(), mc.init_points, data.depth_range)
+    if mc.init == "stereo":
+        pts, cols, scales = plane_sweep_points(*args, n_depths=mc.stereo_depths, neighbours=mc.stereo_neighbours,
+                                               patch=mc.stereo_patch, scale_px=mc.init_scale_px, seed=cfg.train.seed)
+    else:
+        pts, cols, scales = points_from_frames(*args, scale_px=mc.init_scale_px, seed=cfg.train.seed)
+    return init_params(pts, cols, scales, opacity=mc.init_opacity)
+
+
+def make_optimizers(params: dict[str, nn.Parameter], traj: ExposureTrajectories, cfg: Config,
+                    scale: float, log_c: nn.Parameter | None = None) -> dict[str, torch.optim.Optimizer]:
+    """One Adam per Gaussian parameter (so densification can edit its moments) and one for poses."""
+    tc = cfg.train
+    lrs = {"means": tc.lr_means * scale, "scales": tc.lr_scales, "quats": tc.lr_quats,
+           "opacities": tc.lr_opacities, "colors": tc.lr_colors}
+    opts = {k: torch.optim.Adam([params[k]], lr=lrs[k], eps=1e-15) for k in lrs}
+    if traj.knots.numel() > 0 and bool(traj.moving.any()):
+        opts["poses"] = torch.optim.Adam([traj.knots], lr=cfg.trajectory.lr)
+    if log_c is not None and log_c.requires_grad:
+        opts["contrast"] = torch.optim.Adam([log_c], lr=cfg.loss.lr_contrast)
+    return opts
+
+
+def _anchored(data: TrainingData, cfg: Config) -> bool:
+    am = cfg.trajectory.anchor_mid
+    return am == "yes" or (am == "auto" and data.report.pose_source == "capture")
+
+
+def _trajectories(data: TrainingData, cfg: Config, generator: torch.Generator | None,
+                  init_noise: float) -> ExposureTrajectories:
+    moving = torch.from_numpy(data.V > 1)
+    kind = cfg.trajectory.kind if bool(moving.any()) else "fixed"
+    return ExposureTrajectories(data.c2w, kind, moving, scale=data.scale, init_noise=init_noise,
+                                generator=generator, anchored=_anchored(data, cfg))
+
+
+def _log_c(data: TrainingData, cfg: Config) -> nn.Parameter | None:
+    if data.c is None or all(e is None for e in data.ev_sums):
+        return None
+    return nn.Parameter(torch.tensor(math.log(data.c)), requires_grad=cfg.loss.learn_contrast)
+
+
+@dataclass
+class TrainState:
+    """Everything one training step reads and changes."""
+
+    params: dict[str, nn.Parameter]  # PARAM_NAMES -> [N, ...]
+    optimizers: dict[str, torch.optim.Optimizer]  # one per parameter, "poses", "contrast"
+    trajectories: ExposureTrajectories
+    log_c: nn.Parameter | None  # log of the contrast threshold (None: no L_ev)
+    strategy_state: StrategyState
+    order_rng: np.random.Generator  # the order frames are visited in
+    generator: torch.Generator  # initial trajectory noise and densification splits
+    step: int = 0
+    order: list[int] = field(default_factory=list)  # frames still to visit in the current pass
+    history: list[StepStats] = field(default_factory=list)
+    elapsed: float = 0.0  # training seconds so far (over every resume)
+
+    @property
+    def num_gaussians(self) -> int:
+        return num_gaussians(self.params)
+
+    @classmethod
+    def create(cls, data: TrainingData, cfg: Config, strategy_state: StrategyState | None = None) -> "TrainState":
+        """A fresh run: initial Gaussians, trajectories, optimisers and generators seeded by ``train.seed``."""
+        seed = cfg.train.seed
+        generator = torch.Generator().manual_seed(seed)
+        params = init_gaussians(data, cfg)
+        traj = _trajectories(data, cfg, generator, cfg.trajectory.init_noise)
+        log_c = _log_c(data, cfg)
+        return cls(params=params, optimizers=make_optimizers(params, traj, cfg, data.scale, log_c),
+                   trajectories=traj, log_c=log_c,
+                   strategy_state=strategy_state or StrategyState(torch.zeros(num_gaussians(params)),
+                                                                  torch.zeros(num_gaussians(params))),
+                   order_rng=np.random.default_rng(seed), generator=generator)
+
+    def next_frame(self) -> int:
+        """The next training frame: a fresh random permutation of the frames every pass."""
+        if not self.order:
+            self.order = [int(i) for i in self.order_rng.permutation(self.trajectories.num_frames)]
+        return self.order.pop()
+
+    def save(self, path: str | Path, fingerprint: dict[str, Any] | None = None) -> None:
+        """Write the state to ``path`` atomically (a file unique to this process, renamed into place)."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        doc = {
+            "format": CHECKPOINT_FORMAT,
+            "fingerprint": fingerprint,
+            "step": self.step,
+            "elapsed": self.elapsed,
+            "params": {k: v.detach().clone() for k, v in self.params.items()},
+            "trajectories": {k: v.detach().clone() for k, v in self.trajectories.state_dict().items()},
+            "log_c": None if self.log_c is None else self.log_c.detach().clone(),
+            "optimizers": {k: o.state_dict() for k, o in self.optimizers.items()},
+            "strategy_state": self.strategy_state.to_dict(),
+            "order": list(self.order),
+            "order_rng": self.order_rng.bit_generator.state,
+            "generator": self.generator.get_state(),
+            "torch_rng": torch.get_rng_state(),
+            "history": [h.to_dict() for h in self.history],
+        }
+        try:
+            torch.save(doc, tmp)
+            os.replace(tmp, path)
+        finally:
+            if tmp.exists():
+                tmp.unlink()
+
+    @classmethod
+    def load(cls, path: str | Path, data: TrainingData, cfg: Config,
+             fingerprint: dict[str, Any] | None = None) -> "TrainState":
+        """The state ``save`` wrote, for the same training data and config.
+
+        Raises ``UserError`` naming the file when it is not a readable checkpoint, and naming
+        the difference when it was made from another capture (``fingerprint``)."""
+        path = Path(path)
+        try:
+            doc = torch.load(path, weights_only=True)
+        except Exception as exc:  # torch raises many types for a damaged file; all mean the same here
+            raise UserError(f"{path}: not a readable checkpoint ({type(exc).__name__}: {exc}); "
+                            "delete it to start the run over") from exc
+        if not isinstance(doc, dict) or doc.get("format") != CHECKPOINT_FORMAT:
+            raise UserError(f"{path}: not an {CHECKPOINT_FORMAT} checkpoint; delete it to start the run over")
+        if fingerprint is not None and doc.get("fingerprint") is not None:
+            diff = fingerprint_diff(doc["fingerprint"], fingerprint)
+            if diff:
+                raise UserError(f"{path} was made from another capture ({diff}); resume with the capture it "
+                                "was made from, or choose another --out")
+        params = {k: nn.Parameter(doc["params"][k].clone()) for k in PARAM_NAMES}
+        generator = torch.Generator()
+        traj = _trajectories(data, cfg, None, 0.0)
+        traj.load_state_dict(doc["trajectories"])
+        log_c = _log_c(data, cfg)
+        if log_c is not None and doc["log_c"] is not None:
+            with torch.no_grad():
+                log_c.data = doc["log_c"].clone()
+        optimizers = make_optimizers(params, traj, cfg, data.scale, log_c)
+        for k, sd in doc["optimizers"].items():
+            if k in optimizers:
+                optimizers[k].load_state_dict(sd)
+        order_rng = np.random.default_rng()
+        order_rng.bit_generator.state = doc["order_rng"]
+        generator.set_state(doc["generator"])
+        torch.set_rng_state(doc["torch_rng"])
+        return cls(params=params, optimizers=optimizers, trajectories=traj, log_c=log_c,
+                   strategy_state=StrategyState.from_dict(doc["strategy_state"]), order_rng=order_rng,
+                   generator=generator, step=int(doc["step"]), order=[int(i) for i in doc["order"]],
+                   history=[StepStats.from_dict(h) for h in doc["history"]], elapsed=float(doc["elapsed"]))
+
+
+def capture_fingerprint(capture) -> dict[str, Any]:
+    """What identifies the capture a run was made from: frame names, size, exposures, events, K."""
+    ev = capture.events
+    return {
+        "frames": [str(n) for n in (capture.names or range(capture.num_frames))],
+        "size": [int(capture.frames.shape[2]), int(capture.frames.shape[1]), int(capture.frames.shape[3])],
+        "exposures": np.round(np.asarray(capture.exposures, dtype=np.float64), 9).tolist(),
+        "events": 0 if ev is None else int(len(ev)),
+        "K": np.round(np.asarray(capture.K, dtype=np.float64), 6).tolist(),
+    }
+
+
+def fingerprint_diff(saved: dict[str, Any], now: dict[str, Any]) -> str:
+    """A short description of how two fingerprints differ ('' when they match)."""
+    out = []
+    for key in ("frames", "size", "exposures", "events", "K"):
+        a, b = saved.get(key), now.get(key)
+        if a == b:
+            continue
+        if key == "frames":
+            out.append(f"{len(a)} frames then, {len(b)} now" if len(a) != len(b) else "other frame names")
+        elif key in ("size", "events"):
+            out.append(f"{key} {a} then, {b} now")
+        else:
+            out.append(f"other {key}")
+    return "; ".join(out)
