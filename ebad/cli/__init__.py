@@ -39,7 +39,7 @@ def _commands():
         if info.name.startswith("_"):
             continue
         mod = importlib.import_module(f"{__name__}.{info.name}")
-        if hasattr(mod, "NAME") and hasattr(mod, "run"):
+        if hasattr(mod, "NAME") and (hasattr(mod, "run") or hasattr(mod, "main")):
             mods.append(mod)
     return mods
 

@@ -19,18 +19,19 @@ def test_aedat4_capture_reconstructs_end_to_end_on_a_static_camera(tmp_path, cap
     """The street recording has a static camera: SfM cannot register it, and the error says
     what to do; with static poses the run completes and writes its run folder."""
     out = tmp_path / "run"
-    rc = main(["reconstruct", str(AEDAT), "--out", str(out), "--iters", "5", "--no-progress"])
+    rc = main(["reconstruct", str(AEDAT), "--out", str(out), "--train.iters", "5", "--no-progress"])
     assert rc == 2
     assert "pose_source static" in capsys.readouterr().err
     assert not (out / "point_cloud.ply").exists()
 
-    rc = main(["reconstruct", str(AEDAT), "--out", str(out), "--iters", "5", "--no-progress",
+    rc = main(["reconstruct", str(AEDAT), "--out", str(out), "--train.iters", "5", "--no-progress",
                "--trajectory.pose_source", "static"])
     assert rc == 0
     metrics = json.loads((out / "metrics.json").read_text())
-    assert metrics["pose_source"] == "static" and metrics["steps"] == 5
-    assert metrics["channels"] == 1  # a grey DAVIS346 stays one channel
+    prep = metrics["prepare"]
+    assert prep["pose_source"] == "static" and metrics["steps"] == 5
+    assert prep["channels"] == 1  # a grey DAVIS346 stays one channel
     # 0.5 ms exposures with a handful of events per frame: every frame is sharp, V = 1
-    assert set(metrics["views"]) == {1}
+    assert set(prep["views"]) == {1}
     assert (out / "point_cloud.ply").stat().st_size > 0
-    assert len(list((out / "deblurred").glob("*.png"))) == metrics["train_frames"] == 59
+    assert len(list((out / "deblurred").glob("*.png"))) == prep["train_frames"] == 59

@@ -1,0 +1,79 @@
+"""ebad.state: TrainState.save / load are each other's inverse, and refuse what is not theirs."""
+from __future__ import annotations
+
+import copy
+
+import pytest
+import torch
+
+import scenes
+from ebad.config import preset
+from ebad.data import prepare
+from ebad.errors import UserError
+from ebad.state import TrainState, capture_fingerprint, max_gaussians
+from ebad.strategy import make_strategy
+from ebad.trainer import train_step
+
+
+@pytest.fixture(scope="module")
+def tiny():
+    return scenes.make_scene("boxes", size="tiny", seed=0, n_frames=4, n_test=1)
+
+
+def _setup(capture, name="ebad"):
+    cfg = preset(name)
+    cfg.train.progress = False
+    cfg.strategy.refine_start = 1
+    cfg.strategy.refine_every = 2  # densification fires inside the test's few steps
+    data = prepare(capture, cfg)
+    torch.manual_seed(cfg.train.seed)
+    state = TrainState.create(data, cfg)
+    strategy = make_strategy(cfg.strategy, data.scale, max_gaussians(cfg, data), state.generator)
+    state.strategy_state = strategy.initialize_state(state.num_gaussians)
+    return cfg, data, state, strategy
+
+
+def _steps(cfg, data, state, strategy, n):
+    for _ in range(n):
+        train_step(data, state, strategy, state.next_frame(), cfg)
+
+
+def test_save_load_then_one_step_equals_one_step(tiny, tmp_path):
+    cfg, data, state, strategy = _setup(tiny.capture)
+    _steps(cfg, data, state, strategy, 5)  # mid-pass: the frame order is half used
+    path = tmp_path / "ck" / "last.pt"
+    state.save(path)
+    loaded = TrainState.load(path, data, cfg)
+    assert loaded.step == state.step == 5 and loaded.order == state.order
+    strategy2 = make_strategy(cfg.strategy, data.scale, max_gaussians(cfg, data), loaded.generator)
+    torch_rng = torch.get_rng_state()
+    _steps(cfg, data, state, strategy, 2)
+    torch.set_rng_state(torch_rng)
+    _steps(cfg, data, loaded, strategy2, 2)
+    for k in state.params:
+        assert torch.equal(state.params[k], loaded.params[k]), k
+    assert torch.equal(state.trajectories.knots, loaded.trajectories.knots)
+    assert torch.equal(state.strategy_state.grad2d, loaded.strategy_state.grad2d)
+    assert [h.loss for h in state.history] == [h.loss for h in loaded.history]
+    assert not list(path.parent.glob("*.tmp"))  # the temporary file was renamed into place
+
+
+def test_load_refuses_a_checkpoint_of_another_capture(tiny, tmp_path):
+    cfg, data, state, strategy = _setup(tiny.capture)
+    path = tmp_path / "last.pt"
+    state.save(path, capture_fingerprint(tiny.capture))
+    other = copy.copy(tiny.capture)
+    other.frames = other.frames[:1]
+    other.exposures = other.exposures[:1]
+    other.names = other.names[:1]
+    with pytest.raises(UserError, match="made from another capture.*4 frames then, 1 now"):
+        TrainState.load(path, data, cfg, capture_fingerprint(other))
+
+
+def test_load_refuses_a_damaged_checkpoint(tiny, tmp_path):
+    cfg, data, state, strategy = _setup(tiny.capture)
+    path = tmp_path / "last.pt"
+    state.save(path)
+    path.write_bytes(path.read_bytes()[:200])
+    with pytest.raises(UserError, match="last.pt: not a readable checkpoint"):
+        TrainState.load(path, data, cfg)

@@ -1,0 +1,42 @@
+"""ebad.virtual_views: V per frame, event sums."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from edi import EventStream
+from ebad.virtual_views import choose_num_views, event_sums
+
+
+def _stream(n_per_frame, W=8, H=6, exposures=((0.0, 0.04), (0.1, 0.14))):
+    ts, xs, ys, ps = [], [], [], []
+    rng = np.random.default_rng(0)
+    for (t0, t1), n in zip(exposures, n_per_frame):
+        ts.append(np.sort(rng.uniform(t0, t1, n)) * 1e6)
+        xs.append(rng.integers(0, W, n)); ys.append(rng.integers(0, H, n)); ps.append(rng.choice([-1, 1], n))
+    return EventStream(np.concatenate(ts).astype(np.int64), np.concatenate(xs), np.concatenate(ys),
+                       np.concatenate(ps), W, H)
+
+
+def test_views_sharp_frames_get_one_view():
+    ex = np.array([[0.0, 0.04], [0.1, 0.14], [0.2, 0.2]])
+    ev = _stream([200, 0])
+    V = choose_num_views(ex, ev, 5, adaptive=True, sharp_events_per_pixel=0.05)
+    assert V.tolist() == [5, 1, 1]  # busy / no events in exposure / zero-length exposure
+    assert choose_num_views(ex, None, 5).tolist() == [5, 5, 1]  # no events: only t0 == t1 is sharp
+    assert choose_num_views(ex, EventStream.empty(8, 6), 5).tolist() == [1, 1, 1]  # sensor saw nothing
+    with pytest.raises(ValueError, match="num_views"):
+        choose_num_views(ex, ev, 0)
+
+
+def test_event_sums_match_bruteforce():
+    ev = _stream([300, 50])
+    s = event_sums(ev, (0.0, 0.04), 5)
+    assert s.shape == (4, 6, 8)
+    inst = (np.arange(5) + 0.5) / 5 * 0.04 * 1e6
+    k = 2
+    m = (ev.t >= round(inst[k])) & (ev.t < round(inst[k + 1]))
+    ref = np.zeros((6, 8))
+    np.add.at(ref, (ev.y[m], ev.x[m]), ev.p[m])
+    assert np.array_equal(s[k].numpy(), ref)
+    assert event_sums(ev, (0.0, 0.04), 1).shape == (0, 6, 8)
