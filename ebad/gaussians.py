@@ -26,18 +26,17 @@ __all__ = ["SH_C0", "init_params", "points_from_frames", "plane_sweep_points", "
 SH_C0 = 0.28209479177387814
 
 
-def knn_scale(points: Tensor, k: int = 3, chunk: int = 4096) -> Tensor:  # [P, 3] -> [P]
-    """Mean distance to the k nearest other points (the 3DGS initial scale)."""
+def knn_scale(points: Tensor, k: int = 3) -> Tensor:  # [P, 3] -> [P]
+    """Mean distance to the k nearest other points (the 3DGS initial scale), by scipy's cKDTree."""
+    from scipy.spatial import cKDTree
+
     P = points.shape[0]
     if P <= 1:
         return torch.full((P,), 0.01, dtype=points.dtype)
     k = min(k, P - 1)
-    out = []
-    for i in range(0, P, chunk):
-        d = torch.cdist(points[i:i + chunk], points)
-        d[torch.arange(d.shape[0]), torch.arange(i, i + d.shape[0])] = float("inf")
-        out.append(d.topk(k, largest=False).values.mean(-1))
-    return torch.cat(out).clamp_min(1e-7)
+    pts = points.detach().double().cpu().numpy()
+    dist, _ = cKDTree(pts).query(pts, k=k + 1)  # the first neighbour is the point itself
+    return torch.from_numpy(dist[:, 1:].mean(-1)).to(points.dtype).clamp_min(1e-7)
 
 
 def init_params(

@@ -1,54 +1,30 @@
-"""Small so(3)/SE(3) helpers in torch, differentiable and stable at the identity.
+"""so(3)/SE(3) helpers for the trajectories and the renderer, on kornia's Lie groups.
 
-Convention: rotation vectors ``w`` [..., 3] in radians (axis x angle); ``exp``/``log`` map
-between them and rotation matrices [..., 3, 3]. Angles are expected below pi (camera motion
-inside one exposure); near pi the log loses accuracy.
+Convention: rotation vectors ``w`` [..., 3] in radians (axis x angle); quaternions (w, x, y, z),
+real part first; poses are 4x4 homogeneous matrices. kornia (``kornia.geometry.liegroup.So3``,
+``kornia.geometry.conversions``) does the maths, with finite gradients at the identity; these
+wrappers only fix the shapes ebad uses ([..., 3] and [..., 3, 3] with any leading dimensions).
 """
 from __future__ import annotations
 
 import torch
+from kornia.geometry.conversions import quaternion_to_rotation_matrix
+from kornia.geometry.liegroup import So3
 from torch import Tensor
 
-__all__ = ["hat", "so3_exp", "so3_log", "compose_pose", "viewmat_from_c2w", "quat_to_rotmat"]
-
-_SMALL = 1e-8
-
-
-def hat(w: Tensor) -> Tensor:  # [..., 3] -> [..., 3, 3]
-    """Skew-symmetric matrix of ``w`` [..., 3]."""
-    z = torch.zeros_like(w[..., 0])
-    wx, wy, wz = w[..., 0], w[..., 1], w[..., 2]
-    return torch.stack([
-        torch.stack([z, -wz, wy], -1),
-        torch.stack([wz, z, -wx], -1),
-        torch.stack([-wy, wx, z], -1),
-    ], -2)
+__all__ = ["so3_exp", "so3_log", "compose_pose", "rigid_inverse", "viewmat_from_c2w", "quat_to_rotmat"]
 
 
 def so3_exp(w: Tensor) -> Tensor:  # [..., 3] -> [..., 3, 3]
-    """Rodrigues' formula; Taylor series below 1e-4 rad so gradients stay finite at 0."""
-    th2 = (w * w).sum(-1, keepdim=True)[..., None]  # [..., 1, 1]
-    small = th2 < _SMALL
-    th2s = torch.where(small, torch.ones_like(th2), th2)
-    th = th2s.sqrt()
-    a = torch.where(small, 1 - th2 / 6 + th2 * th2 / 120, torch.sin(th) / th)
-    b = torch.where(small, 0.5 - th2 / 24 + th2 * th2 / 720, (1 - torch.cos(th)) / th2s)
-    K = hat(w)
-    eye = torch.eye(3, dtype=w.dtype, device=w.device).expand_as(K)
-    return eye + a * K + b * (K @ K)
+    """Rotation matrices from rotation vectors (kornia's ``So3.exp``)."""
+    lead = w.shape[:-1]
+    return So3.exp(w.reshape(-1, 3)).matrix().reshape(*lead, 3, 3)
 
 
 def so3_log(R: Tensor) -> Tensor:  # [..., 3, 3] -> [..., 3]
-    """Inverse of ``so3_exp`` for angles below pi; exact gradient at the identity."""
-    v = 0.5 * torch.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0],
-                           R[..., 1, 0] - R[..., 0, 1]], -1)  # sin(theta) * axis
-    cos = 0.5 * (R[..., 0, 0] + R[..., 1, 1] + R[..., 2, 2] - 1)
-    s2 = (v * v).sum(-1)
-    small = s2 < _SMALL
-    s = torch.where(small, torch.ones_like(s2), s2).sqrt()
-    th = torch.atan2(s, cos)
-    factor = torch.where(small, 1 + s2 / 6, th / s)
-    return v * factor[..., None]
+    """Rotation vectors of rotation matrices, angles below pi (kornia's ``So3.log``)."""
+    lead = R.shape[:-2]
+    return So3.from_matrix(R.reshape(-1, 3, 3)).log().reshape(*lead, 3)
 
 
 def compose_pose(R: Tensor, t: Tensor) -> Tensor:  # [..., 3, 3], [..., 3] -> [..., 4, 4]
@@ -59,20 +35,18 @@ def compose_pose(R: Tensor, t: Tensor) -> Tensor:  # [..., 3, 3], [..., 3] -> [.
     return torch.cat([top, bottom], -2)
 
 
+def rigid_inverse(T: Tensor) -> Tensor:  # [..., 4, 4] -> [..., 4, 4]
+    """Inverse of rigid transforms, differentiable (R^T, -R^T t)."""
+    Rt = T[..., :3, :3].transpose(-1, -2)
+    return compose_pose(Rt, -(Rt @ T[..., :3, 3:])[..., 0])
+
+
 def viewmat_from_c2w(c2w: Tensor) -> Tensor:  # [..., 4, 4] -> [..., 4, 4]
-    """World-to-camera matrices from camera-to-world ones (rigid inverse, differentiable)."""
-    R = c2w[..., :3, :3]
-    t = c2w[..., :3, 3]
-    Rt = R.transpose(-1, -2)
-    return compose_pose(Rt, -(Rt @ t[..., None])[..., 0])
+    """World-to-camera matrices from camera-to-world ones."""
+    return rigid_inverse(c2w)
 
 
-def quat_to_rotmat(quats: Tensor) -> Tensor:  # [N, 4] (w, x, y, z) -> [N, 3, 3]
+def quat_to_rotmat(quats: Tensor) -> Tensor:  # [..., 4] (w, x, y, z) -> [..., 3, 3]
     """Rotation matrices from (not necessarily unit) quaternions, real part first."""
     q = quats / quats.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-    w, x, y, z = q.unbind(-1)
-    return torch.stack([
-        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-    ], -1).reshape(*quats.shape[:-1], 3, 3)
+    return quaternion_to_rotation_matrix(q)

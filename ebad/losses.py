@@ -2,8 +2,7 @@
 
 Convention: images are [B, H, W, D] (or [H, W, D]) linear intensity; events enter as signed
 per-pixel sums ``E`` [P, H, W] between consecutive virtual instants; ``c`` is the contrast
-threshold in natural-log units; log intensities are ``log(I + eps)`` with ``eps = edi.LOG_EPS``
-when the edi package defines it (else 1e-3, the same documented value).
+threshold in natural-log units; log intensities are ``log(I + eps)`` with ``eps = edi.LOG_EPS``.
 """
 from __future__ import annotations
 
@@ -11,18 +10,12 @@ import torch
 from torch import Tensor
 from kornia.metrics import ssim as _kornia_ssim
 
-__all__ = ["log_eps", "luminance", "ssim_map", "ssim_map_kornia", "l1_ssim", "blur_loss", "event_loss", "edi_loss",
+from edi import LOG_EPS
+
+__all__ = ["luminance", "ssim_map", "ssim_map_kornia", "l1_ssim", "blur_loss", "event_loss", "edi_loss",
            "LUMA"]
 
 LUMA = (1 / 3, 1 / 3, 1 / 3)  # the intensity a colour event pixel sees: the channel mean, as scenes.simulate_events
-
-
-def log_eps() -> float:
-    try:
-        import edi
-        return float(getattr(edi, "LOG_EPS"))
-    except (ImportError, AttributeError):
-        return 1e-3
 
 
 def _bhwd(x: Tensor, name: str) -> Tensor:
@@ -124,7 +117,7 @@ def event_loss(renders: Tensor,  # [V, H, W, D]
                          f"got {tuple(event_sums.shape)}")
     if V < 2:
         return renders.sum() * 0.0
-    eps = log_eps() if eps is None else eps
+    eps = LOG_EPS if eps is None else eps
     logL = torch.log(luminance(renders)[..., 0].clamp_min(0) + eps)  # [V, H, W]
     diff = logL[1:] - logL[:-1]
     return (diff - c * event_sums.to(diff.dtype)).abs().mean()

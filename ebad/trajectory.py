@@ -21,7 +21,7 @@ from typing import Callable
 import torch
 from torch import Tensor, nn
 
-from .lie import compose_pose, so3_exp, so3_log
+from .lie import compose_pose, rigid_inverse, so3_exp, so3_log
 
 __all__ = ["TrajectoryModel", "TRAJECTORIES", "linear_poses", "cubic_poses", "fixed_poses",
            "ExposureTrajectories", "virtual_instants"]
@@ -93,15 +93,6 @@ def fixed_poses(
     return c2w_mid[:, None].expand(-1, u.shape[0], -1, -1)
 
 
-def _rigid_inverse(T: Tensor) -> Tensor:  # [..., 4, 4]
-    R = T[..., :3, :3].transpose(-1, -2)
-    out = torch.zeros_like(T)
-    out[..., :3, :3] = R
-    out[..., :3, 3] = -(R @ T[..., :3, 3:])[..., 0]
-    out[..., 3, 3] = 1
-    return out
-
-
 @dataclass(frozen=True)
 class TrajectoryModel:
     """A registered trajectory: its number of knots and its pose function."""
@@ -166,7 +157,7 @@ class ExposureTrajectories(nn.Module):
         poses = self.model.poses(mid, knots, u, self.scale)
         if self.anchored and self.model.num_knots > 0:
             at_half = self.model.poses(mid, knots, u.new_tensor([0.5]), self.scale)[:, 0]  # [B, 4, 4]
-            poses = (mid @ _rigid_inverse(at_half))[:, None] @ poses
+            poses = (mid @ rigid_inverse(at_half))[:, None] @ poses
         return poses
 
     def mid_poses(self) -> Tensor:  # [F, 4, 4]

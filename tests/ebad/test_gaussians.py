@@ -33,3 +33,15 @@ def test_activation_conventions():
     assert torch.allclose(a["colors"], (0.5 + SH_C0 * p["colors"]).clamp_min(0))
     with pytest.raises(ValueError, match="points"):
         init_params(torch.zeros(3, 2), torch.zeros(3, 1))
+
+
+def test_knn_scale_matches_brute_force():
+    from ebad.gaussians import knn_scale
+
+    g = torch.Generator().manual_seed(0)
+    pts = torch.randn(300, 3, generator=g)
+    d = torch.cdist(pts, pts)
+    d.fill_diagonal_(float("inf"))
+    ref = d.topk(3, largest=False).values.mean(-1)
+    assert torch.allclose(knn_scale(pts), ref, atol=1e-5)
+    assert knn_scale(pts[:1]).shape == (1,) and knn_scale(pts[:2]).shape == (2,)

@@ -32,3 +32,23 @@ def _random_c2w(F, seed=0):
     c2w[:, :3, :3] = R
     c2w[:, :3, 3] = torch.randn(F, 3, generator=g)
     return c2w
+
+
+def test_quaternion_convention_is_real_part_first():
+    from ebad.lie import quat_to_rotmat
+
+    half = torch.tensor([[2.0 ** -0.5, 0.0, 0.0, 2.0 ** -0.5]])  # (w, x, y, z): 90 degrees about z
+    R = quat_to_rotmat(half * 3.0)  # not unit: normalised inside
+    assert torch.allclose(R[0], torch.tensor([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]), atol=1e-6)
+    assert torch.allclose(so3_exp(torch.tensor([0.0, 0.0, torch.pi / 2])), R[0], atol=1e-6)
+
+
+def test_leading_dimensions_and_finite_gradients_at_identity():
+    w = torch.zeros(2, 5, 3, requires_grad=True)
+    R = so3_exp(w)
+    assert R.shape == (2, 5, 3, 3)
+    (R * torch.randn(3, 3)).sum().backward()
+    assert torch.isfinite(w.grad).all()
+    Rl = torch.eye(3).repeat(2, 5, 1, 1).requires_grad_(True)
+    (so3_log(Rl) * torch.randn(3)).sum().backward()
+    assert torch.isfinite(Rl.grad).all()
