@@ -21,6 +21,12 @@ from .virtual_views import choose_num_views, event_sums, events_per_pixel
 __all__ = ["TrainingData", "PrepareReport", "prepare", "focus_depth", "depth_range",
            "FOCUS_DEPTH_RANGE", "SPREAD_DEPTH_RANGE"]
 
+# Intrinsics outside this horizontal/vertical field of view (degrees) are taken for a mistake
+# (focal length in the wrong unit, or of another image size): no scene can be seen through them.
+MIN_FOV_DEG, MAX_FOV_DEG = 1.0, 170.0
+# 3D needs parallax: fewer posed training frames than this cannot place a Gaussian in depth.
+MIN_TRAIN_FRAMES = 2
+
 # The initial depth range when neither the config nor SfM points give one, as factors of:
 FOCUS_DEPTH_RANGE = (0.4, 2.5)  # the depth of the point the optical axes converge on (inward-facing captures)
 SPREAD_DEPTH_RANGE = (0.5, 2.0)  # the camera-spread scene scale (forward-facing captures: no such point)
@@ -95,8 +101,18 @@ def _check_capture(capture) -> None:
     ex = np.asarray(capture.exposures)
     if ex.shape != (fr.shape[0], 2):
         raise UserError(f"capture.exposures must be [F, 2] = {(fr.shape[0], 2)}, got {ex.shape}")
-    if np.asarray(capture.K).shape != (3, 3):
-        raise UserError(f"capture.K must be [3, 3], got {np.asarray(capture.K).shape}")
+    K = np.asarray(capture.K, dtype=np.float64)
+    if K.shape != (3, 3):
+        raise UserError(f"capture.K must be [3, 3], got {K.shape}")
+    H, W = fr.shape[1:3]
+    fov = np.degrees(2 * np.arctan2(np.array([W, H]) / 2.0, np.abs(np.array([K[0, 0], K[1, 1]]))))
+    if not (np.all(np.isfinite(fov)) and np.all(fov > MIN_FOV_DEG) and np.all(fov < MAX_FOV_DEG)):
+        raise UserError(f"capture intrinsics: fx = {K[0, 0]:g}, fy = {K[1, 1]:g} give a field of view of "
+                        f"{fov[0]:.3g} x {fov[1]:.3g} degrees on {W} x {H} pixels, outside "
+                        f"({MIN_FOV_DEG:g}, {MAX_FOV_DEG:g}); the focal lengths are in pixels")
+    if not (0 <= K[0, 2] <= W and 0 <= K[1, 2] <= H):
+        raise UserError(f"capture intrinsics: principal point ({K[0, 2]:g}, {K[1, 2]:g}) lies outside the "
+                        f"{W} x {H} image")
 
 
 def _poses(capture, cfg: Config, idx: list[int]):
@@ -176,6 +192,9 @@ def prepare(capture, cfg: Config) -> TrainingData:
     _check_capture(capture)
     idx = _train_indices(capture)
     c2w, points, point_colors, pose_src, idx = _poses(capture, cfg, idx)
+    if len(idx) < MIN_TRAIN_FRAMES:
+        raise UserError(f"the capture has {len(idx)} training frame(s) with a pose; a 3D scene needs at least "
+                        f"{MIN_TRAIN_FRAMES} (for one frame, 'ebad deblur' gives its sharp image)")
     frames_np = np.asarray(capture.frames, dtype=np.float32)[idx]
     exposures = np.asarray(capture.exposures, dtype=np.float64)[idx]
     events = capture.events

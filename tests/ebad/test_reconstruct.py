@@ -12,7 +12,7 @@ import scenes
 from ebad import reconstruct
 from ebad.cli import main
 from ebad.config import preset
-from ebad.errors import ConfigError
+from ebad.errors import ConfigError, UserError
 from ebad.io import read_png16
 from ebad.metrics import psnr
 from ebad.data import prepare
@@ -150,3 +150,25 @@ def test_demo_smoke(tmp_path, capsys):
     assert im.ndim == 3 and im.shape[2] == 3 and im.shape[0] > 48 * 4
     assert len(list((out / "renders" / "ebad").glob("*.png"))) == 3
     assert (out / "run_ebad" / "point_cloud.ply").exists()
+
+
+def test_captures_that_cannot_work_are_refused_with_the_reason(tiny):
+    import copy
+
+    one = copy.copy(tiny.capture)
+    one.frames, one.exposures, one.names = one.frames[:1], one.exposures[:1], one.names[:1]
+    one.c2w = one.c2w[:1]
+    one.split = None
+    with pytest.raises(UserError, match="1 training frame.*at least 2"):
+        reconstruct(one, _cfg("3dgs", 1))
+    for fx, needle in [(0.05, "field of view"), (1e6, "field of view")]:
+        bad = copy.copy(tiny.capture)
+        bad.K = bad.K.copy()
+        bad.K[0, 0] = bad.K[1, 1] = fx
+        with pytest.raises(UserError, match=needle):
+            reconstruct(bad, _cfg("3dgs", 1))
+    bad = copy.copy(tiny.capture)
+    bad.K = bad.K.copy()
+    bad.K[0, 2] = -50
+    with pytest.raises(UserError, match="principal point"):
+        reconstruct(bad, _cfg("3dgs", 1))

@@ -1,0 +1,110 @@
+"""ebad.runfolder: the lock between processes, atomic files, unfinished runs, interrupts."""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+import scenes
+from ebad.cli import main
+from ebad.errors import UserError
+from ebad.runfolder import RunLock, load_run, write_text_atomic
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def _holder(folder: Path) -> subprocess.Popen:
+    """Another process that holds the run folder's lock until killed."""
+    code = ("import sys, time; from ebad.runfolder import RunLock; "
+            f"l = RunLock({str(folder)!r}).acquire(); print('locked', flush=True); time.sleep(60)")
+    p = subprocess.Popen([sys.executable, "-c", code], cwd=REPO, stdout=subprocess.PIPE, text=True)
+    assert p.stdout.readline().strip() == "locked"
+    return p
+
+
+def test_a_second_process_is_refused_naming_the_holder(tmp_path, capsys):
+    holder = _holder(tmp_path / "run")
+    try:
+        with pytest.raises(UserError, match=f"in use by process {holder.pid}"):
+            RunLock(tmp_path / "run").acquire()
+        rc = main(["reconstruct", str(tmp_path / "nocapture"), "--out", str(tmp_path / "run")])
+        assert rc == 2
+    finally:
+        holder.kill()
+        holder.wait()
+
+
+def test_a_stale_lock_is_taken_over_with_a_message(tmp_path):
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    (tmp_path / ".lock").write_text(f"{dead.pid} {os.uname().nodename}\n")
+    said = []
+    with RunLock(tmp_path, say=said.append):
+        assert (tmp_path / ".lock").read_text().split()[0] == str(os.getpid())
+    assert said and str(dead.pid) in said[0]
+    assert not (tmp_path / ".lock").exists()
+
+
+def test_atomic_text_write_leaves_no_temporary(tmp_path):
+    write_text_atomic(tmp_path / "a" / "x.json", "{}\n")
+    assert (tmp_path / "a" / "x.json").read_text() == "{}\n"
+    assert [p.name for p in (tmp_path / "a").iterdir()] == ["x.json"]
+
+
+def test_out_that_is_a_file_or_not_writable_is_refused(tmp_path, capsys):
+    f = tmp_path / "file"
+    f.write_text("x")
+    assert main(["reconstruct", str(tmp_path / "cap"), "--out", str(f)]) == 2
+    assert "exists and is not a folder" in capsys.readouterr().err
+    if os.geteuid() != 0:  # root writes anywhere
+        ro = tmp_path / "ro"
+        ro.mkdir()
+        ro.chmod(0o500)
+        assert main(["reconstruct", str(tmp_path / "cap"), "--out", str(ro / "run")]) == 2
+        assert "not writable" in capsys.readouterr().err
+
+
+def test_an_unfinished_run_is_refused_with_the_resume_command(tmp_path):
+    run = tmp_path / "run"
+    (run / "checkpoints").mkdir(parents=True)
+    (run / "checkpoints" / "last.pt").write_bytes(b"x")
+    with pytest.raises(UserError, match="unfinished run: resume it with 'ebad reconstruct CAPTURE --out .* --resume'"):
+        load_run(run)
+    (run / "metrics.json").write_text(json.dumps({"complete": False, "steps": 3}))
+    with pytest.raises(UserError, match="unfinished run"):
+        load_run(run)
+
+
+@pytest.mark.slow
+def test_sigint_checkpoints_writes_the_run_and_resume_finishes(tmp_path):
+    scene = scenes.make_scene("boxes", size="tiny", seed=0, n_frames=4, n_test=1)
+    scenes.write_scene(scene, tmp_path / "scene")
+    cap = str(tmp_path / "scene" / "capture")
+    run = tmp_path / "run"
+    args = [sys.executable, "-m", "ebad", "reconstruct", cap, "--out", str(run), "--preset", "3dgs",
+            "--train.iters", "100000", "--train.checkpoint_every", "5", "--train.eval_every", "0"]
+    p = subprocess.Popen(args, cwd=REPO, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 120
+    while not (run / "checkpoints" / "last.pt").exists() and time.time() < deadline:  # training has started
+        time.sleep(0.2)
+    p.send_signal(signal.SIGINT)
+    _, err = p.communicate(timeout=120)
+    assert p.returncode == 130, err
+    assert "--resume" in err
+    m = json.loads((run / "metrics.json").read_text())
+    assert m["complete"] is False and m["stop_reason"] == "interrupted (SIGINT)" and m["steps"] > 0
+    assert (run / "checkpoints" / "last.pt").exists() and not (run / ".lock").exists()
+    with pytest.raises(UserError, match="unfinished run"):
+        load_run(run)
+    steps = m["steps"]
+    assert main(["reconstruct", cap, "--out", str(run), "--resume", "--train.iters", str(steps + 5),
+                 "--no-progress"]) == 0
+    m = json.loads((run / "metrics.json").read_text())
+    assert m["complete"] is True and m["steps"] == steps + 5 and m["resumed_from"] == steps
+    assert load_run(run).step == steps + 5
