@@ -37,6 +37,7 @@ class PrepareReport:
     """What ``prepare`` decided (every "skip what the scene does not need" decision)."""
 
     pose_source: str  # where the mid-exposure poses came from: capture | colmap | static
+    pose_trust: str  # how far they are trusted: exact | approximate (capture.pose_trust; SfM: approximate)
     train_frames: int  # frames trained on
     channels: int  # D: 1 renders one channel (grey capture), 3 colour
     views: list[int]  # V per training frame (1: sharp, no trajectory)
@@ -118,7 +119,8 @@ def _check_capture(capture) -> None:
 def _poses(capture, cfg: Config, idx: list[int]):
     """Mid-exposure poses of the training frames, and SfM points when SfM ran."""
     src = cfg.trajectory.pose_source
-    if src in ("auto", "capture") and capture.c2w is not None:
+    usable = capture.c2w is not None and (src == "capture" or capture.effective_pose_trust != "none")
+    if src in ("auto", "capture") and usable:
         return np.asarray(capture.c2w, dtype=np.float64)[idx], None, None, "capture", idx
     if src == "capture":
         raise UserError("--trajectory.pose_source is 'capture' but the capture has no poses (c2w)")
@@ -217,7 +219,8 @@ def prepare(capture, cfg: Config) -> TrainingData:
     if tc.kind == "fixed":  # no motion model: one render per frame whatever the blur
         V[:] = 1
     report = PrepareReport(
-        pose_source=pose_src, train_frames=len(idx), channels=int(frames_np.shape[-1]), views=V.tolist(),
+        pose_source=pose_src, pose_trust=capture.effective_pose_trust if pose_src == "capture" else (
+            "exact" if pose_src == "static" else "approximate"), train_frames=len(idx), channels=int(frames_np.shape[-1]), views=V.tolist(),
         renders_per_pass=int(V.sum()), renders_without_skip=int(tc.num_views * len(V)), c=c, c_source=c_source,
         skipped="no events: L_ev and L_EDI off, EDI target = frames" if wants_events and not has_events else None,
         events_per_pixel=([round(float(v), 4) for v in events_per_pixel(events, exposures)] if has_events else None),

@@ -106,17 +106,26 @@ def make_optimizers(params: dict[str, nn.Parameter], traj: ExposureTrajectories,
     return opts
 
 
-def _anchored(data: TrainingData, cfg: Config) -> bool:
+def anchored(data: TrainingData, cfg: Config) -> bool:
+    """Keep the mid-exposure poses (``trajectory.anchor_mid``; auto: when the capture says they are exact)."""
     am = cfg.trajectory.anchor_mid
-    return am == "yes" or (am == "auto" and data.report.pose_source == "capture")
+    return am == "yes" or (am == "auto" and data.report.pose_source == "capture" and data.report.pose_trust == "exact")
 
 
 def _trajectories(data: TrainingData, cfg: Config, generator: torch.Generator | None,
                   init_noise: float) -> ExposureTrajectories:
-    moving = torch.from_numpy(data.V > 1)
-    kind = cfg.trajectory.kind if bool(moving.any()) else "fixed"
+    """Anchored (trusted poses): only blurry frames move, around their given mid pose. Free: every
+    frame's pose is optimised, the whole trajectory of a blurry frame and one correction of a sharp
+    one (``fixed`` becomes ``offset``), as BAD-Gaussians and gsplat's pose_opt do."""
+    anchor = anchored(data, cfg)
+    moving = torch.from_numpy(data.V > 1) if anchor else torch.ones(data.num_frames, dtype=torch.bool)
+    kind = cfg.trajectory.kind if bool((torch.from_numpy(data.V > 1)).any()) else "fixed"
+    if not anchor and data.report.pose_source != "static" and kind == "fixed":
+        kind = "offset"
+    if kind == "fixed" or data.report.pose_source == "static":
+        moving = torch.from_numpy(data.V > 1)
     return ExposureTrajectories(data.c2w, kind, moving, scale=data.scale, init_noise=init_noise,
-                                generator=generator, anchored=_anchored(data, cfg))
+                                generator=generator, anchored=anchor)
 
 
 def _log_c(data: TrainingData, cfg: Config) -> nn.Parameter | None:

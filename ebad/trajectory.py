@@ -9,6 +9,8 @@ poses ``[F, V, 4, 4]``:
   rotation R0 exp(u log(R0^T R1)), translation (1 - u) t0 + u t1 (BAD-Gaussians).
 - ``cubic`` (K = 4): a uniform cubic B-spline segment through four knots in the tangent
   space at the mid pose: R_mid exp(sum B_i(u) w_i), t_mid + sum B_i(u) d_i.
+- ``offset`` (K = 1): one correction (R_mid exp(w), t_mid + d) at every instant: a sharp
+  camera whose pose is not trusted (gsplat's ``pose_opt``).
 - ``fixed`` (K = 0): the mid pose at every instant (trusted poses, sharp frames).
 
 ``ExposureTrajectories`` is the stateful shell (an ``nn.Module`` holding the knots).
@@ -23,7 +25,7 @@ from torch import Tensor, nn
 
 from .lie import compose_pose, rigid_inverse, so3_exp, so3_log
 
-__all__ = ["TrajectoryModel", "TRAJECTORIES", "linear_poses", "cubic_poses", "fixed_poses",
+__all__ = ["TrajectoryModel", "TRAJECTORIES", "linear_poses", "cubic_poses", "offset_poses", "fixed_poses",
            "ExposureTrajectories", "virtual_instants"]
 
 
@@ -83,6 +85,18 @@ def cubic_poses(
     return compose_pose(R, t)
 
 
+def offset_poses(
+    c2w_mid: Tensor,  # [F, 4, 4]
+    knots: Tensor,  # [F, 1, 6]
+    u: Tensor,  # [V]
+    scale: float = 1.0,
+) -> Tensor:  # [F, V, 4, 4]
+    """One corrected pose at every instant (pose optimisation without motion)."""
+    R_mid, t_mid = _split(c2w_mid)
+    pose = compose_pose(R_mid @ so3_exp(knots[:, 0, :3]), t_mid + scale * knots[:, 0, 3:])  # [F, 4, 4]
+    return pose[:, None].expand(-1, u.shape[0], -1, -1)
+
+
 def fixed_poses(
     c2w_mid: Tensor,  # [F, 4, 4]
     knots: Tensor,  # [F, 0, 6]
@@ -105,6 +119,7 @@ class TrajectoryModel:
 TRAJECTORIES: dict[str, TrajectoryModel] = {
     "linear": TrajectoryModel("linear", 2, linear_poses),
     "cubic": TrajectoryModel("cubic", 4, cubic_poses),
+    "offset": TrajectoryModel("offset", 1, offset_poses),
     "fixed": TrajectoryModel("fixed", 0, fixed_poses),
 }
 
@@ -141,7 +156,8 @@ class ExposureTrajectories(nn.Module):
             moving = torch.ones(F, dtype=torch.bool)
         self.register_buffer("moving", moving.detach().clone().bool())
         K = self.model.num_knots
-        knots = torch.randn(F, K, 6, generator=generator) * init_noise if init_noise > 0 else torch.zeros(F, K, 6)
+        noisy = init_noise > 0 and kind != "offset"  # a pose correction starts at zero: no symmetry to break
+        knots = torch.randn(F, K, 6, generator=generator) * init_noise if noisy else torch.zeros(F, K, 6)
         if K == 2:  # symmetric start: the mid pose stays where it was
             knots[:, 1] = -knots[:, 0]
         self.knots = nn.Parameter(knots * self.moving[:, None, None])
