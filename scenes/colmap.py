@@ -34,7 +34,7 @@ from .errors import CaptureError
 __all__ = ["ColmapConfig", "PoseEstimate", "SfMError", "estimate_poses", "align_similarity", "apply_similarity",
            "pose_errors"]
 
-COLLINEAR_RATIO = 0.02  # centres whose 2nd principal spread is below this x the 1st are (near) collinear
+AXIS_LENGTH = 1.0  # align_similarity: camera axis tips at this x the RMS spread of the centres
 
 
 class SfMError(EbadError, ValueError):
@@ -215,7 +215,7 @@ def estimate_poses(capture: Capture, config: ColmapConfig | None = None, frames:
     root = Path(workdir) if workdir else Path(tempfile.mkdtemp(prefix="ebad-colmap-"))
     old_level = pycolmap.logging.minloglevel
     if not cfg.verbose:
-        pycolmap.logging.minloglevel = 1  # warnings and errors only
+        pycolmap.logging.minloglevel = 2  # errors only (bundle adjustment warns by the hundred on tiny frames)
     try:
         img_dir = root / "images"
         img_dir.mkdir(parents=True, exist_ok=True)
@@ -357,16 +357,17 @@ def align_similarity(src: np.ndarray,  # [N, 4, 4] c2w (or [N, 3] points)
     """The similarity (s, R [3, 3], t [3]) taking the frame of ``src`` to the frame of ``dst``:
     ``dst ~ s R src + t`` for camera centres, ``R_dst ~ R R_src`` for orientations.
 
-    Camera centres are aligned by Umeyama's least squares. When the centres do not fix the
-    rotation (fewer than 3 cameras, or the centres of either side on a line, e.g. a slider:
-    their second principal spread below ``COLLINEAR_RATIO`` x the first), R comes from the orientations
-    (chordal mean of R_dst R_src^T) and s, t from the centres by least squares given R.
-    Points [N >= 3, 3] are aligned by Umeyama alone.
+    Umeyama's least squares over each camera's centre and the tips of its three axes at
+    ``AXIS_LENGTH`` x the RMS spread of the centres (in each frame its own spread, whose ratio
+    is the scale): the orientations fix the rotation where the centres alone do not (fewer
+    than 3 cameras, centres on a line as on a slider), and an exact similarity is recovered
+    exactly. Points [N >= 3, 3] are aligned by Umeyama on the points alone.
 
     Convention: c2w OpenCV camera-to-world; apply the result with ``apply_similarity``.
 
     Raises:
-        ValueError naming src, dst: mismatched or malformed arrays, non-finite values.
+        ValueError naming src, dst: mismatched or malformed arrays, non-finite values, or
+        camera centres that all coincide.
     """
     src, dst = np.asarray(src, np.float64), np.asarray(dst, np.float64)
     poses = _is_pose_stack(src) and _is_pose_stack(dst)
@@ -378,17 +379,16 @@ def align_similarity(src: np.ndarray,  # [N, 4, 4] c2w (or [N, 3] points)
         raise ValueError("src, dst: must be finite")
     if points:
         return _umeyama(src, dst)
-    ps, pd = src[:, :3, 3], dst[:, :3, 3]
-    xs = ps - ps.mean(0)
-    spreads = [np.linalg.svd(p - p.mean(0), compute_uv=False) for p in (ps, pd)]
-    if len(src) >= 3 and all(sp[1] > COLLINEAR_RATIO * sp[0] for sp in spreads):
-        return _umeyama(ps, pd)
-    m = np.einsum("nij,nkj->ik", dst[:, :3, :3], src[:, :3, :3])
-    u, _, vt = np.linalg.svd(m)
-    r = u @ np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))]) @ vt
-    xd = pd - pd.mean(0)
-    s = float(((xs @ r.T) * xd).sum() / max((xs**2).sum(), 1e-300))
-    return s, r, pd.mean(0) - s * r @ ps.mean(0)
+
+    def augmented(c2w: np.ndarray) -> np.ndarray:  # [N, 4, 4] -> [4 N, 3]
+        p = c2w[:, :3, 3]
+        spread = math.sqrt(((p - p.mean(0)) ** 2).sum(1).mean())
+        if spread == 0:
+            raise ValueError("src, dst: the camera centres all coincide; the scale is undefined")
+        tips = p[:, None, :] + AXIS_LENGTH * spread * np.swapaxes(c2w[:, :3, :3], 1, 2)  # [N, 3 axes, 3]
+        return np.concatenate([p, tips.reshape(-1, 3)])
+
+    return _umeyama(augmented(src), augmented(dst))
 
 
 def apply_similarity(c2w: np.ndarray,  # [..., 4, 4]
