@@ -60,7 +60,7 @@ from .images import quantize, write_image
 from .render import Quad, RayScene, Sphere, render
 from .simulate import simulate_events
 
-__all__ = ["SynthScene", "Sensor", "SENSORS", "make_scene", "write_scene", "aps_response", "aps_record",
+__all__ = ["SynthScene", "Sensor", "SENSORS", "make_scene", "write_scene", "aps_response", "aps_record", "sensor_events",
            "SCENES", "SIZES", "look_at", "TRUTH_KEYS"]
 
 SIZES = {"tiny": (64, 48), "small": (160, 120), "davis": (346, 260)}
@@ -397,6 +397,22 @@ class SynthScene:
         return render(self.ray_scene, c2w, c.K, c.width, c.height)
 
 
+def sensor_events(irradiance: np.ndarray,  # [S, H, W, D] linear irradiance renders
+                  times: np.ndarray,  # [S] seconds, increasing
+                  sensor: Sensor, seed: int = 0):
+    """The events ``sensor``'s pixels fire watching ``irradiance``: its luminance model for colour
+    (the channel mean goes through ``simulate_events`` as it always did), thresholds, mismatch,
+    refractory period, noise, hot pixels and log offset. Returns (EventStream, c_pos [H, W],
+    c_neg [H, W])."""
+    irr = np.asarray(irradiance)
+    if irr.ndim == 4 and irr.shape[3] == 3 and tuple(sensor.luminance) != CHANNEL_MEAN:
+        irr = np.tensordot(irr, np.asarray(sensor.luminance, np.float32), axes=([3], [0]))  # [S, H, W]
+    hot = int(round(sensor.hot_pixel_fraction * irr.shape[1] * irr.shape[2]))
+    return simulate_events(irr, times, c=(sensor.c_pos, sensor.c_neg), sigma_c=sensor.sigma_c,
+                           refractory=sensor.refractory, noise_hz=sensor.noise_hz, leak_hz=sensor.leak_hz,
+                           hot_pixels=hot, eps=sensor.log_eps, seed=seed, return_thresholds=True)
+
+
 def _intrinsics(width: int, height: int) -> np.ndarray:
     f = 0.5 * width / math.tan(math.radians(HFOV_DEG) / 2)
     return np.array([[f, 0.0, width / 2], [0.0, f, height / 2], [0.0, 0.0, 1.0]])
@@ -527,15 +543,8 @@ def make_scene(name: str = "boxes", size: str = "tiny", seed: int = 0, rgb: bool
     for k in range(n_frames):
         i0 = lead_steps + period_steps * k
         frames[k] = aps_record(np.tensordot(trap, renders[i0:i0 + n_blur + 1], axes=1), sen, rng_aps)
-    if rgb and sen.luminance != CHANNEL_MEAN:
-        ev_input = np.tensordot(renders, np.asarray(sen.luminance, np.float32), axes=([3], [0]))  # [S, H, W]
-    else:
-        ev_input = renders  # simulate_events averages the channels
-    hot = int(round(sen.hot_pixel_fraction * width * height))
-    events, c_pos, c_neg = simulate_events(ev_input, grid, c=(sen.c_pos, sen.c_neg), sigma_c=sen.sigma_c,
-                                           refractory=sen.refractory, noise_hz=sen.noise_hz, leak_hz=sen.leak_hz,
-                                           hot_pixels=hot, eps=sen.log_eps, seed=seed, return_thresholds=True)
-    del renders, ev_input
+    events, c_pos, c_neg = sensor_events(renders, grid, sen, seed)
+    del renders
     mids = 0.5 * (starts + ends)
     c2w_mid = traj.c2w(mids)
     gt_irr, gt_depths = render(scene, c2w_mid, K, width, height, return_depth=True)
