@@ -1,113 +1,160 @@
-"""SfM (pycolmap, CPU) on the slider_depth frames against the ground-truth poses.
+"""SfM (pycolmap, CPU) pose accuracy: synthetic blurry captures with no truth in the pipeline,
+and the slider_depth frames against their ground-truth poses.
 
-    python benchmarks/colmap_poses.py [--steps 1,2,4] [--no-synthetic] [--out bench_out/colmap_poses.json]
+    python -m benchmarks.colmap_poses [--sizes tiny,small] [--seeds 0,1,2] [--sensors realistic,ideal]
+                                      [--slider-steps 2,4 | --no-slider] [--out benchmarks/results/colmap_poses.json]
 
-Runs ``scenes.colmap.estimate_poses`` on every ``step``-th frame (several steps by default),
-aligns the estimate to the ground truth with a similarity transform and prints ATE (metres
-and % of the 1 m slide) and rotation error (degrees), with the time taken. Then the same on
-synthetic blurry captures (``scenes.make_scene``), once on the blurry frames and once on
-EDI-deblurred ones. Writes JSON.
+Synthetic rows: ``scenes.make_scene(..., poses="none")`` (the capture carries no pose at all,
+neither for its frames nor for its test views) and ``scenes.colmap.estimate_poses`` on
+
+- the blurry frames as recorded ("blurry"),
+- EDI-deblurred frames with one contrast threshold estimated from the capture ("edi c"),
+- EDI-deblurred frames with c_pos, c_neg estimated from the capture ("edi c+-", the default),
+
+with the test images registered by the same SfM. Nothing of the truth (c, response, poses)
+reaches ``estimate_poses``: the truth is used afterwards only, to score. The estimate is
+aligned to the true mid-exposure poses by ``align_similarity`` (Sim(3)); ATE is the RMSE of
+camera centres in % of the trajectory extent; the test views are moved by the same Sim(3) and
+scored the same way. One thread per SfM (deterministic). Writes JSON.
 """
 from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from pathlib import Path
 
-# running as a script puts benchmarks/ first on sys.path, where benchmarks/edi.py would
-# shadow the edi package: drop it
-sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
+import numpy as np
 
+RESULTS = Path(__file__).resolve().parent / "results"
 SLIDER = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "slider_depth"
+INPUTS = {"blurry": dict(deblur=False), "edi c": dict(deblur=True, c_polarity=False),
+          "edi c+-": dict(deblur=True, c_polarity=True)}
+
+
+def _rot_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:  # [N, 4, 4] x2 -> [N]
+    rel = np.einsum("nji,njk->nik", a[:, :3, :3], b[:, :3, :3])
+    return np.degrees(np.arccos(np.clip((np.trace(rel, axis1=1, axis2=2) - 1) / 2, -1, 1)))
+
+
+def synthetic_row(sc, size: str, seed: int, sensor: str, inp: str, threads: int) -> dict:
+    from scenes.colmap import ColmapConfig, SfMError, align_similarity, apply_similarity, estimate_poses, pose_errors
+
+    cap, name = sc.capture, sc.name
+    row = {"scene": name, "size": size, "seed": seed, "sensor": sensor, "input": inp, "frames": cap.num_frames,
+           "test_views": len(cap.test_views)}
+    t0 = time.perf_counter()
+    try:
+        est = estimate_poses(cap, ColmapConfig(num_threads=threads, **INPUTS[inp]))
+    except SfMError as exc:
+        return dict(row, error=str(exc), time_s=time.perf_counter() - t0)
+    row["time_s"] = time.perf_counter() - t0
+    reg = est.registered
+    e = pose_errors(est.c2w[reg], sc.gt_c2w[reg])
+    ext = e["trajectory_extent"]
+    row.update(registered=int(reg.sum()), points=len(est.points), c_estimated=est.report.get("c_estimated"),
+               c_true=[sc.sensor.c_pos, sc.sensor.c_neg], ate_pct=100 * e["ate_rmse"] / ext,
+               rot_mean_deg=e["rot_mean_deg"], rot_max_deg=e["rot_max_deg"], test_registered=len(est.test_c2w))
+    if est.test_c2w:
+        s, r, t = align_similarity(est.c2w[reg], sc.gt_c2w[reg])
+        names = [tv.name for tv in cap.test_views]
+        j = [i for i, n in enumerate(names) if n in est.test_c2w]
+        test = apply_similarity(np.stack([est.test_c2w[names[i]] for i in j]), s, r, t)
+        pos = np.linalg.norm(test[:, :3, 3] - sc.gt_test_c2w[j, :3, 3], axis=1)
+        row.update(test_pos_pct=float(100 * np.sqrt((pos**2).mean()) / ext),
+                   test_rot_deg=float(_rot_deg(sc.gt_test_c2w[j], test).mean()))
+    return row
+
+
+def slider_rows(steps: list[int], threads: int) -> list[dict]:
+    import scenes
+    from scenes.colmap import ColmapConfig, SfMError, estimate_poses, pose_errors
+
+    cap = scenes.load(SLIDER)
+    rows = []
+    for step in steps:
+        idx = list(range(0, cap.num_frames, step))
+        t0 = time.perf_counter()
+        try:
+            est = estimate_poses(cap, ColmapConfig(num_threads=threads), frames=idx)
+        except SfMError as exc:
+            rows.append({"step": step, "frames": len(idx), "error": str(exc), "time_s": time.perf_counter() - t0})
+            continue
+        reg = est.registered
+        e = pose_errors(est.c2w[reg], cap.c2w[idx][reg])
+        rows.append({"step": step, "frames": len(idx), "registered": int(reg.sum()), "points": len(est.points),
+                     "ate_m": e["ate_rmse"], "ate_pct": 100 * e["ate_rmse"] / e["trajectory_extent"],
+                     "rot_mean_deg": e["rot_mean_deg"], "reproj_px": est.report["mean_reprojection_error_px"],
+                     "time_s": time.perf_counter() - t0})
+    return rows
+
+
+def _mean_std(v: list[float]) -> str:
+    a = np.asarray(v, float)
+    return f"{a.mean():6.2f} ± {a.std():4.2f}" if len(a) else "     -"
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--data", default=str(SLIDER), help="an Event Camera Dataset folder (default slider_depth)")
-    ap.add_argument("--steps", default="1,2,4", help="frame subsampling steps to run, comma separated")
-    ap.add_argument("--matcher", default="auto", choices=["auto", "sequential", "exhaustive"])
-    ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--out", default="bench_out/colmap_poses.json")
-    ap.add_argument("--no-synthetic", dest="synthetic", action="store_false",
-                    help="skip the synthetic rows (blurry versus EDI-deblurred frames)")
-    ap.add_argument("--synthetic-size", default="small", choices=["tiny", "small", "davis"])
+    ap.add_argument("--sizes", default="tiny,small", help="synthetic sizes, comma separated")
+    ap.add_argument("--scenes", default="boxes,spheres")
+    ap.add_argument("--seeds", default="0,1,2")
+    ap.add_argument("--sensors", default="realistic,ideal")
+    ap.add_argument("--inputs", default=",".join(INPUTS), help=f"comma separated, of {list(INPUTS)}")
+    ap.add_argument("--threads", type=int, default=1, help="COLMAP threads (1: deterministic)")
+    ap.add_argument("--slider-steps", default="2,4", help="slider_depth frame steps")
+    ap.add_argument("--no-slider", dest="slider", action="store_false")
+    ap.add_argument("--out", default=str(RESULTS / "colmap_poses.json"))
     args = ap.parse_args(argv)
-
+    split = lambda s: [x for x in s.split(",") if x]  # noqa: E731
     import scenes
-    from scenes.colmap import ColmapConfig, SfMError, estimate_poses, pose_errors
 
-    cap = scenes.load(args.data)
-    if cap.c2w is None:
-        raise SystemExit(f"{args.data}: no ground-truth poses")
     rows = []
-    for step in (int(s) for s in args.steps.split(",")):
-        idx = list(range(0, cap.num_frames, step))
-        cfg = ColmapConfig(matcher=args.matcher, num_threads=args.threads)
-        t0 = time.perf_counter()
-        try:
-            est = estimate_poses(cap, cfg, frames=idx)
-        except SfMError as exc:
-            rows.append({"step": step, "frames": len(idx), "error": str(exc), "time_s": time.perf_counter() - t0})
-            continue
-        wall = time.perf_counter() - t0
-        reg = est.registered
-        e = pose_errors(est.c2w[reg], cap.c2w[idx][reg])
-        rows.append({"step": step, "frames": len(idx), "registered": int(reg.sum()), "points": len(est.points),
-                     "ate_rmse_m": e["ate_rmse"], "ate_max_m": e["ate_max"],
-                     "ate_pct_of_extent": 100 * e["ate_rmse"] / e["trajectory_extent"],
-                     "rot_mean_deg": e["rot_mean_deg"], "rot_max_deg": e["rot_max_deg"],
-                     "reproj_px": est.report["mean_reprojection_error_px"], "matcher": est.report["matcher"],
-                     "time_s": wall, "time_features_s": est.report["time_features_s"],
-                     "time_matching_s": est.report["time_matching_s"],
-                     "time_mapping_s": est.report["time_mapping_s"]})
-    hdr = f"{'step':>4} {'frames':>6} {'reg':>4} {'points':>6} {'ATE m':>8} {'ATE %':>6} {'rot deg':>8} " \
-          f"{'rot max':>8} {'reproj':>6} {'time s':>7}"
-    print(f"SfM on {args.data} ({cap.width}x{cap.height}, {cap.num_frames} frames), similarity-aligned to ground truth")
-    print(hdr)
-    for r in rows:
-        if "error" in r:
-            print(f"{r['step']:>4} {r['frames']:>6}  FAILED: {r['error']}")
-            continue
-        print(f"{r['step']:>4} {r['frames']:>6} {r['registered']:>4} {r['points']:>6} {r['ate_rmse_m']:>8.4f} "
-              f"{r['ate_pct_of_extent']:>6.2f} {r['rot_mean_deg']:>8.3f} {r['rot_max_deg']:>8.3f} "
-              f"{r['reproj_px']:>6.3f} {r['time_s']:>7.1f}")
-    syn_rows = []
-    if args.synthetic:
-        for name in ("boxes", "spheres"):
-            sc = scenes.make_scene(name, args.synthetic_size, n_frames=12, seed=0)
-            for deblur in (False, True):
-                t0 = time.perf_counter()
-                row = {"scene": name, "size": args.synthetic_size, "frames": sc.capture.num_frames,
-                       "input": "EDI-deblurred" if deblur else "blurry"}
-                try:
-                    est = estimate_poses(sc.capture, ColmapConfig(deblur=deblur, num_threads=args.threads))
-                except SfMError as exc:
-                    row.update(error=str(exc), time_s=time.perf_counter() - t0)
-                    syn_rows.append(row)
-                    continue
-                reg = est.registered
-                e = pose_errors(est.c2w[reg], sc.capture.c2w[reg])
-                row.update(registered=int(reg.sum()), points=len(est.points), ate_rmse=e["ate_rmse"],
-                           ate_pct_of_extent=100 * e["ate_rmse"] / e["trajectory_extent"],
-                           rot_mean_deg=e["rot_mean_deg"], rot_max_deg=e["rot_max_deg"],
-                           time_s=time.perf_counter() - t0)
-                syn_rows.append(row)
-        print(f"\nSfM on synthetic blurry captures (shake 1, c = 0.2), blurry frames versus EDI-deblurred")
-        print(f"{'scene':>8} {'input':>14} {'frames':>6} {'reg':>4} {'points':>6} {'ATE %':>6} {'rot deg':>8} "
-              f"{'rot max':>8} {'time s':>7}")
-        for r in syn_rows:
+    for size in split(args.sizes):
+        for sensor in split(args.sensors):
+            for name in split(args.scenes):
+                for seed in (int(s) for s in split(args.seeds)):
+                    sc = scenes.make_scene(name, size, seed=seed, sensor=sensor, poses="none", n_frames=12, n_test=3)
+                    for inp in split(args.inputs):
+                        r = synthetic_row(sc, size, seed, sensor, inp, args.threads)
+                        rows.append(r)
+                        print(json.dumps({k: (round(v, 4) if isinstance(v, float) else v) for k, v in r.items()}),
+                              flush=True)
+    print("\nSfM on synthetic blurry captures without poses (12 frames + 3 test views registered together); "
+          "mean ± std over scenes and seeds")
+    print(f"{'size':>6} {'sensor':>9} {'input':>8} {'runs':>4} {'failed':>6} {'ATE %':>14} {'rot deg':>14} "
+          f"{'test pos %':>14} {'test rot deg':>14} {'time s':>7}")
+    summary = []
+    for size in split(args.sizes):
+        for sensor in split(args.sensors):
+            for inp in split(args.inputs):
+                sel = [r for r in rows if r["size"] == size and r["sensor"] == sensor and r["input"] == inp]
+                ok = [r for r in sel if "error" not in r]
+                tst = [r for r in ok if "test_pos_pct" in r]
+                s = {"size": size, "sensor": sensor, "input": inp, "runs": len(sel), "failed": len(sel) - len(ok),
+                     "ate_pct": [r["ate_pct"] for r in ok], "rot_deg": [r["rot_mean_deg"] for r in ok],
+                     "test_pos_pct": [r["test_pos_pct"] for r in tst], "test_rot_deg": [r["test_rot_deg"] for r in tst],
+                     "time_s": [r["time_s"] for r in ok]}
+                summary.append(s)
+                print(f"{size:>6} {sensor:>9} {inp:>8} {len(sel):>4} {s['failed']:>6} {_mean_std(s['ate_pct']):>14} "
+                      f"{_mean_std(s['rot_deg']):>14} {_mean_std(s['test_pos_pct']):>14} "
+                      f"{_mean_std(s['test_rot_deg']):>14} {np.mean(s['time_s']) if ok else float('nan'):>7.1f}")
+    slider = []
+    if args.slider and SLIDER.is_dir():
+        slider = slider_rows([int(s) for s in split(args.slider_steps)], args.threads)
+        print(f"\nSfM on slider_depth (EDI c+- frames), similarity-aligned to ground truth")
+        print(f"{'step':>4} {'frames':>6} {'reg':>4} {'ATE m':>8} {'ATE %':>6} {'rot deg':>8} {'time s':>7}")
+        for r in slider:
             if "error" in r:
-                print(f"{r['scene']:>8} {r['input']:>14} {r['frames']:>6}  FAILED: {r['error']}")
-                continue
-            print(f"{r['scene']:>8} {r['input']:>14} {r['frames']:>6} {r['registered']:>4} {r['points']:>6} "
-                  f"{r['ate_pct_of_extent']:>6.2f} {r['rot_mean_deg']:>8.3f} {r['rot_max_deg']:>8.3f} {r['time_s']:>7.1f}")
+                print(f"{r['step']:>4} {r['frames']:>6}  FAILED: {r['error']}")
+            else:
+                print(f"{r['step']:>4} {r['frames']:>6} {r['registered']:>4} {r['ate_m']:>8.4f} {r['ate_pct']:>6.2f} "
+                      f"{r['rot_mean_deg']:>8.3f} {r['time_s']:>7.1f}")
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"data": args.data, "rows": rows, "synthetic": syn_rows}, indent=1))
+    out.write_text(json.dumps({"args": vars(args), "rows": rows, "summary": summary, "slider": slider}, indent=1))
     print(f"wrote {out}")
-    return 0 if all("error" not in r for r in rows) else 1
+    return 0
 
 
 if __name__ == "__main__":

@@ -10,9 +10,12 @@ from edi import EventStream
 
 from .errors import CaptureError
 
-__all__ = ["Capture", "TestView", "check_rigid"]
+__all__ = ["Capture", "TestView", "check_rigid", "POSE_TRUST"]
 
 RIGID_TOL = 1e-5  # max |R^T R - I| and |det R - 1| accepted for a camera pose
+# How far a capture's poses can be trusted, as the capture states it (real captures state it
+# too: motion capture -> "exact", SfM or another tool -> "approximate", nothing -> "none").
+POSE_TRUST = ("exact", "approximate", "none")
 
 
 def check_rigid(m: np.ndarray, file: str | None, field_name: str) -> np.ndarray:
@@ -38,14 +41,15 @@ def check_rigid(m: np.ndarray, file: str | None, field_name: str) -> np.ndarray:
 
 @dataclass
 class TestView:
-    """A held-out view: a camera at time ``t`` (seconds) with pose ``c2w`` [4, 4] and,
-    when known, its sharp image [H, W, D] float32 in linear [0, 1]."""
+    """A held-out view: a camera at time ``t`` (seconds) with pose ``c2w`` [4, 4] and/or
+    its sharp image [H, W, D] float32 in [0, 1] (at least one of the two). A view with an
+    image and no pose gets its pose from SfM (``scenes.colmap.estimate_poses``)."""
 
     __test__ = False  # not a pytest test class
 
     name: str
     t: float
-    c2w: np.ndarray  # [4, 4]
+    c2w: np.ndarray | None  # [4, 4], or None: unknown (then ``image`` is required)
     image: np.ndarray | None = None  # [H, W, D]
 
 
@@ -69,6 +73,17 @@ class Capture:
     test_views: list[TestView] = field(default_factory=list)
     names: list[str] = field(default_factory=list)  # per frame, for output file names
     meta: dict[str, Any] = field(default_factory=dict)  # free-form: source layout, time unit, ...
+    # how far ``c2w`` (and the test views' poses) can be trusted: "exact", "approximate" or
+    # "none" (not to be used even if present); None: unstated, read as ``effective_pose_trust``
+    pose_trust: str | None = None
+
+    @property
+    def effective_pose_trust(self) -> str:
+        """``pose_trust`` when stated; else "approximate" when the capture has poses (poses from
+        SfM or another tool are never exact) and "none" when it has none."""
+        if self.pose_trust is not None:
+            return self.pose_trust
+        return "none" if self.c2w is None else "approximate"
 
     @property
     def num_frames(self) -> int:
@@ -129,6 +144,10 @@ class Capture:
                 raise CaptureError(source, "c2w", f"must have shape ({n}, 4, 4), got {c.shape}")
             for i in range(n):
                 check_rigid(c[i], source, f"frames[{i}].c2w")
+        if self.pose_trust is not None and self.pose_trust not in POSE_TRUST:
+            raise CaptureError(source, "pose_trust", f"must be one of {list(POSE_TRUST)} or unset, got {self.pose_trust!r}")
+        if self.pose_trust in ("exact", "approximate") and self.c2w is None:
+            raise CaptureError(source, "pose_trust", f"is {self.pose_trust!r} but the frames carry no c2w")
         if self.split and len(self.split) != n:
             raise CaptureError(source, "split", f"needs one entry per frame ({n}), got {len(self.split)}")
         if self.names and len(self.names) != n:
@@ -142,7 +161,10 @@ class Capture:
             seen.add(tv.name)
             if not np.isfinite(float(tv.t)):
                 raise CaptureError(source, f"test_views[{j}].t", "must be finite")
-            check_rigid(tv.c2w, source, f"test_views[{j}].c2w")
+            if tv.c2w is None and tv.image is None:
+                raise CaptureError(source, f"test_views[{j}]", "needs a c2w, an image, or both")
+            if tv.c2w is not None:
+                check_rigid(tv.c2w, source, f"test_views[{j}].c2w")
             if tv.image is not None:
                 im = tv.image
                 if not isinstance(im, np.ndarray) or im.shape != f.shape[1:] or im.dtype != np.float32:

@@ -3,7 +3,15 @@
 Convention: COLMAP's camera axes and pixel convention (top-left pixel centre at (0.5, 0.5))
 are ours, so K goes in unchanged and ``cam_from_world`` inverts to our OpenCV c2w. The
 reconstruction's gauge (origin, orientation, scale) is COLMAP's: align to another frame with
-a similarity transform (``align_similarity``) before comparing positions.
+a similarity transform (``align_similarity``, then ``apply_similarity``) before comparing
+positions.
+
+Test views that carry an image but no pose are registered by the same SfM as the training
+frames (their images are matched and mapped with them, never deblurred, never counted in the
+registration threshold): ``PoseEstimate.test_c2w`` holds their poses in the SfM frame, by name.
+
+No truth is read: the contrast threshold for EDI is estimated from the capture
+(``edi.estimate_c``), never taken from ``Capture.meta``.
 """
 from __future__ import annotations
 
@@ -21,12 +29,17 @@ from scipy.spatial.transform import Rotation, Slerp
 from edi.errors import EbadError
 
 from .capture import Capture
+from .errors import CaptureError
 
-__all__ = ["ColmapConfig", "PoseEstimate", "SfMError", "estimate_poses", "align_similarity", "pose_errors"]
+__all__ = ["ColmapConfig", "PoseEstimate", "SfMError", "estimate_poses", "align_similarity", "apply_similarity",
+           "pose_errors"]
+
+AXIS_LENGTH = 1.0  # align_similarity: camera axis tips at this x the RMS spread of the centres
 
 
 class SfMError(EbadError, ValueError):
-    """Structure from motion failed (too few frames registered); the message says how many."""
+    """Structure from motion failed (too few frames registered); the message says how many
+    and what to try."""
 
 
 @dataclass
@@ -46,6 +59,10 @@ class ColmapConfig:
     seed: int = 0
     upsample_below: int = 200  # frames narrower than this are upsampled x2 (SIFT needs pixels)
     verbose: bool = False  # COLMAP's INFO log lines on stderr
+    # test views with an image registered with the frames: "unposed" (those without c2w),
+    # "all" (every test view with an image, e.g. to align a capture's given test poses), "none"
+    test_views: Literal["unposed", "all", "none"] = "unposed"
+    c_polarity: bool = True  # EDI: estimate c_pos and c_neg separately (DAVIS thresholds differ)
 
 
 @dataclass
@@ -55,16 +72,19 @@ class PoseEstimate:
     c2w: np.ndarray  # [F, 4, 4]; unregistered frames interpolated in time from registered ones
     points: np.ndarray  # [P, 3] sparse points (world)
     colors: np.ndarray  # [P, D] linear [0, 1] (D as the capture; 3 for colour)
-    registered: np.ndarray  # [F] bool
+    registered: np.ndarray  # [F] bool, always present: which rows of c2w SfM registered
     report: dict = field(default_factory=dict)
+    test_c2w: dict[str, np.ndarray] = field(default_factory=dict)  # test view name -> [4, 4], registered ones
+    test_unregistered: list[str] = field(default_factory=list)  # test views given to SfM and not registered
 
     @property
     def unregistered(self) -> list[int]:
         return np.flatnonzero(~self.registered).tolist()
 
 
-def _sfm_frames(capture: Capture, deblur: bool, report: dict) -> np.ndarray:
-    """[F, H, W, D] frames for SfM: EDI latents at mid-exposure where possible, else raw."""
+def _sfm_frames(capture: Capture, deblur: bool, report: dict, polarity: bool = True) -> np.ndarray:
+    """[F, H, W, D] frames for SfM: EDI latents at mid-exposure where possible, else raw. The
+    contrast threshold is estimated from the capture (one c, or (c_pos, c_neg) with ``polarity``)."""
     frames = capture.frames.astype(np.float64)
     report["deblurred"] = 0
     if not deblur:
@@ -75,14 +95,15 @@ def _sfm_frames(capture: Capture, deblur: bool, report: dict) -> np.ndarray:
     except ImportError:
         report["deblur_note"] = "edi.deblur not available: raw frames used"
         return frames
-    c = capture.meta.get("c")
-    if c is None and capture.num_frames >= 2 and len(capture.events):
+    c = None
+    if capture.num_frames >= 2 and len(capture.events):
         # one c for the whole capture from the consistency between frames: cheaper and far
         # more reliable than a single-frame estimate per frame
         from edi import estimate_c
 
         try:
-            c = float(estimate_c(capture.frames, capture.exposures, capture.events))
+            c = estimate_c(capture.frames, capture.exposures, capture.events, polarity=polarity)
+            c = tuple(float(v) for v in c) if polarity else float(c)
             report["c_estimated"] = c
         except ValueError as exc:  # no pixel fired between frames: fall back to per frame
             report["c_note"] = f"joint estimate failed ({exc}); per-frame estimates"
@@ -127,9 +148,32 @@ def _interp_missing(c2w: np.ndarray, registered: np.ndarray, t: np.ndarray) -> n
     return out
 
 
+def _failure_hint(cfg: ColmapConfig, capture: Capture, report: dict) -> str:
+    """What to try when too few frames register (the usual cause: too few features in blurry frames)."""
+    tips = []
+    if not cfg.deblur:
+        tips.append("EDI deblurring with an estimated c (ColmapConfig(deblur=True), the default)")
+    elif report.get("deblurred", 0) == 0:
+        tips.append("EDI deblurring needs events inside the exposures: none of the frames had any")
+    else:
+        c = report.get("c_estimated")
+        tips.append(f"a better contrast threshold for EDI (estimated c = {c if c is not None else 'per frame'}; "
+                    f"`ebad deblur` on one frame shows whether the latents are sharp)")
+    tips.append(f"more frames with more overlap ({capture.num_frames} in the capture, "
+                f"{report.get('frames_used', '?')} used)")
+    tips.append("correct known intrinsics (K is kept fixed; a wrong K breaks registration)")
+    if capture.width < 2 * cfg.upsample_below:
+        tips.append(f"lower matching thresholds (init_min_num_inliers {cfg.init_min_num_inliers}, "
+                    f"abs_pose_min_num_inliers {cfg.abs_pose_min_num_inliers}) for small frames")
+    return "; try: " + "; ".join(tips)
+
+
 def estimate_poses(capture: Capture, config: ColmapConfig | None = None, frames: list[int] | None = None,
                    workdir: str | None = None) -> PoseEstimate:
     """SfM with pycolmap on the CPU: EDI-deblur, SIFT, matching, incremental mapping with K fixed.
+
+    Test views with an image (those without a pose, or all: ``config.test_views``) are matched
+    and mapped together with the frames; their images are used as they are (sharp).
 
     Args:
         capture: the capture (its K is used and kept fixed; its poses are ignored).
@@ -139,38 +183,48 @@ def estimate_poses(capture: Capture, config: ColmapConfig | None = None, frames:
 
     Returns:
         PoseEstimate with c2w [F, 4, 4] (F = number of frames used), points [P, 3], colours
-        [P, D], registered [F] bool and a report (timings, counts, reprojection error).
+        [P, D], registered [F] bool, test_c2w {name: [4, 4]} for the registered test views,
+        test_unregistered [names], and a report (timings, counts, reprojection error, the
+        estimated c).
 
     Raises:
-        SfMError: fewer than max(min_registered, min_registered_fraction * F) frames registered.
-        ValueError: bad arguments (names them).
+        SfMError: fewer than max(min_registered, min_registered_fraction * F) frames
+            registered; the message says how many and what to try.
+        CaptureError: bad arguments (names them).
     """
     import pycolmap
 
     cfg = config or ColmapConfig()
     capture.validate("capture")
     if capture.distortion is not None and np.any(np.asarray(capture.distortion) != 0):
-        raise ValueError("capture: has lens distortion; load it with undistort=True first")
+        raise CaptureError(None, "capture", "has lens distortion; load it with undistort=True first")
     idx = np.arange(capture.num_frames) if frames is None else np.asarray(frames, dtype=int)
     if idx.ndim != 1 or len(idx) < 2 or idx.min() < 0 or idx.max() >= capture.num_frames:
-        raise ValueError(f"frames: need >= 2 indices in [0, {capture.num_frames}), got {frames!r}")
+        raise CaptureError(None, "frames", f"need >= 2 indices in [0, {capture.num_frames}), got {frames!r}")
     if cfg.matcher not in ("auto", "sequential", "exhaustive"):
-        raise ValueError(f"config.matcher: must be auto, sequential or exhaustive, got {cfg.matcher!r}")
-    report: dict = {"frames_used": len(idx)}
+        raise CaptureError(None, "config.matcher", f"must be auto, sequential or exhaustive, got {cfg.matcher!r}")
+    if cfg.test_views not in ("unposed", "all", "none"):
+        raise CaptureError(None, "config.test_views", f"must be unposed, all or none, got {cfg.test_views!r}")
+    tests = [tv for tv in capture.test_views if tv.image is not None and
+             (cfg.test_views == "all" or (cfg.test_views == "unposed" and tv.c2w is None))]
+    report: dict = {"frames_used": len(idx), "test_views_used": len(tests)}
     t_start = time.perf_counter()
-    imgs = _sfm_frames(capture, cfg.deblur, report)[idx]
+    imgs = _sfm_frames(capture, cfg.deblur, report, cfg.c_polarity)[idx]
     scale = 2 if capture.width < cfg.upsample_below else 1
     K = np.asarray(capture.K, dtype=np.float64)
     root = Path(workdir) if workdir else Path(tempfile.mkdtemp(prefix="ebad-colmap-"))
     old_level = pycolmap.logging.minloglevel
     if not cfg.verbose:
-        pycolmap.logging.minloglevel = 1  # warnings and errors only
+        pycolmap.logging.minloglevel = 2  # errors only (bundle adjustment warns by the hundred on tiny frames)
     try:
         img_dir = root / "images"
         img_dir.mkdir(parents=True, exist_ok=True)
         names = [f"{i:05d}.png" for i in range(len(idx))]
+        test_names = [f"test_{j:05d}.png" for j in range(len(tests))]
         for name, im in zip(names, imgs):
             _write_png(img_dir / name, im, scale)
+        for name, tv in zip(test_names, tests):
+            _write_png(img_dir / name, tv.image, scale)
         db = root / "database.db"
         if db.exists():
             db.unlink()
@@ -184,20 +238,25 @@ def estimate_poses(capture: Capture, config: ColmapConfig | None = None, frames:
         ext.num_threads = cfg.num_threads
         ext.use_gpu = False
         ext.sift.max_num_features = cfg.max_num_features
-        pycolmap.extract_features(db, img_dir, image_names=names, camera_mode=pycolmap.CameraMode.SINGLE,
+        pycolmap.extract_features(db, img_dir, image_names=names + test_names, camera_mode=pycolmap.CameraMode.SINGLE,
                                   reader_options=reader, extraction_options=ext, device=pycolmap.Device.cpu)
         t_feat = time.perf_counter()
         mopt = pycolmap.FeatureMatchingOptions()
         mopt.num_threads = cfg.num_threads
         mopt.use_gpu = False
-        matcher = cfg.matcher if cfg.matcher != "auto" else ("exhaustive" if len(idx) <= 40 else "sequential")
+        n_img = len(names) + len(test_names)
+        matcher = cfg.matcher if cfg.matcher != "auto" else ("exhaustive" if n_img <= 40 else "sequential")
         if matcher == "exhaustive":
             pycolmap.match_exhaustive(db, matching_options=mopt, device=pycolmap.Device.cpu)
         else:
+            # test views sort after the frames ("test_" > digits): sequential matching pairs them
+            # with the last frames only, so they also get matched exhaustively against the frames
             pair = pycolmap.SequentialPairingOptions()
             pair.overlap = cfg.overlap
             pair.num_threads = cfg.num_threads
             pycolmap.match_sequential(db, matching_options=mopt, pairing_options=pair, device=pycolmap.Device.cpu)
+            if test_names:
+                _match_test_views(pycolmap, db, names, test_names, mopt)
         t_match = time.perf_counter()
         opt = pycolmap.IncrementalPipelineOptions()
         opt.num_threads = cfg.num_threads
@@ -222,22 +281,28 @@ def estimate_poses(capture: Capture, config: ColmapConfig | None = None, frames:
             shutil.rmtree(root, ignore_errors=True)
     need = max(min(cfg.min_registered, len(idx)), int(math.ceil(cfg.min_registered_fraction * len(idx))))
     if not recs:
-        raise SfMError(f"SfM registered no frames (0 of {len(idx)}; need {need}): too little texture or overlap")
-    rec = max(recs.values(), key=lambda r: r.num_reg_images())
-    n_reg = rec.num_reg_images()
-    if n_reg < need:
-        raise SfMError(f"SfM registered only {n_reg} of {len(idx)} frames (need {need})")
+        raise SfMError(f"SfM registered no frames (0 of {len(idx)}; need {need}): too few matched features"
+                       + _failure_hint(cfg, capture, report))
+    name_to_i = {n: i for i, n in enumerate(names)}
+    rec = max(recs.values(), key=lambda r: sum(1 for im in r.images.values() if im.has_pose and im.name in name_to_i))
     c2w = np.tile(np.eye(4), (len(idx), 1, 1))
     registered = np.zeros(len(idx), bool)
-    name_to_i = {n: i for i, n in enumerate(names)}
+    test_c2w: dict[str, np.ndarray] = {}
+    name_to_test = dict(zip(test_names, tests))
     for image in rec.images.values():
         if not image.has_pose:
             continue
-        i = name_to_i[image.name]
         m = np.eye(4)
         m[:3, :4] = image.cam_from_world().matrix()
-        c2w[i] = np.linalg.inv(m)
-        registered[i] = True
+        if image.name in name_to_i:
+            c2w[name_to_i[image.name]] = np.linalg.inv(m)
+            registered[name_to_i[image.name]] = True
+        elif image.name in name_to_test:
+            test_c2w[name_to_test[image.name].name] = np.linalg.inv(m)
+    n_reg = int(registered.sum())
+    if n_reg < need:
+        raise SfMError(f"SfM registered only {n_reg} of {len(idx)} frames (need {need}) in its largest model "
+                       f"({len(recs)} model(s))" + _failure_hint(cfg, capture, report))
     t_mid = capture.exposures[idx].mean(axis=1)
     c2w = _interp_missing(c2w, registered, t_mid)
     pts = [(p.xyz, p.color) for p in rec.points3D.values()]
@@ -247,20 +312,28 @@ def estimate_poses(capture: Capture, config: ColmapConfig | None = None, frames:
         colors = colors.mean(axis=1, keepdims=True)
     ok = np.isfinite(points).all(1)
     points, colors = points[ok], np.clip(colors[ok], 0, 1)
-    report.update({"registered": int(n_reg), "unregistered": np.flatnonzero(~registered).tolist(),
+    test_unreg = [tv.name for tv in tests if tv.name not in test_c2w]
+    report.update({"registered": n_reg, "unregistered": np.flatnonzero(~registered).tolist(),
+                   "test_registered": len(test_c2w), "test_unregistered": test_unreg,
                    "points": len(points), "models": len(recs), "matcher": matcher, "upsampled": scale,
                    "mean_reprojection_error_px": float(rec.compute_mean_reprojection_error()) / scale,
                    "time_features_s": t_feat - t_start, "time_matching_s": t_match - t_feat,
                    "time_mapping_s": t_map - t_match, "time_total_s": time.perf_counter() - t_start})
-    return PoseEstimate(c2w=c2w, points=points, colors=colors.astype(np.float32), registered=registered, report=report)
+    return PoseEstimate(c2w=c2w, points=points, colors=colors.astype(np.float32), registered=registered, report=report,
+                        test_c2w=test_c2w, test_unregistered=test_unreg)
 
 
-def align_similarity(src: np.ndarray,  # [N, 3]
-                     dst: np.ndarray  # [N, 3]
-                     ) -> tuple[float, np.ndarray, np.ndarray]:
-    """Umeyama: (s, R [3, 3], t [3]) minimising |dst - (s R src + t)|^2."""
-    if src.shape != dst.shape or src.ndim != 2 or src.shape[1] != 3 or len(src) < 3:
-        raise ValueError(f"src, dst: need matching [N >= 3, 3] arrays, got {src.shape} and {dst.shape}")
+def _match_test_views(pycolmap, db: Path, names: list[str], test_names: list[str], mopt) -> None:
+    """Match every test image against every frame (after sequential matching of the frames)."""
+    pairs = db.parent / "test_pairs.txt"
+    pairs.write_text("".join(f"{t} {n}\n" for t in test_names for n in names))
+    popt = pycolmap.ImportedPairingOptions()
+    popt.match_list_path = str(pairs)
+    pycolmap.match_image_pairs(db, matching_options=mopt, pairing_options=popt, device=pycolmap.Device.cpu)
+
+
+def _umeyama(src: np.ndarray, dst: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+    """Umeyama (1991) on points [N, 3]: (s, R, t) minimising sum |dst - (s R src + t)|^2."""
     mu_s, mu_d = src.mean(0), dst.mean(0)
     xs, xd = src - mu_s, dst - mu_d
     cov = xd.T @ xs / len(src)
@@ -271,34 +344,82 @@ def align_similarity(src: np.ndarray,  # [N, 3]
     r = u @ sgn @ vt
     var = (xs**2).sum() / len(src)
     s = float(np.trace(np.diag(d) @ sgn) / var) if var > 0 else 1.0
-    t = mu_d - s * r @ mu_s
-    return s, r, t
+    return s, r, mu_d - s * r @ mu_s
+
+
+def _is_pose_stack(a: np.ndarray) -> bool:
+    return a.ndim == 3 and a.shape[1:] == (4, 4)
+
+
+def align_similarity(src: np.ndarray,  # [N, 4, 4] c2w (or [N, 3] points)
+                     dst: np.ndarray  # [N, 4, 4] c2w (or [N, 3] points), the same cameras in another frame
+                     ) -> tuple[float, np.ndarray, np.ndarray]:
+    """The similarity (s, R [3, 3], t [3]) taking the frame of ``src`` to the frame of ``dst``:
+    ``dst ~ s R src + t`` for camera centres, ``R_dst ~ R R_src`` for orientations.
+
+    Umeyama's least squares over each camera's centre and the tips of its three axes at
+    ``AXIS_LENGTH`` x the RMS spread of the centres (in each frame its own spread, whose ratio
+    is the scale): the orientations fix the rotation where the centres alone do not (fewer
+    than 3 cameras, centres on a line as on a slider), and an exact similarity is recovered
+    exactly. Points [N >= 3, 3] are aligned by Umeyama on the points alone.
+
+    Convention: c2w OpenCV camera-to-world; apply the result with ``apply_similarity``.
+
+    Raises:
+        ValueError naming src, dst: mismatched or malformed arrays, non-finite values, or
+        camera centres that all coincide.
+    """
+    src, dst = np.asarray(src, np.float64), np.asarray(dst, np.float64)
+    poses = _is_pose_stack(src) and _is_pose_stack(dst)
+    points = src.ndim == 2 and src.shape[1:] == (3,)
+    if src.shape != dst.shape or not (poses or points) or len(src) < (2 if poses else 3):
+        raise ValueError(f"src, dst: need matching [N >= 2, 4, 4] poses or [N >= 3, 3] points, got {src.shape} "
+                         f"and {dst.shape}")
+    if not (np.isfinite(src).all() and np.isfinite(dst).all()):
+        raise ValueError("src, dst: must be finite")
+    if points:
+        return _umeyama(src, dst)
+
+    def augmented(c2w: np.ndarray) -> np.ndarray:  # [N, 4, 4] -> [4 N, 3]
+        p = c2w[:, :3, 3]
+        spread = math.sqrt(((p - p.mean(0)) ** 2).sum(1).mean())
+        if spread == 0:
+            raise ValueError("src, dst: the camera centres all coincide; the scale is undefined")
+        tips = p[:, None, :] + AXIS_LENGTH * spread * np.swapaxes(c2w[:, :3, :3], 1, 2)  # [N, 3 axes, 3]
+        return np.concatenate([p, tips.reshape(-1, 3)])
+
+    return _umeyama(augmented(src), augmented(dst))
+
+
+def apply_similarity(c2w: np.ndarray,  # [..., 4, 4]
+                     s: float, R: np.ndarray,  # [3, 3]
+                     t: np.ndarray  # [3]
+                     ) -> np.ndarray:
+    """Poses [..., 4, 4] moved by the similarity x -> s R x + t: orientation R R_c, centre
+    s R p + t (still rigid: the scale acts on the world, not on the camera)."""
+    c = np.asarray(c2w, np.float64)
+    if c.shape[-2:] != (4, 4):
+        raise ValueError(f"c2w: need [..., 4, 4], got {c.shape}")
+    r = np.asarray(R, np.float64)
+    out = c.copy()
+    out[..., :3, :3] = r @ c[..., :3, :3]
+    out[..., :3, 3] = float(s) * c[..., :3, 3] @ r.T + np.asarray(t, np.float64)
+    return out
 
 
 def pose_errors(est_c2w: np.ndarray,  # [N, 4, 4]
                 gt_c2w: np.ndarray  # [N, 4, 4]
                 ) -> dict:
-    """Pose errors after a similarity alignment of ``est`` onto ``gt``: ATE (RMSE and max of
-    camera-centre distances, gt units) and rotation errors (degrees).
-
-    The alignment's rotation comes from the orientations (chordal mean of R_gt R_est^T), its
-    scale and translation from the centres by least squares: unlike Umeyama on centres alone,
-    this stays well defined on a straight trajectory (a slider), where rotation about the line
-    is not observable from positions."""
+    """Pose errors after a similarity alignment (``align_similarity``) of ``est`` onto ``gt``:
+    ATE (RMSE and max of camera-centre distances, gt units) and rotation errors (degrees)."""
+    est_c2w, gt_c2w = np.asarray(est_c2w, np.float64), np.asarray(gt_c2w, np.float64)
     if est_c2w.shape != gt_c2w.shape or est_c2w.ndim != 3 or est_c2w.shape[1:] != (4, 4) or len(est_c2w) < 2:
         raise ValueError(f"est_c2w, gt_c2w: need matching [N >= 2, 4, 4], got {est_c2w.shape} and {gt_c2w.shape}")
-    m = np.einsum("nij,nkj->ik", gt_c2w[:, :3, :3], est_c2w[:, :3, :3])
-    u, _, vt = np.linalg.svd(m)
-    d = np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))])
-    r = u @ d @ vt
-    ps, pd = est_c2w[:, :3, 3], gt_c2w[:, :3, 3]
-    xs, xd = ps - ps.mean(0), pd - pd.mean(0)
-    rx = xs @ r.T
-    s = float((rx * xd).sum() / max((xs**2).sum(), 1e-300))
-    t = pd.mean(0) - s * r @ ps.mean(0)
-    pos = s * ps @ r.T + t
-    err = np.linalg.norm(pos - pd, axis=1)
-    rel = np.einsum("nji,jk,nkl->nil", gt_c2w[:, :3, :3], r, est_c2w[:, :3, :3])
+    s, r, t = align_similarity(est_c2w, gt_c2w)
+    aligned = apply_similarity(est_c2w, s, r, t)
+    pd = gt_c2w[:, :3, 3]
+    err = np.linalg.norm(aligned[:, :3, 3] - pd, axis=1)
+    rel = np.einsum("nji,njk->nik", gt_c2w[:, :3, :3], aligned[:, :3, :3])
     ang = np.degrees(np.arccos(np.clip((np.trace(rel, axis1=1, axis2=2) - 1) / 2, -1, 1)))
     extent = float(np.linalg.norm(pd.max(0) - pd.min(0)))
     return {"ate_rmse": float(np.sqrt((err**2).mean())), "ate_max": float(err.max()),

@@ -195,7 +195,8 @@ def load_capture_folder(path: Path) -> Capture:
         where = f"test_views[{j}]"
         name = str(_req(tv, "name", jf, where))
         t = _num(_req(tv, "t", jf, where), jf, f"{where}.t")
-        c2w = _matrix(_req(tv, "c2w", jf, where), jf, f"{where}.c2w")
+        has_pose = tv.get("c2w") is not None or not tv.get("file")  # a test view needs a c2w, a file or both
+        c2w = _matrix(_req(tv, "c2w", jf, where), jf, f"{where}.c2w") if has_pose else None
         image = None
         if tv.get("file"):
             image = read_image(root / str(tv["file"]), f"{where}.file")
@@ -208,7 +209,7 @@ def load_capture_folder(path: Path) -> Capture:
         names = [f"{i:04d}" for i in range(len(names))]
     cap = Capture(frames=np.stack(frames).astype(np.float32), exposures=np.array(exposures, dtype=np.float64),
                   events=events, K=K, distortion=distortion, c2w=np.stack(c2ws) if c2ws else None,
-                  split=split, test_views=test_views, names=names, meta=meta)
+                  split=split, test_views=test_views, names=names, meta=meta, pose_trust=doc.get("pose_trust"))
     return cap.validate(jf)
 
 
@@ -282,7 +283,9 @@ def _write(cap: Capture, root: Path) -> None:
     if cap.test_views:
         (root / "test").mkdir()
     for j, tv in enumerate(cap.test_views):
-        d: dict[str, Any] = {"name": tv.name, "t": float(tv.t), "c2w": np.asarray(tv.c2w, dtype=np.float64).tolist()}
+        d: dict[str, Any] = {"name": tv.name, "t": float(tv.t)}
+        if tv.c2w is not None:
+            d["c2w"] = np.asarray(tv.c2w, dtype=np.float64).tolist()
         if tv.image is not None:
             out = write_image(root / "test" / f"{j:04d}_{_safe_name(tv.name)}", tv.image)
             d["file"] = out.relative_to(root).as_posix()
@@ -297,6 +300,8 @@ def _write(cap: Capture, root: Path) -> None:
         "events": {"file": "events.npz", "t_unit": "us", "t0_us": int(ev.t0)},
         "frames": frames, "test_views": tvs, "meta": _jsonable(cap.meta),
     }
+    if cap.pose_trust is not None:
+        doc["pose_trust"] = cap.pose_trust
     if cap.distortion is not None:
         doc["distortion"] = [float(v) for v in np.asarray(cap.distortion)]
     (root / "capture.json").write_text(json.dumps(doc, indent=1, allow_nan=False))

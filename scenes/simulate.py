@@ -5,10 +5,14 @@ are averaged over channels first, as ``edi.synthetic`` does). Between two render
 intensity is taken as linear in time; every time it climbs ``C+`` above the reference (or
 falls ``C-`` below it) the pixel fires one event at the interpolated crossing time and the
 reference moves by exactly that threshold. ``C+`` and ``C-`` are drawn per pixel from
-N(c, sigma_c) (clipped to at least ``MIN_C_FRACTION * c``). A refractory period drops events
-that follow the pixel's previous emitted event too closely (the reference still moves, as if
-the pixel had reset). Shot noise adds Poisson events of random polarity at ``noise_hz`` per
-pixel; ``hot_pixels`` random pixels fire positive events at ``hot_pixel_hz``.
+N(c_pos, sigma_c) and N(c_neg, sigma_c) (``c`` a float gives c_pos = c_neg = c; each clipped to
+at least ``MIN_C_FRACTION`` of its mean). A refractory period drops events that follow the
+pixel's previous emitted event too closely (the reference still moves, as if the pixel had
+reset). Shot noise adds Poisson events of random polarity at ``noise_hz`` per pixel; leak
+noise adds Poisson positive events at ``leak_hz`` per pixel (the slow upward drift of a DVS
+pixel's reference, modelled as independent events); ``hot_pixels`` random pixels fire
+positive events at ``hot_pixel_hz``. The log offset ``eps`` is a sensor parameter (the
+photoreceptor's dark level), by default the project's ``edi.LOG_EPS``.
 
 Two implementations: ``_crossings_numba`` (fast) and ``_crossings_reference`` (plain Python),
 tested against each other.
@@ -113,7 +117,7 @@ def _crossings_reference(logi, times, c_pos, c_neg, refractory):
     return np.array(ts, np.float64), np.array(px, np.int64), np.array(ps, np.int8)
 
 
-def _check(images, times, c, sigma_c, refractory, noise_hz, hot_pixels, eps):
+def _check(images, times, c, sigma_c, refractory, noise_hz, hot_pixels, eps, leak_hz=0.0):
     imgs = np.asarray(images)
     if imgs.ndim == 4:
         if imgs.shape[3] not in (1, 3):
@@ -131,10 +135,10 @@ def _check(images, times, c, sigma_c, refractory, noise_hz, hot_pixels, eps):
         raise ValueError(f"times: expected shape ({imgs.shape[0]},), got {t.shape}")
     if not np.isfinite(t).all() or np.any(np.diff(t) <= 0):
         raise ValueError("times: must be finite and strictly increasing (seconds)")
-    for name, v, lo in (("c", c, 0.0), ("eps", eps, 0.0)):
-        if not (math.isfinite(v) and v > lo):
-            raise ValueError(f"{name}: must be a positive finite number, got {v!r}")
-    for name, v in (("sigma_c", sigma_c), ("refractory", refractory), ("noise_hz", noise_hz)):
+    for name, v in (("c", c[0]), ("c", c[1]), ("eps", eps)):
+        if not (math.isfinite(v) and v > 0):
+            raise ValueError(f"{name}: must be a positive finite number (or a pair of them for c), got {v!r}")
+    for name, v in (("sigma_c", sigma_c), ("refractory", refractory), ("noise_hz", noise_hz), ("leak_hz", leak_hz)):
         if not (math.isfinite(v) and v >= 0):
             raise ValueError(f"{name}: must be a finite number >= 0, got {v!r}")
     if int(hot_pixels) != hot_pixels or hot_pixels < 0:
@@ -144,21 +148,23 @@ def _check(images, times, c, sigma_c, refractory, noise_hz, hot_pixels, eps):
 
 def simulate_events(images: np.ndarray,  # [S, H, W] or [S, H, W, D] linear intensity
                     times: np.ndarray,  # [S] seconds, increasing
-                    c: float = 0.2, sigma_c: float = 0.03, refractory: float = 0.0, noise_hz: float = 0.0,
-                    hot_pixels: int = 0, seed: int = 0, eps: float | None = None,
+                    c: float | tuple[float, float] = 0.2, sigma_c: float = 0.03, refractory: float = 0.0,
+                    noise_hz: float = 0.0, hot_pixels: int = 0, seed: int = 0, eps: float | None = None,
                     hot_pixel_hz: float = HOT_PIXEL_HZ, return_thresholds: bool = False,
-                    reference: bool = False):
+                    reference: bool = False, leak_hz: float = 0.0):
     """Events fired by a DVS pixel array watching ``images`` at ``times``.
 
     Args:
         images: [S, H, W] or [S, H, W, D] linear intensity (D = 3 is averaged to grey first).
         times: [S] seconds, strictly increasing. Events lie in [times[0], times[-1]].
-        c: mean contrast threshold, natural-log units. sigma_c: per-pixel std of C+ and C-.
+        c: mean contrast threshold, natural-log units: a float, or a pair (c_pos, c_neg).
+        sigma_c: per-pixel std of C+ and C-.
         refractory: seconds; events closer than this to the pixel's previous event are dropped.
         noise_hz: shot-noise events per pixel per second (random polarity, uniform times).
+        leak_hz: leak events per pixel per second (positive polarity, uniform times).
         hot_pixels: number of random pixels firing +1 events at ``hot_pixel_hz``.
         seed: RNG seed for thresholds and noise.
-        eps: offset in log(I + eps); None means ``edi.LOG_EPS``.
+        eps: the sensor's offset in log(I + eps); None means ``edi.LOG_EPS``.
         return_thresholds: also return (c_pos, c_neg), each [H, W].
         reference: use the plain-Python kernel (slow; for tests).
 
@@ -167,14 +173,22 @@ def simulate_events(images: np.ndarray,  # [S, H, W] or [S, H, W, D] linear inte
         or (EventStream, c_pos [H, W], c_neg [H, W]) with ``return_thresholds``.
     """
     eps = default_eps() if eps is None else float(eps)
-    imgs, t = _check(images, times, float(c), float(sigma_c), float(refractory), float(noise_hz), hot_pixels, eps)
+    try:
+        cp, cn = (float(c), float(c)) if np.ndim(c) == 0 else (float(c[0]), float(c[1]))
+        if np.ndim(c) == 1 and len(c) != 2:
+            raise TypeError
+    except (TypeError, ValueError, IndexError):
+        raise ValueError(f"c: must be a float or a pair (c_pos, c_neg), got {c!r}") from None
+    imgs, t = _check(images, times, (cp, cn), float(sigma_c), float(refractory), float(noise_hz), hot_pixels, eps,
+                     float(leak_hz))
     if imgs.ndim == 4:
         imgs = imgs.mean(axis=3)
     s, h, w = imgs.shape
     rng = np.random.default_rng(seed)
-    c_min = MIN_C_FRACTION * c
-    c_pos = np.maximum(c + sigma_c * rng.standard_normal(h * w), c_min) if sigma_c > 0 else np.full(h * w, float(c))
-    c_neg = np.maximum(c + sigma_c * rng.standard_normal(h * w), c_min) if sigma_c > 0 else np.full(h * w, float(c))
+    c_pos = np.maximum(cp + sigma_c * rng.standard_normal(h * w), MIN_C_FRACTION * cp) if sigma_c > 0 \
+        else np.full(h * w, cp)
+    c_neg = np.maximum(cn + sigma_c * rng.standard_normal(h * w), MIN_C_FRACTION * cn) if sigma_c > 0 \
+        else np.full(h * w, cn)
     logi = np.log(imgs.reshape(s, h * w).astype(np.float64) + eps)
     kern = _crossings_reference if reference else _crossings_numba
     te, pix, pol = kern(np.ascontiguousarray(logi), t, c_pos, c_neg, float(refractory))
@@ -193,6 +207,11 @@ def simulate_events(images: np.ndarray,  # [S, H, W] or [S, H, W, D] linear inte
             parts_t.append(np.sort(t[0] + span * rng.random(k)))
             parts_pix.append(np.full(k, p, np.int64))
             parts_p.append(np.ones(k, np.int8))
+    if leak_hz > 0:
+        n = rng.poisson(leak_hz * span, size=h * w)
+        parts_pix.append(np.repeat(np.arange(h * w), n))
+        parts_t.append(t[0] + span * rng.random(int(n.sum())))
+        parts_p.append(np.ones(int(n.sum()), np.int8))
     te = np.concatenate(parts_t)
     pix = np.concatenate(parts_pix)
     pol = np.concatenate(parts_p)

@@ -1,7 +1,7 @@
 """Tiny synthetic blurry event captures with exact ground truth.
 
 A scene (``SCENES``: "boxes", "spheres") is built from textured quads, boxes and spheres
-(textures: scikit-image's bundled photographs, their 8-bit values taken as linear intensity
+(textures: scikit-image's bundled photographs, their 8-bit values taken as linear irradiance
 and rescaled into [0.05, 0.95]) and rendered by ray casting (``scenes.render``), never by
 splat_cpu.
 
@@ -11,12 +11,31 @@ glides (smoothstep) to the next parking spot between exposures. On top, a per-ex
 (camera-local rotation vector and translation) moves linearly from -a_k / 2 to +a_k / 2 over
 exposure k, and glides between exposures, so the whole trajectory is continuous and the blur
 of frame k comes from its shake alone (``shake`` scales it; shake = 0 gives sharp frames,
-``sharp_fraction`` zeroes it on a random subset of frames).
+``sharp_fraction`` zeroes it on a random subset of frames). A hand tremor (``Sensor.tremor``)
+adds a sum of sinusoids of 2-12 Hz with a 1/f spectrum to the rotation and translation at all
+times: it accelerates inside every exposure, which a constant-velocity (``linear``) exposure
+trajectory cannot reproduce.
 
-Renders sit on a uniform grid of step exposure / n_blur over the whole capture, exposure
-boundaries included; a blurry frame is the trapezoidal mean of the n_blur + 1 (>= 33) renders
-spanning its exposure, in linear intensity, quantised to 8 bits; the events come from
-``simulate_events`` over all renders.
+Renders of irradiance sit on a uniform grid of step exposure / n_blur over the whole capture,
+exposure boundaries included. The camera (``Sensor``, presets ``SENSORS``):
+
+- APS: a blurry frame is the trapezoidal mean of the n_blur + 1 (>= 33) irradiance renders
+  spanning its exposure, mapped by the response ``aps_response`` (black level, gamma, gain
+  such that bright parts saturate), plus Gaussian read noise, quantised to 8 or 16 bits;
+- events: ``simulate_events`` over all irradiance renders with the sensor's own log offset,
+  c_pos != c_neg, per-pixel mismatch, refractory period, shot and leak noise, hot pixels.
+  Colour captures: the event pixels see luminance, ``Sensor.luminance`` weights of the linear
+  R, G, B irradiance (Rec. 709 in the realistic preset, the channel mean in the ideal one);
+- poses: exact, with SfM-like error (``pose_rot_deg``, ``pose_trans``), or none; the capture
+  states which (``Capture.pose_trust``: "exact", "approximate", "none").
+
+``sensor="ideal"`` is the idealised world of the first benchmarks (linear APS, symmetric
+thresholds, no noise events, ``edi.LOG_EPS`` as log offset, constant-velocity shake, exact
+poses), bit for bit; ``sensor="realistic"`` (the default) is a DAVIS-like camera in a hand.
+
+Nothing of the truth reaches the capture: ``Capture.meta`` holds labels only (scene, size,
+colour, sensor preset name, pose source); thresholds, response, noise, depths, true poses and
+the seed are on the ``SynthScene`` (``truth``, ``gt_*``) and in ``gt/`` on disk.
 """
 from __future__ import annotations
 
@@ -25,20 +44,24 @@ import math
 import os
 import shutil
 import tempfile
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Literal
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from edi import LOG_EPS
+
 from .capture import Capture, TestView
+from .errors import CaptureError
 from .format import save
 from .images import quantize, write_image
 from .render import Quad, RayScene, Sphere, render
 from .simulate import simulate_events
 
-__all__ = ["SynthScene", "make_scene", "write_scene", "SCENES", "SIZES", "look_at"]
+__all__ = ["SynthScene", "Sensor", "SENSORS", "make_scene", "write_scene", "aps_response", "aps_record", "sensor_events",
+           "SCENES", "SIZES", "look_at", "TRUTH_KEYS"]
 
 SIZES = {"tiny": (64, 48), "small": (160, 120), "davis": (346, 260)}
 HFOV_DEG = 60.0  # horizontal field of view of the synthetic camera
@@ -51,6 +74,103 @@ TRANS_SHAKE = 0.03  # translation shake amplitude per exposure at shake = 1, x o
 ORBIT_RADIUS = 4.0
 ORBIT_HALF_ANGLE_DEG = 14.0
 TARGET = np.array([0.0, 0.0, 4.0])  # the arc's centre, looked at by the camera
+TREMOR_BAND_HZ = (2.0, 12.0)  # hand tremor frequencies (physiological tremor and slower sway)
+TREMOR_COMPONENTS = 4  # sinusoids per axis
+TREMOR_ROT_RAD = 0.012  # RMS tremor rotation per axis at tremor = 1
+TREMOR_TRANS = 0.004  # RMS tremor translation per axis at tremor = 1, x orbit radius
+REC709_LUMA = (0.2126, 0.7152, 0.0722)  # luminance of linear R, G, B (ITU-R BT.709)
+CHANNEL_MEAN = (1 / 3, 1 / 3, 1 / 3)
+# Capture.meta keys a synthetic scene must never write (the no-leak tests check them)
+TRUTH_KEYS = ("c", "c_pos", "c_neg", "sigma_c", "noise_hz", "leak_hz", "refractory", "hot_pixels", "log_eps",
+              "response", "black_level", "gamma", "gain", "read_noise", "depth_range", "seed", "n_blur",
+              "sharp_frames", "tremor", "shake", "truth")
+
+
+@dataclass(frozen=True)
+class Sensor:
+    """The simulated camera in a hand: APS readout, event pixels, motion the trajectory model
+    does not have, and where the poses come from. Presets: ``SENSORS``."""
+
+    # APS: recorded = clip(black_level + (1 - black_level) * min(gain * E, 1) ** gamma + read noise, 0, 1)
+    black_level: float = 0.0  # recorded value of zero irradiance
+    gamma: float = 1.0  # exponent of the response curve (1: linear)
+    gain: float = 1.0  # irradiance E multiplier; gain * E >= 1 saturates
+    read_noise: float = 0.0  # std of Gaussian read noise, in recorded units
+    bits: int = 8  # APS quantisation: 8 or 16 bits
+    record_test_views: bool = False  # test images recorded by the APS (noise, quantisation); False: exact
+    # event pixels
+    c_pos: float = 0.2  # mean ON threshold, natural-log units
+    c_neg: float = 0.2  # mean OFF threshold
+    sigma_c: float = 0.03  # per-pixel threshold mismatch (std of C+ and C-)
+    refractory: float = 0.0  # seconds after an event during which a pixel does not fire
+    noise_hz: float = 0.0  # shot-noise events per pixel per second (random polarity)
+    leak_hz: float = 0.0  # leak events per pixel per second (positive)
+    hot_pixel_fraction: float = 0.0  # fraction of pixels firing ON events at HOT_PIXEL_HZ
+    log_eps: float = LOG_EPS  # the pixel's log offset: events see log(E + log_eps)
+    luminance: tuple[float, float, float] = CHANNEL_MEAN  # weights of R, G, B seen by the event pixels
+    # motion
+    tremor: float = 0.0  # strength of the accelerating hand tremor (0: constant-velocity shake only)
+    # poses given with the capture
+    poses: Literal["exact", "noisy", "none"] = "exact"
+    pose_rot_deg: float = 0.5  # RMS rotation error of "noisy" poses, degrees
+    pose_trans: float = 0.01  # RMS position error of "noisy" poses, world units (orbit radius 4: ~1 cm at 4 m)
+
+    def validate(self) -> "Sensor":
+        """Raise CaptureError naming the field of a setting that cannot work; return self."""
+        for name in ("gamma", "gain", "c_pos", "c_neg", "log_eps"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise CaptureError(None, f"sensor.{name}", f"must be a positive finite number, got {v!r}")
+        for name in ("read_noise", "sigma_c", "refractory", "noise_hz", "leak_hz", "tremor", "pose_rot_deg",
+                     "pose_trans"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0):
+                raise CaptureError(None, f"sensor.{name}", f"must be a finite number >= 0, got {v!r}")
+        if not (0.0 <= self.black_level < 1.0):
+            raise CaptureError(None, "sensor.black_level", f"must be in [0, 1), got {self.black_level!r}")
+        if not (0.0 <= self.hot_pixel_fraction <= 1.0):
+            raise CaptureError(None, "sensor.hot_pixel_fraction", f"must be in [0, 1], got {self.hot_pixel_fraction!r}")
+        if self.bits not in (8, 16):
+            raise CaptureError(None, "sensor.bits", f"must be 8 or 16, got {self.bits!r}")
+        lum = np.asarray(self.luminance, np.float64)
+        if lum.shape != (3,) or (lum < 0).any() or abs(lum.sum() - 1.0) > 1e-6:
+            raise CaptureError(None, "sensor.luminance", f"must be 3 weights >= 0 summing to 1, got {self.luminance!r}")
+        if self.poses not in ("exact", "noisy", "none"):
+            raise CaptureError(None, "sensor.poses", f"must be 'exact', 'noisy' or 'none', got {self.poses!r}")
+        return self
+
+
+SENSORS: dict[str, Sensor] = {
+    # the idealised world: linear APS, symmetric thresholds, no noise events, edi.LOG_EPS,
+    # constant-velocity shake, exact poses
+    "ideal": Sensor(),
+    # a DAVIS-like camera in a hand
+    "realistic": Sensor(black_level=0.04, gamma=0.75, gain=1.25, read_noise=0.008, record_test_views=True,
+                        c_pos=0.24, c_neg=0.18, sigma_c=0.03, refractory=5e-4, noise_hz=1.0, leak_hz=0.1,
+                        hot_pixel_fraction=5e-4, log_eps=0.02, luminance=REC709_LUMA, tremor=1.0,
+                        poses="noisy"),
+}
+POSE_TRUST_OF = {"exact": "exact", "noisy": "approximate", "none": "none"}  # Sensor.poses -> Capture.pose_trust
+
+
+def aps_response(irradiance: np.ndarray,  # [..., D] linear irradiance >= 0
+                 sensor: Sensor) -> np.ndarray:
+    """The APS response, irradiance -> recorded value in [0, 1], noise-free and unquantised:
+    ``black_level + (1 - black_level) * min(gain * E, 1) ** gamma``. Monotone (non-decreasing),
+    saturating at 1 for E >= 1 / gain; the identity for the ideal sensor."""
+    e = np.minimum(sensor.gain * np.asarray(irradiance, np.float64), 1.0)
+    return np.clip(sensor.black_level + (1.0 - sensor.black_level) * np.power(np.maximum(e, 0.0), sensor.gamma),
+                   0.0, 1.0)
+
+
+def aps_record(irradiance: np.ndarray,  # [..., D] linear irradiance >= 0
+               sensor: Sensor, rng: np.random.Generator) -> np.ndarray:
+    """What the APS records: ``aps_response`` plus Gaussian read noise, quantised to
+    ``sensor.bits`` (float32 in [0, 1], k / (2**bits - 1))."""
+    v = aps_response(irradiance, sensor)
+    if sensor.read_noise > 0:
+        v = v + sensor.read_noise * rng.standard_normal(v.shape)
+    return quantize(v, sensor.bits)
 
 
 def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = np.array([0.0, -1.0, 0.0])) -> np.ndarray:
@@ -161,13 +281,25 @@ def _smoothstep(x: np.ndarray) -> np.ndarray:
 
 @dataclass
 class Trajectory:
-    """Continuous camera path: parked base poses during exposures plus linear shake."""
+    """Continuous camera path: parked base poses during exposures plus linear shake, plus an
+    optional tremor: sum_j A_j sin(2 pi f_j t + phi_j) per rotation / translation axis."""
 
     t_start: np.ndarray  # [F] exposure starts
     t_end: np.ndarray  # [F] exposure ends
     base_angle: np.ndarray  # [F] orbit angle (rad) parked at during exposure k
     shake_rot: np.ndarray  # [F, 3] rotation-vector amplitude a_k (camera frame)
     shake_trans: np.ndarray  # [F, 3] translation amplitude b_k (camera frame)
+    tremor_freq: np.ndarray | None = None  # [J, 6] Hz, per component and axis (rot xyz, trans xyz)
+    tremor_amp: np.ndarray | None = None  # [J, 6] amplitudes (rad, world units)
+    tremor_phase: np.ndarray | None = None  # [J, 6] rad
+
+    def tremor(self, t: np.ndarray) -> np.ndarray:
+        """[T, 6] tremor offsets (rotation vector [3], translation [3], camera frame) at times t."""
+        t = np.atleast_1d(np.asarray(t, np.float64))
+        if self.tremor_amp is None:
+            return np.zeros((len(t), 6))
+        arg = 2 * np.pi * self.tremor_freq[None] * t[:, None, None] + self.tremor_phase[None]
+        return (self.tremor_amp[None] * np.sin(arg)).sum(axis=1)
 
     def _phase(self, t: np.ndarray):
         """For each t: base angle and shake offset (rot [3], trans [3])."""
@@ -198,6 +330,9 @@ class Trajectory:
         """c2w [4, 4] at a time (seconds) or [T, 4, 4] at an array of times."""
         scalar = np.ndim(t) == 0
         ang, rot, tr = self._phase(t)
+        if self.tremor_amp is not None:
+            off = self.tremor(t)
+            rot, tr = rot + off[:, :3], tr + off[:, 3:]
         out = np.empty((len(ang), 4, 4))
         for i in range(len(ang)):
             eye = TARGET + ORBIT_RADIUS * np.array([math.sin(ang[i]), 0.0, -math.cos(ang[i])])
@@ -215,17 +350,23 @@ class Trajectory:
 
 @dataclass
 class SynthScene:
-    """A synthetic capture and its ground truth (never mixed: ``write_scene`` puts them in
-    separate folders)."""
+    """A synthetic capture and its ground truth, never mixed: ``capture`` is what a method
+    reads (blurry frames, exposures, events, K, the poses the sensor gives, test views);
+    everything else is truth, for evaluation only (``write_scene`` puts it under gt/)."""
 
-    capture: Capture  # what the trainer reads: blurry frames, exposures, events, K, mid-exposure c2w
-    gt_frames: np.ndarray  # [F, H, W, D] float32 sharp renders at each frame's mid-exposure
+    capture: Capture  # what the method reads
+    gt_frames: np.ndarray  # [F, H, W, D] float32 sharp mid-exposure frames as the camera records them, noise-free
     gt_depths: np.ndarray  # [F, H, W] float32 z-depth at mid-exposure (0: no surface)
     trajectory: Trajectory = field(repr=False)
     ray_scene: RayScene = field(repr=False)
     name: str = "boxes"
     c_pos: np.ndarray | None = field(default=None, repr=False)  # [H, W] true per-pixel thresholds
     c_neg: np.ndarray | None = field(default=None, repr=False)
+    sensor: Sensor = field(default_factory=Sensor, repr=False)  # the simulated camera (truth)
+    gt_c2w: np.ndarray | None = field(default=None, repr=False)  # [F, 4, 4] true mid-exposure poses
+    gt_test_c2w: np.ndarray | None = field(default=None, repr=False)  # [T, 4, 4] true test-view poses
+    gt_test_images: np.ndarray | None = field(default=None, repr=False)  # [T, H, W, D] noise-free, camera domain
+    truth: dict = field(default_factory=dict, repr=False)  # JSON-able: sensor, seed, thresholds, sharp frames, ...
 
     def c2w_at(self, t):
         """True c2w [4, 4] at any time t (seconds) of the capture (or [T, 4, 4] for an array)."""
@@ -250,9 +391,26 @@ class SynthScene:
         return self.gt_c2w_at(frame_index, np.linspace(t0, t1, int(n)))
 
     def render(self, c2w: np.ndarray) -> np.ndarray:
-        """Sharp ray-cast render(s) [.., H, W, D] from any pose(s) with the capture's K."""
+        """Sharp ray-cast render(s) of irradiance [.., H, W, D] from any pose(s) with the capture's K
+        (``aps_response(render(c2w), sensor)`` is what the camera records, noise-free)."""
         c = self.capture
         return render(self.ray_scene, c2w, c.K, c.width, c.height)
+
+
+def sensor_events(irradiance: np.ndarray,  # [S, H, W, D] linear irradiance renders
+                  times: np.ndarray,  # [S] seconds, increasing
+                  sensor: Sensor, seed: int = 0):
+    """The events ``sensor``'s pixels fire watching ``irradiance``: its luminance model for colour
+    (the channel mean goes through ``simulate_events`` as it always did), thresholds, mismatch,
+    refractory period, noise, hot pixels and log offset. Returns (EventStream, c_pos [H, W],
+    c_neg [H, W])."""
+    irr = np.asarray(irradiance)
+    if irr.ndim == 4 and irr.shape[3] == 3 and tuple(sensor.luminance) != CHANNEL_MEAN:
+        irr = np.tensordot(irr, np.asarray(sensor.luminance, np.float32), axes=([3], [0]))  # [S, H, W]
+    hot = int(round(sensor.hot_pixel_fraction * irr.shape[1] * irr.shape[2]))
+    return simulate_events(irr, times, c=(sensor.c_pos, sensor.c_neg), sigma_c=sensor.sigma_c,
+                           refractory=sensor.refractory, noise_hz=sensor.noise_hz, leak_hz=sensor.leak_hz,
+                           hot_pixels=hot, eps=sensor.log_eps, seed=seed, return_thresholds=True)
 
 
 def _intrinsics(width: int, height: int) -> np.ndarray:
@@ -260,41 +418,93 @@ def _intrinsics(width: int, height: int) -> np.ndarray:
     return np.array([[f, 0.0, width / 2], [0.0, f, height / 2], [0.0, 0.0, 1.0]])
 
 
-def make_scene(name: str = "boxes", size: str = "tiny", seed: int = 0, rgb: bool = False, c: float = 0.2,
-               sigma_c: float = 0.03, noise_hz: float = 0.0, shake: float = 1.0, n_frames: int | None = None,
-               n_test: int | None = None, exposure: float | None = None, sharp_fraction: float = 0.0,
-               n_blur: int = N_BLUR, refractory: float = 0.0) -> SynthScene:
+def _tremor(rng: np.random.Generator, strength: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Random tremor sinusoids [J, 6] (freq Hz, amplitude, phase) with a 1/f amplitude spectrum and
+    RMS TREMOR_ROT_RAD * strength (rotation axes), TREMOR_TRANS * ORBIT_RADIUS * strength (translation)."""
+    lo, hi = TREMOR_BAND_HZ
+    freq = lo * (hi / lo) ** rng.random((TREMOR_COMPONENTS, 6))  # log-uniform in the band
+    amp = 1.0 / freq
+    amp = amp / np.sqrt((amp**2).sum(axis=0, keepdims=True) / 2)  # unit RMS per axis
+    amp[:, :3] *= TREMOR_ROT_RAD * strength
+    amp[:, 3:] *= TREMOR_TRANS * ORBIT_RADIUS * strength
+    phase = 2 * np.pi * rng.random((TREMOR_COMPONENTS, 6))
+    return freq, amp, phase
+
+
+def _perturb(c2w: np.ndarray,  # [N, 4, 4]
+             rng: np.random.Generator, rot_deg: float, trans: float) -> np.ndarray:
+    """Poses with SfM-like error: a random rotation of RMS angle ``rot_deg`` (camera frame) and a
+    random offset of RMS length ``trans`` (world units) per pose."""
+    out = c2w.copy()
+    n = len(c2w)
+    dr = Rotation.from_rotvec(np.radians(rot_deg) / math.sqrt(3) * rng.standard_normal((n, 3))).as_matrix()
+    out[:, :3, :3] = c2w[:, :3, :3] @ dr
+    out[:, :3, 3] += trans / math.sqrt(3) * rng.standard_normal((n, 3))
+    return out
+
+
+def _resolve_sensor(sensor: str | Sensor, poses, c, sigma_c, noise_hz, refractory, tremor) -> Sensor:
+    if isinstance(sensor, str):
+        if sensor not in SENSORS:
+            raise CaptureError(None, "sensor", f"unknown sensor {sensor!r}; choose from {sorted(SENSORS)}")
+        sensor = SENSORS[sensor]
+    elif not isinstance(sensor, Sensor):
+        raise CaptureError(None, "sensor", f"must be a preset name or a Sensor, got {type(sensor).__name__}")
+    over = {k: v for k, v in (("poses", poses), ("sigma_c", sigma_c), ("noise_hz", noise_hz),
+                              ("refractory", refractory), ("tremor", tremor)) if v is not None}
+    if c is not None:
+        try:
+            cp, cn = (float(c), float(c)) if np.ndim(c) == 0 else (float(c[0]), float(c[1]))
+        except (TypeError, ValueError, IndexError):
+            raise CaptureError(None, "c", f"must be a float or a pair (c_pos, c_neg), got {c!r}") from None
+        over.update(c_pos=cp, c_neg=cn)
+    return replace(sensor, **over).validate()
+
+
+def make_scene(name: str = "boxes", size: str = "tiny", seed: int = 0, rgb: bool = False,
+               sensor: str | Sensor = "realistic", poses: Literal["exact", "noisy", "none"] | None = None,
+               c: float | tuple[float, float] | None = None, sigma_c: float | None = None,
+               noise_hz: float | None = None, shake: float = 1.0, tremor: float | None = None,
+               n_frames: int | None = None, n_test: int | None = None, exposure: float | None = None,
+               sharp_fraction: float = 0.0, n_blur: int = N_BLUR, refractory: float | None = None) -> SynthScene:
     """Build a synthetic blurry event capture with ground truth.
 
     Args:
         name: a key of ``SCENES``. size: "tiny" (64x48), "small" (160x120), "davis" (346x260).
-        seed: shake, thresholds and noise. rgb: colour (D = 3) or grey (D = 1).
-        c, sigma_c, noise_hz, refractory: event simulator settings (see ``simulate_events``).
-        shake: scales the per-exposure camera motion (0: sharp frames).
+        seed: shake, tremor, thresholds, noise and pose errors. rgb: colour (D = 3) or grey (D = 1).
+        sensor: "realistic" (default), "ideal" (the idealised world), or a ``Sensor``.
+        poses: overrides ``sensor.poses``: "exact", "noisy" (SfM-like error) or "none".
+        c, sigma_c, noise_hz, refractory, tremor: override the sensor's values (``c``: a float
+            sets c_pos = c_neg, or a pair (c_pos, c_neg)); None keeps the sensor's.
+        shake: scales the per-exposure camera motion (0: sharp frames, unless tremor).
         n_frames: training frames (default 10). n_test: held-out test views (default 3).
         exposure: seconds (default 0.05, frame period 0.1 s).
         sharp_fraction: fraction of frames (rounded) with no shake, hence sharp.
         n_blur: renders averaged per exposure (>= 32).
+
+    Raises:
+        CaptureError naming the argument (or ``sensor.<field>``) of a value that cannot work.
     """
     if name not in SCENES:
-        raise ValueError(f"name: unknown scene {name!r}; choose from {sorted(SCENES)}")
+        raise CaptureError(None, "name", f"unknown scene {name!r}; choose from {sorted(SCENES)}")
     if size not in SIZES:
-        raise ValueError(f"size: must be one of {sorted(SIZES)}, got {size!r}")
+        raise CaptureError(None, "size", f"must be one of {sorted(SIZES)}, got {size!r}")
     if not (math.isfinite(shake) and shake >= 0):
-        raise ValueError(f"shake: must be a finite number >= 0, got {shake!r}")
+        raise CaptureError(None, "shake", f"must be a finite number >= 0, got {shake!r}")
     if not (0.0 <= sharp_fraction <= 1.0):
-        raise ValueError(f"sharp_fraction: must be in [0, 1], got {sharp_fraction!r}")
+        raise CaptureError(None, "sharp_fraction", f"must be in [0, 1], got {sharp_fraction!r}")
     n_frames = 10 if n_frames is None else int(n_frames)
     n_test = 3 if n_test is None else int(n_test)
     if n_frames < 2:
-        raise ValueError(f"n_frames: need at least 2, got {n_frames}")
+        raise CaptureError(None, "n_frames", f"need at least 2, got {n_frames}")
     if not (0 <= n_test <= n_frames - 1):
-        raise ValueError(f"n_test: must be in [0, n_frames - 1 = {n_frames - 1}], got {n_test}")
+        raise CaptureError(None, "n_test", f"must be in [0, n_frames - 1 = {n_frames - 1}], got {n_test}")
     exposure = DEFAULT_EXPOSURE_S if exposure is None else float(exposure)
     if not (0 < exposure <= PERIOD_S - 0.01):
-        raise ValueError(f"exposure: must be in (0, {PERIOD_S - 0.01}] s, got {exposure!r}")
+        raise CaptureError(None, "exposure", f"must be in (0, {PERIOD_S - 0.01}] s, got {exposure!r}")
     if int(n_blur) < 32:
-        raise ValueError(f"n_blur: must be >= 32, got {n_blur}")
+        raise CaptureError(None, "n_blur", f"must be >= 32, got {n_blur}")
+    sen = _resolve_sensor(sensor, poses, c, sigma_c, noise_hz, refractory, tremor)
     width, height = SIZES[size]
     K = _intrinsics(width, height)
     rng = np.random.default_rng(seed)
@@ -320,41 +530,55 @@ def make_scene(name: str = "boxes", size: str = "tiny", seed: int = 0, rgb: bool
         sharp[rng.choice(n_frames, n_sharp, replace=False)] = True
     amp = shake * mags * (~sharp[:, None])
     traj = Trajectory(starts, ends, angles, amp * ROT_SHAKE_RAD * dirs_r, amp * TRANS_SHAKE * ORBIT_RADIUS * dirs_t)
+    if sen.tremor > 0:  # drawn after everything the ideal world draws: its scenes stay bit for bit
+        traj.tremor_freq, traj.tremor_amp, traj.tremor_phase = _tremor(rng, sen.tremor)
+    rng_aps = np.random.default_rng([seed, 1])  # read noise
+    rng_pose = np.random.default_rng([seed, 2])  # pose errors
 
     scene = SCENES[name](width, rgb)
-    renders = render(scene, traj.c2w(grid), K, width, height)  # [S, H, W, D]
+    renders = render(scene, traj.c2w(grid), K, width, height)  # [S, H, W, D] irradiance
     frames = np.empty((n_frames, height, width, scene.channels), np.float32)
     trap = np.full(n_blur + 1, 1.0 / n_blur)
     trap[[0, -1]] *= 0.5  # trapezoidal mean over the exposure's n_blur + 1 grid instants
     for k in range(n_frames):
         i0 = lead_steps + period_steps * k
-        frames[k] = quantize(np.tensordot(trap, renders[i0:i0 + n_blur + 1], axes=1))
-    events, c_pos, c_neg = simulate_events(renders, grid, c=c, sigma_c=sigma_c, refractory=refractory,
-                                           noise_hz=noise_hz, seed=seed, return_thresholds=True)
+        frames[k] = aps_record(np.tensordot(trap, renders[i0:i0 + n_blur + 1], axes=1), sen, rng_aps)
+    events, c_pos, c_neg = sensor_events(renders, grid, sen, seed)
     del renders
     mids = 0.5 * (starts + ends)
     c2w_mid = traj.c2w(mids)
-    gt_frames, gt_depths = render(scene, c2w_mid, K, width, height, return_depth=True)
+    gt_irr, gt_depths = render(scene, c2w_mid, K, width, height, return_depth=True)
+    gt_frames = aps_response(gt_irr, sen).astype(np.float32)
     # held-out views: mid-gap instants, spread over the capture
     gaps = np.linspace(0, n_frames - 2, n_test).round().astype(int) if n_test else np.zeros(0, int)
     gaps = np.unique(gaps)
-    test_views = []
-    for j, g in enumerate(gaps):
-        t = float(0.5 * (ends[g] + starts[g + 1]))
-        pose = traj.c2w(t)
-        test_views.append(TestView(name=f"test_{j:03d}", t=t, c2w=pose,
-                                   image=np.clip(render(scene, pose, K, width, height), 0, 1).astype(np.float32)))
-    meta = {"source_layout": "synthetic", "scene": name, "size": size, "seed": int(seed), "rgb": bool(rgb),
-            "c": float(c), "sigma_c": float(sigma_c), "noise_hz": float(noise_hz), "shake": float(shake),
-            "refractory": float(refractory), "n_blur": int(n_blur), "exposure": float(exposure),
-            "period": PERIOD_S, "sharp_frames": np.flatnonzero(sharp).tolist(),
-            "event_channel": "mean over colour channels" if rgb else "grey",
+    test_t = np.array([0.5 * (ends[g] + starts[g + 1]) for g in gaps])
+    test_c2w = traj.c2w(test_t) if len(gaps) else np.zeros((0, 4, 4))
+    test_irr = render(scene, test_c2w, K, width, height) if len(gaps) else np.zeros((0, height, width, scene.channels))
+    gt_test = aps_response(test_irr, sen).astype(np.float32)
+    test_rec = aps_record(test_irr, sen, rng_aps) if sen.record_test_views else gt_test
+    given, given_test = c2w_mid, test_c2w
+    if sen.poses == "noisy":
+        given, given_test = (_perturb(m, rng_pose, sen.pose_rot_deg, sen.pose_trans) for m in (c2w_mid, test_c2w))
+    if sen.poses == "none":
+        given, given_test = None, [None] * len(gaps)
+    test_views = [TestView(name=f"test_{j:03d}", t=float(test_t[j]), c2w=given_test[j], image=test_rec[j])
+                  for j in range(len(gaps))]
+    meta = {"source_layout": "synthetic", "scene": name, "size": size, "rgb": bool(rgb),
+            "sensor": sensor if isinstance(sensor, str) else "custom", "poses": sen.poses,
             "renderer": "trimesh ray casting" + (" (embree)" if _has_embree() else " (pure Python)")}
-    cap = Capture(frames=frames, exposures=np.stack([starts, ends], 1), events=events, K=K, c2w=c2w_mid,
+    cap = Capture(frames=frames, exposures=np.stack([starts, ends], 1), events=events, K=K, c2w=given,
                   split=["train"] * n_frames, test_views=test_views, names=[f"{k:04d}" for k in range(n_frames)],
-                  meta=meta).validate("make_scene")
-    return SynthScene(capture=cap, gt_frames=np.clip(gt_frames, 0, 1).astype(np.float32), gt_depths=gt_depths,
-                      trajectory=traj, ray_scene=scene, name=name, c_pos=c_pos, c_neg=c_neg)
+                  meta=meta, pose_trust=POSE_TRUST_OF[sen.poses]).validate("make_scene")
+    hit = gt_depths[gt_depths > 0]
+    truth = {"sensor": asdict(sen), "seed": int(seed), "c": [sen.c_pos, sen.c_neg], "shake": float(shake),
+             "n_blur": int(n_blur), "exposure": float(exposure), "period": PERIOD_S,
+             "sharp_frames": np.flatnonzero(sharp).tolist(),
+             "depth_range": [float(hit.min()), float(hit.max())] if len(hit) else None,
+             "event_channel": ("luminance " + str(list(sen.luminance))) if rgb else "grey"}
+    return SynthScene(capture=cap, gt_frames=gt_frames, gt_depths=gt_depths, trajectory=traj, ray_scene=scene,
+                      name=name, c_pos=c_pos, c_neg=c_neg, sensor=sen, gt_c2w=c2w_mid, gt_test_c2w=test_c2w,
+                      gt_test_images=gt_test, truth=truth)
 
 
 def _has_embree() -> bool:
@@ -365,15 +589,17 @@ def _has_embree() -> bool:
 
 def write_scene(scene: SynthScene, out_dir: str | os.PathLike, overwrite: bool = False,
                 trajectory_samples: int = 9) -> Path:
-    """Write ``out_dir/capture`` (ebad-capture/1, what the trainer reads) and ``out_dir/gt``
-    (sharp mid-exposure frames as lossless images, depths, true thresholds and per-frame
-    trajectories in gt.json, and copies of the held-out test views), atomically: both go to a
-    temporary folder renamed at the end. The capture keeps its test views' images too (the
-    format's ``test_views[].file``): they are held-out poses the trainer evaluates on, never
-    trains on; the training frames' sharp renders exist only under gt/."""
+    """Write ``out_dir/capture`` (ebad-capture/1, what a method reads) and ``out_dir/gt``
+    (sharp mid-exposure frames as the camera records them, noise-free, as lossless images;
+    depths; true thresholds; gt.json with the truth, the true mid-exposure poses and per-frame
+    trajectories, and the test views' true poses and noise-free images under gt/test),
+    atomically: both go to a temporary folder renamed at the end. The capture keeps its test
+    views' images (recorded by the camera) and the poses the sensor gives (exact, noisy or
+    none): they are held out, never trained on; the training frames' sharp renders exist only
+    under gt/."""
     out = Path(out_dir)
     if out.exists() and any(out.iterdir()) and not overwrite:
-        raise ValueError(f"out_dir: {out} already exists and is not empty (pass overwrite)")
+        raise CaptureError(None, "out_dir", f"{out} already exists and is not empty (pass overwrite)")
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp-", dir=out.parent))
     try:
@@ -384,16 +610,16 @@ def write_scene(scene: SynthScene, out_dir: str | os.PathLike, overwrite: bool =
         files = [write_image(gt / "frames" / cap.names[k], scene.gt_frames[k]).relative_to(gt).as_posix()
                  for k in range(cap.num_frames)]
         (gt / "test").mkdir()
-        test_docs = [{"name": tv.name, "t": float(tv.t), "c2w": np.asarray(tv.c2w).tolist(),
-                      "file": write_image(gt / "test" / tv.name, tv.image).relative_to(gt).as_posix()}
-                     for tv in cap.test_views if tv.image is not None]
+        test_docs = [{"name": tv.name, "t": float(tv.t), "c2w": np.asarray(scene.gt_test_c2w[j]).tolist(),
+                      "file": write_image(gt / "test" / tv.name, scene.gt_test_images[j]).relative_to(gt).as_posix()}
+                     for j, tv in enumerate(cap.test_views)]
         np.save(gt / "depths.npy", scene.gt_depths)
         if scene.c_pos is not None:
             np.savez(gt / "thresholds.npz", c_pos=scene.c_pos, c_neg=scene.c_neg)
-        doc = {"scene": scene.name, "meta": cap.meta,
+        doc = {"scene": scene.name, "meta": cap.meta, "truth": scene.truth,
                "frames": [{"name": cap.names[k], "file": files[k],
                            "t_start": float(cap.exposures[k, 0]), "t_end": float(cap.exposures[k, 1]),
-                           "c2w_mid": cap.c2w[k].tolist(),
+                           "c2w_mid": scene.gt_c2w[k].tolist(),
                            "trajectory": {"t": np.linspace(*cap.exposures[k], trajectory_samples).tolist(),
                                           "c2w": scene.gt_trajectory(k, trajectory_samples).tolist()}}
                           for k in range(cap.num_frames)],

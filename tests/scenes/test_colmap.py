@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from scenes.colmap import ColmapConfig, SfMError, align_similarity, pose_errors
+from scenes import CaptureError
+from scenes.colmap import ColmapConfig, SfMError, align_similarity, apply_similarity, pose_errors
 
 SLIDER = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "slider_depth"
 
@@ -54,8 +55,50 @@ def test_umeyama_recovers_similarity_and_checks_shapes():
     assert s == pytest.approx(2.5) and np.allclose(rr, r) and np.allclose(t, [1, 2, 3])
     with pytest.raises(ValueError, match="src, dst"):
         align_similarity(src[:2], src[:2])
+    with pytest.raises(ValueError, match="src, dst"):
+        align_similarity(np.tile(np.eye(4), (3, 1, 1)), np.tile(np.eye(4), (2, 1, 1)))
+    with pytest.raises(ValueError, match="coincide"):
+        align_similarity(np.tile(np.eye(4), (3, 1, 1)), np.tile(np.eye(4), (3, 1, 1)))
     with pytest.raises(ValueError, match="est_c2w"):
         pose_errors(np.zeros((3, 4, 4)), np.zeros((2, 4, 4)))
+
+
+@pytest.mark.parametrize("seed", range(4))
+@pytest.mark.parametrize("straight", [False, True])
+def test_sim3_of_cameras_recovers_a_known_transform(seed, straight):
+    rng = np.random.default_rng(seed)
+    src = _poses(8, rng, straight)
+    if not straight:
+        src[:, :3, :3] = Rotation.random(8, random_state=seed).as_matrix()
+    s_true = float(rng.uniform(0.2, 5.0))
+    r_true = Rotation.random(random_state=100 + seed).as_matrix()
+    t_true = rng.normal(size=3) * 3
+    dst = _transform(src, s_true, r_true, t_true)
+    s, r, t = align_similarity(src, dst)
+    assert s == pytest.approx(s_true, rel=1e-9)
+    np.testing.assert_allclose(r, r_true, atol=1e-9)
+    np.testing.assert_allclose(t, t_true, atol=1e-8)
+    moved = apply_similarity(src, s, r, t)
+    np.testing.assert_allclose(moved, dst, atol=1e-8)
+    # noise on one side: the alignment degrades gracefully (still near the truth)
+    noisy = dst.copy()
+    noisy[:, :3, 3] += 0.01 * s_true * rng.normal(size=(8, 3))
+    s2, r2, _ = align_similarity(src, noisy)
+    assert abs(s2 / s_true - 1) < 0.05
+    assert np.degrees(Rotation.from_matrix(r2 @ r_true.T).magnitude()) < 2.0
+
+
+def test_apply_similarity_keeps_poses_rigid_and_checks_shape():
+    rng = np.random.default_rng(5)
+    c2w = _poses(4, rng)
+    out = apply_similarity(c2w, 2.0, Rotation.from_rotvec([0.1, 0.2, 0.3]).as_matrix(), np.ones(3))
+    for m in out:
+        np.testing.assert_allclose(m[:3, :3].T @ m[:3, :3], np.eye(3), atol=1e-12)
+        np.testing.assert_array_equal(m[3], [0, 0, 0, 1])
+    single = apply_similarity(c2w[0], 2.0, np.eye(3), np.zeros(3))
+    np.testing.assert_allclose(single[:3, 3], 2.0 * c2w[0, :3, 3])
+    with pytest.raises(ValueError, match="c2w"):
+        apply_similarity(np.eye(3), 1.0, np.eye(3), np.zeros(3))
 
 
 def test_estimate_poses_bad_arguments():
@@ -64,10 +107,12 @@ def test_estimate_poses_bad_arguments():
 
     cap = scenes.make_scene("boxes", "tiny", n_frames=3, n_test=0)
     cap = cap.capture
-    with pytest.raises(ValueError, match="frames"):
+    with pytest.raises(CaptureError, match="frames"):
         estimate_poses(cap, frames=[0])
-    with pytest.raises(ValueError, match="matcher"):
+    with pytest.raises(CaptureError, match="matcher"):
         estimate_poses(cap, ColmapConfig(matcher="magic"))
+    with pytest.raises(CaptureError, match="test_views"):
+        estimate_poses(cap, ColmapConfig(test_views="some"))
 
 
 @pytest.mark.slow
@@ -97,7 +142,7 @@ def test_sfm_on_a_tiny_blurry_scene_is_better_on_edi_deblurred_frames():
     import scenes
     from scenes.colmap import estimate_poses
 
-    sc = scenes.make_scene("boxes", "tiny", n_frames=12, sigma_c=0.0)
+    sc = scenes.make_scene("boxes", "tiny", n_frames=12, sigma_c=0.0, sensor="ideal")
     cap = sc.capture
     # one thread and a fixed seed: COLMAP's multi-threaded matching and bundle adjustment are
     # not deterministic, and on 64x48 frames an unlucky run can lose the track
@@ -112,3 +157,67 @@ def test_sfm_on_a_tiny_blurry_scene_is_better_on_edi_deblurred_frames():
     e_raw = pose_errors(raw.c2w[raw.registered], cap.c2w[raw.registered])
     assert e_edi["ate_rmse"] < 0.6 * e_raw["ate_rmse"]
     assert len(edi_est.points) > len(raw.points)
+
+
+@pytest.fixture(scope="module")
+def unposed():
+    """Realistic tiny captures without any pose (training frames nor test views), three seeds."""
+    import scenes
+
+    return [scenes.make_scene("boxes", "tiny", seed=seed, poses="none", n_frames=12, n_test=3) for seed in range(3)]
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_test_views_registered_by_the_same_sfm(unposed, seed):
+    from scenes.colmap import estimate_poses
+
+    sc = unposed[seed]
+    cap = sc.capture
+    assert cap.c2w is None and all(tv.c2w is None and tv.image is not None for tv in cap.test_views)
+    est = estimate_poses(cap, ColmapConfig(num_threads=1))
+    assert est.c2w.shape == (12, 4, 4) and est.registered.shape == (12,)  # test images are not frames
+    assert est.registered.all()
+    assert sorted(est.test_c2w) == [tv.name for tv in cap.test_views] and est.test_unregistered == []
+    assert est.report["test_views_used"] == 3 and "c_estimated" in est.report
+    # the test poses are in the SfM frame of the training poses: the Sim(3) of the training
+    # cameras onto the truth takes them to their true poses
+    s, r, t = align_similarity(est.c2w, sc.gt_c2w)
+    e = pose_errors(est.c2w, sc.gt_c2w)
+    extent = e["trajectory_extent"]
+    test = apply_similarity(np.stack([est.test_c2w[tv.name] for tv in cap.test_views]), s, r, t)
+    pos = np.linalg.norm(test[:, :3, 3] - sc.gt_test_c2w[:, :3, 3], axis=1)
+    ang = np.degrees(Rotation.from_matrix(np.einsum("nji,njk->nik", sc.gt_test_c2w[:, :3, :3],
+                                                    test[:, :3, :3])).magnitude())
+    assert pos.max() < 0.06 * extent and ang.max() < 4.0
+    assert e["ate_rmse"] < 0.05 * extent
+    # the test views lie between training cameras, far from where a wrong frame would put them
+    assert pos.max() < 0.5 * np.linalg.norm(np.diff(sc.gt_c2w[:, :3, 3], axis=0), axis=1).mean() * 12
+
+
+def test_sfm_reads_no_truth_from_meta(unposed):
+    """Stored truth in meta (a wrong c here) changes nothing: c is estimated from the capture."""
+    from scenes.colmap import estimate_poses
+
+    cap = unposed[0].capture
+    a = estimate_poses(cap, ColmapConfig(num_threads=1))
+    cap.meta["c"] = 5.0
+    cap.meta["depth_range"] = [0.1, 0.2]
+    try:
+        b = estimate_poses(cap, ColmapConfig(num_threads=1))
+    finally:
+        del cap.meta["c"], cap.meta["depth_range"]
+    assert a.report["c_estimated"] == b.report["c_estimated"]
+    np.testing.assert_array_equal(a.c2w, b.c2w)
+    for name in a.test_c2w:
+        np.testing.assert_array_equal(a.test_c2w[name], b.test_c2w[name])
+
+
+def test_sfm_failure_says_what_to_try(unposed):
+    from scenes.colmap import estimate_poses
+
+    with pytest.raises(SfMError, match="registered") as info:
+        estimate_poses(unposed[0].capture, ColmapConfig(num_threads=1, init_min_num_inliers=100000))
+    msg = str(info.value)
+    assert "try:" in msg and "contrast threshold" in msg and "more frames" in msg and "intrinsics" in msg
+    with pytest.raises(SfMError, match="deblur=True"):
+        estimate_poses(unposed[0].capture, ColmapConfig(num_threads=1, deblur=False, init_min_num_inliers=100000))

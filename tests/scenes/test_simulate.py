@@ -154,3 +154,24 @@ def test_kernels_agree_property(seed, s, sigma, refractory):
         eps = default_eps()
         dl = np.log(imgs[-1] + eps) - np.log(imgs[0] + eps)
         assert np.all(np.abs(dl - 0.15 * a.count_image()) < 0.15 + 1e-9)
+
+
+def test_asymmetric_thresholds_and_leak_events():
+    c_pos, c_neg, eps = 0.3, 0.15, 1e-3
+    t = np.linspace(0.0, 2.0, 81)
+    slope = np.full((3, 4), 1.5)
+    up = _ramp(slope, t[:41], l0=math.log(0.05), eps=eps)  # +1.5 log units over 1 s
+    imgs = np.concatenate([up, up[-2::-1]])  # then back down over 1 s
+    ev = simulate_events(imgs, t, c=(c_pos, c_neg), sigma_c=0.0, eps=eps)
+    np.testing.assert_array_equal(ev.count_image(polarity=1), np.floor(1.5 / c_pos + 1e-9))
+    assert (ev.count_image(polarity=-1) >= np.floor(1.5 / c_neg) - 1).all()
+    # leak: positive events only, at the configured rate
+    still = np.full((5, 30, 40), 0.2)
+    leak = simulate_events(still, np.linspace(0, 10.0, 5), leak_hz=0.5, seed=1)
+    assert (leak.p == 1).all()
+    expected = 0.5 * 10.0 * 30 * 40
+    assert abs(len(leak) - expected) < 5 * math.sqrt(expected)
+    with pytest.raises(ValueError, match="c"):
+        simulate_events(still, np.linspace(0, 1, 5), c=(0.2, 0.3, 0.1))
+    with pytest.raises(ValueError, match="leak_hz"):
+        simulate_events(still, np.linspace(0, 1, 5), leak_hz=-1.0)
