@@ -148,16 +148,13 @@ def _poses(capture, cfg: Config, idx: list[int]):
     return np.asarray(est.c2w, dtype=np.float64)[keep], pts, cols, "colmap", keep
 
 
-def depth_range(capture, cfg: Config, c2w: np.ndarray,  # [F, 4, 4]
+def depth_range(cfg: Config, c2w: np.ndarray,  # [F, 4, 4]
                 points: Tensor | None) -> tuple[float, float]:  # [P, 3]
-    """The depth range of the fallback initialisation: the config's, else the capture's, else the
-    5th-95th percentile of SfM point depths, else ``FOCUS_DEPTH_RANGE`` x the focus depth, else
-    ``SPREAD_DEPTH_RANGE`` x the camera-spread scale."""
+    """The depth range of the fallback initialisation: the config's, else the 5th-95th percentile
+    of SfM point depths, else ``FOCUS_DEPTH_RANGE`` x the focus depth, else ``SPREAD_DEPTH_RANGE``
+    x the camera-spread scale. (A synthetic scene's true depth range is never read.)"""
     if cfg.model.init_depth is not None:
         return tuple(float(v) for v in cfg.model.init_depth)
-    if "depth_range" in capture.meta:
-        lo, hi = capture.meta["depth_range"]
-        return float(lo), float(hi)
     if points is not None and len(points) > 0:
         R, t = c2w[:, :3, :3], c2w[:, :3, 3]
         z = np.einsum("fji,fnj->fni", R, points.numpy()[None] - t[:, None])[..., 2]
@@ -240,7 +237,7 @@ def prepare(capture, cfg: Config) -> TrainingData:
     targets = latents if (lc.target == "edi" and latents is not None) else frames_t
     ev = [event_sums(events, exposures[f], int(V[f])) if (use_events and lc.w_event > 0 and V[f] > 1) else None
           for f in range(len(idx))]
-    d_range = depth_range(capture, cfg, c2w, points)
+    d_range = depth_range(cfg, c2w, points)
     return TrainingData(
         frames=frames_t, targets=targets, latents=latents if lc.w_edi > 0 else None,
         exposures=exposures, names=[(capture.names[i] if capture.names else f"{i:04d}") for i in idx],

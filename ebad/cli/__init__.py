@@ -54,8 +54,7 @@ def build_parser() -> argparse.ArgumentParser:
     for mod in _commands():
         p = sub.add_parser(mod.NAME, help=mod.HELP, description=getattr(mod, "DESCRIPTION", mod.HELP),
                            add_help=not hasattr(mod, "main"))
-        if hasattr(mod, "main"):  # parses its own arguments: everything after the command goes to it
-            p.add_argument("rest", nargs=argparse.REMAINDER)
+        if hasattr(mod, "main"):  # parses its own arguments: ``main`` hands it everything after its name
             p.set_defaults(_run=lambda args, m=mod: m.main(args.rest))
         else:
             mod.add_arguments(p)
@@ -64,8 +63,15 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser()
-    args = parser.parse_args(sys.argv[1:] if argv is None else argv)
+    own = {m.NAME for m in _commands() if hasattr(m, "main")}
+    cut = next((i for i, a in enumerate(argv) if not a.startswith("-")), len(argv))
+    if cut < len(argv) and argv[cut] in own:  # argparse cannot pass "--option ..." through: split here
+        args = parser.parse_args(argv[:cut + 1])
+        args.rest = argv[cut + 1:]
+    else:
+        args = parser.parse_args(argv)
     if not getattr(args, "_run", None):
         parser.print_help()
         return 2

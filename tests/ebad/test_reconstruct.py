@@ -51,9 +51,9 @@ def test_skip_rules_are_decided_and_recorded(tiny):
     import copy
 
     # sharp frames get one view, blurry ones V
-    sc = scenes.make_scene("boxes", size="tiny", seed=1, n_frames=6, n_test=1, sharp_fraction=0.5)
+    sc = scenes.make_scene("boxes", size="tiny", seed=1, n_frames=6, n_test=1, sharp_fraction=0.5, sensor="ideal")
     p = prepare(sc.capture, _cfg("ebad", 1))
-    sharp = set(sc.capture.meta["sharp_frames"])
+    sharp = set(sc.truth["sharp_frames"])
     assert sharp and all((p.V[i] == 1) == (i in sharp) for i in range(6)), (p.V, sharp)
     assert p.report.renders_per_pass < p.report.renders_without_skip
     assert p.ev_sums[sorted(sharp)[0]] is None
@@ -65,10 +65,6 @@ def test_skip_rules_are_decided_and_recorded(tiny):
     cap.events = EventStream.empty(cap.width, cap.height)
     q = prepare(cap, _cfg("ebad", 1))
     assert q.latents is None and all(e is None for e in q.ev_sums) and q.report.skipped is not None
-    # trusted poses from the capture anchor the mid-exposure poses
-    r = reconstruct(tiny.capture, _cfg("bad", 2))
-    assert r.metrics.anchored_mid_poses is True
-    assert torch.allclose(r.trajectories.mid_poses(), torch.from_numpy(tiny.capture.c2w).float(), atol=1e-4)
 
 
 def test_plateau_and_time_budget_stop(tiny):
@@ -172,3 +168,26 @@ def test_captures_that_cannot_work_are_refused_with_the_reason(tiny):
     bad.K[0, 2] = -50
     with pytest.raises(UserError, match="principal point"):
         reconstruct(bad, _cfg("3dgs", 1))
+
+
+@pytest.mark.parametrize("preset_name", ["bad", "3dgs"])
+def test_exact_poses_are_anchored_approximate_ones_are_optimised(preset_name):
+    """The capture says how far its poses can be trusted: exact poses keep their mid-exposure
+    pose, approximate ones (SfM, another tool) get every frame's pose optimised, 3dgs included."""
+    exact = scenes.make_scene("boxes", size="tiny", seed=2, n_frames=4, n_test=1, poses="exact")
+    assert exact.capture.pose_trust == "exact"
+    r = reconstruct(exact.capture, _cfg(preset_name, 5))
+    assert r.metrics.anchored_mid_poses is True and r.metrics.prepare.pose_trust == "exact"
+    assert torch.allclose(r.trajectories.mid_poses(), torch.from_numpy(exact.capture.c2w).float(), atol=1e-4)
+    noisy = scenes.make_scene("boxes", size="tiny", seed=2, n_frames=4, n_test=1, poses="noisy")
+    assert noisy.capture.effective_pose_trust == "approximate"
+    r = reconstruct(noisy.capture, _cfg(preset_name, 5))
+    assert r.metrics.anchored_mid_poses is False
+    assert bool(r.trajectories.moving.all())  # every frame, sharp or blurry
+    moved = (r.trajectories.mid_poses() - torch.from_numpy(noisy.capture.c2w).float()).abs().amax(dim=(1, 2))
+    assert bool((moved > 1e-6).all()), moved
+    if preset_name == "3dgs":
+        assert r.trajectories.kind == "offset"
+    cfg = _cfg(preset_name, 5)
+    cfg.trajectory.anchor_mid = "yes"  # the user can still hold them
+    assert reconstruct(noisy.capture, cfg).metrics.anchored_mid_poses is True
