@@ -22,7 +22,7 @@ import numpy as np
 
 from edi import EbadError, EventStream, read_events
 
-from .capture import RIGID_TOL, Capture, TestView, check_rigid
+from .capture import Capture, TestView, check_rigid
 from .errors import CaptureError
 from .images import read_image, write_image
 
@@ -38,6 +38,7 @@ CORRUPT_FILE_ERRORS = (OSError, EOFError, ValueError, zipfile.BadZipFile)
 # repaired (re-orthonormalised by SVD) instead of refused. Poses written with 5 decimals are
 # off by ~1e-5; 1e-3 still refuses any real scale (a 0.1% zoom) and every reflection.
 ROTATION_REPAIR_TOL = 1e-3
+EXACT_RIGID_TOL = 1e-9  # a pose this close to rigid is kept bit for bit (float64 round trips of rigid poses)
 
 
 def _req(d: dict, key: str, file: str, where: str) -> Any:
@@ -83,8 +84,8 @@ def nearest_rigid(m: Any,  # [4, 4]
                   file: str | None, field_name: str, tol: float = ROTATION_REPAIR_TOL) -> np.ndarray:
     """A camera pose read from a file as a float64 [4, 4] rigid transform.
 
-    A pose already rigid within ``scenes.capture.RIGID_TOL`` is returned unchanged (so save ->
-    load stays lossless). A rotation block within ``tol`` of orthonormal (every singular value in [1 - tol, 1 + tol],
+    A pose already orthonormal to ``EXACT_RIGID_TOL`` is returned unchanged (so save -> load
+    stays lossless). A rotation block within ``tol`` of orthonormal (every singular value in [1 - tol, 1 + tol],
     det > 0; e.g. poses rounded to 5 decimals) is replaced by the nearest rotation (SVD:
     R = U V^T); a scale, a shear or a reflection is refused, as is a last row that is not
     [0, 0, 0, 1] within ``tol``.
@@ -110,7 +111,7 @@ def nearest_rigid(m: Any,  # [4, 4]
     if dev > tol:
         raise CaptureError(file, field_name, f"is not a rigid transform: the rotation block scales by "
                                              f"{sv.min():.6f}..{sv.max():.6f} (repaired only within {tol:g} of 1)")
-    if dev > RIGID_TOL or np.abs(a[3] - np.array([0.0, 0.0, 0.0, 1.0])).max() > RIGID_TOL:
+    if dev > EXACT_RIGID_TOL or np.abs(a[3] - np.array([0.0, 0.0, 0.0, 1.0])).max() > EXACT_RIGID_TOL:
         a[:3, :3] = u @ vt
         a[3] = (0.0, 0.0, 0.0, 1.0)
     return check_rigid(a, file, field_name)
