@@ -359,7 +359,8 @@ class GroundTruth:
 
 
 def read_ground_truth(gt_dir: str | os.PathLike) -> GroundTruth:
-    """Parse ``gt_dir/gt.json`` (the one parser of that file).
+    """Parse ``gt_dir/gt.json`` (the one parser of that file; ``scenes.write_scene`` writes it),
+    or, for an EBAD-NeRF folder without one, map its training frames to ``images_gt_blur/``.
 
     Raises:
         CaptureError: the file is missing or malformed; names the file and the field.
@@ -367,6 +368,10 @@ def read_ground_truth(gt_dir: str | os.PathLike) -> GroundTruth:
     root = Path(gt_dir)
     path = root / GT_FILE
     jf = str(path)
+    if not path.is_file() and (root / "images_gt_blur").is_dir():
+        from .e2nerf import ground_truth_blur
+
+        return ground_truth_blur(root)
     if not path.is_file():
         raise CaptureError(jf, None, "file not found")
     try:
