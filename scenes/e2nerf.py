@@ -43,7 +43,6 @@ there). ``meta['events_binned']`` records B, the bin length and this rule;
 """
 from __future__ import annotations
 
-import json
 import math
 import os
 from pathlib import Path
@@ -224,13 +223,11 @@ def load_ebad_nerf(root: str | os.PathLike, llffhold: int = LLFF_HOLD) -> Captur
 
 
 def _transforms(path: Path) -> tuple[dict, list]:
-    jf = str(path)
-    try:
-        doc = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise CaptureError(jf, None, f"not valid JSON ({exc})") from None
-    if not isinstance(doc, dict) or not isinstance(doc.get("frames"), list) or not doc["frames"]:
-        raise CaptureError(jf, "frames", "must be a non-empty list")
+    from .format import read_json_object
+
+    doc = read_json_object(path)
+    if not isinstance(doc.get("frames"), list) or not doc["frames"]:
+        raise CaptureError(str(path), "frames", "must be a non-empty list")
     return doc, doc["frames"]
 
 

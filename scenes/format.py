@@ -117,6 +117,20 @@ def nearest_rigid(m: Any,  # [4, 4]
     return check_rigid(a, file, field_name)
 
 
+def read_json_object(path: Path) -> dict:
+    """A JSON file whose top level is an object; CaptureError naming the file otherwise."""
+    path = Path(path)
+    if not path.is_file():
+        raise CaptureError(str(path), None, "file not found")
+    try:
+        doc = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise CaptureError(str(path), None, f"not valid JSON ({exc})") from None
+    if not isinstance(doc, dict):
+        raise CaptureError(str(path), None, "top level must be an object")
+    return doc
+
+
 def _matrix(v: Any, file: str, field: str) -> np.ndarray:
     return nearest_rigid(v, file, field)
 
@@ -133,14 +147,7 @@ def load_capture_folder(path: Path) -> Capture:
     root = path.parent if path.is_file() else path
     js = root / "capture.json"
     jf = str(js)
-    if not js.is_file():
-        raise CaptureError(jf, None, "file not found")
-    try:
-        doc = json.loads(js.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise CaptureError(jf, None, f"not valid JSON ({exc})") from None
-    if not isinstance(doc, dict):
-        raise CaptureError(jf, None, "top level must be an object")
+    doc = read_json_object(js)
     fmt = _req(doc, "format", jf, "")
     if fmt != FORMAT:
         raise CaptureError(jf, "format", f"expected {FORMAT!r}, got {fmt!r}")
@@ -372,14 +379,7 @@ def read_ground_truth(gt_dir: str | os.PathLike) -> GroundTruth:
         from .e2nerf import ground_truth_blur
 
         return ground_truth_blur(root)
-    if not path.is_file():
-        raise CaptureError(jf, None, "file not found")
-    try:
-        doc = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise CaptureError(jf, None, f"not valid JSON ({exc})") from None
-    if not isinstance(doc, dict):
-        raise CaptureError(jf, None, "top level must be an object")
+    doc = read_json_object(path)
     frames_doc = doc.get("frames", []) or []
     if not isinstance(frames_doc, list):
         raise CaptureError(jf, "frames", f"must be a list, got {type(frames_doc).__name__}")
