@@ -69,8 +69,9 @@ def _write_png(path: Path, ints: np.ndarray) -> None:  # ints [H, W, D] uint8 | 
         if ints.dtype == np.uint16:
             import png
 
+            rows = ints.reshape(h, w * d).astype(">u2")  # PNG samples are big-endian
             with open(tmp, "wb") as fh:
-                png.Writer(w, h, greyscale=d == 1, bitdepth=16).write_array(fh, ints.reshape(-1))
+                png.Writer(w, h, greyscale=d == 1, bitdepth=16).write_packed(fh, (bytearray(r.tobytes()) for r in rows))
         else:
             from PIL import Image
 

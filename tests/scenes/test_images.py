@@ -156,7 +156,7 @@ def test_failed_write_leaves_neither_file_nor_temporary(tmp_path, monkeypatch):
     def boom(self, *a, **k):
         raise OSError("No space left on device")
 
-    monkeypatch.setattr(png.Writer, "write_array", boom)
+    monkeypatch.setattr(png.Writer, "write_packed", boom)
     with pytest.raises(OSError, match="No space"):
         write_image(tmp_path / "full", quantize(_rand((3, 3, 3), 0), 16), bits=16)
     assert not list(tmp_path.iterdir())
