@@ -93,6 +93,13 @@ def _images(folder: Path) -> list[Path]:
     return sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
 
 
+def _same_shape(img: np.ndarray, ref: np.ndarray, path: Path) -> np.ndarray:
+    if img.shape != ref.shape:
+        raise CaptureError(str(path), "images", f"is {img.shape[1]}x{img.shape[0]}x{img.shape[2]}, the first image "
+                                                f"{ref.shape[1]}x{ref.shape[0]}x{ref.shape[2]}")
+    return img
+
+
 def read_event_bins(path: Path) -> np.ndarray:  # -> [V, B, P] int32 (P = H*W, or [V, B, H, W] flattened)
     """Signed event counts from an ``events.pt`` (a tensor [V, B, H*W] or [V, B, H, W]), read
     with ``torch.load(weights_only=True)``: no code in the file runs.
@@ -198,9 +205,8 @@ def load_ebad_nerf(root: str | os.PathLike, llffhold: int = LLFF_HOLD) -> Captur
     counts = _match_events(read_event_bins(ev_path), n, keep, ev_path)
     if counts.shape[2] != w * h:
         raise CaptureError(str(ev_path), "events", f"{counts.shape[2]} pixels per bin, the images are {w}x{h}")
-    frames = np.stack([first if i == 0 else read_image(files[i], f"images[{i}]") for i in keep])
-    if frames.shape[1:3] != (h, w):
-        raise CaptureError(str(root / "images"), "images", "images differ in size")
+    frames = np.stack([_same_shape(first if i == 0 else read_image(files[i], f"images[{i}]"), first, files[i])
+                       for i in keep])
     slots = nominal_exposures(n, counts.shape[1])  # every view keeps its slot on the clock
     exposures = slots[keep]
     events = events_from_bins(counts, exposures, w, h)
@@ -287,13 +293,12 @@ def load_e2nerf(root: str | os.PathLike) -> Capture:
         img = _frame_image(root, fr, k, files, jf)
         if img is None:
             continue  # a pose without a training image (E2NeRF lists every second view)
-        images.append(read_image(img, f"frames[{k}].file_path"))
+        im = read_image(img, f"frames[{k}].file_path")
+        images.append(_same_shape(im, images[0], img) if images else im)
         c2w.append(_mid_pose(_pose_list(fr["transform_matrix"], jf, f"frames[{k}].transform_matrix")))
         names.append(img.stem)
     if not images:
         raise CaptureError(jf, "frames", "no frame has its image under train/")
-    if len({im.shape for im in images}) != 1:
-        raise CaptureError(str(root / "train"), "images", "images differ in size or channels")
     frames = np.stack(images)
     _, h, w, _ = frames.shape
     angle = doc.get("camera_angle_x")

@@ -269,3 +269,15 @@ def test_e2nerf_capture_saves_and_loads_back(tmp_path):
     back = load(tmp_path / "cap")
     np.testing.assert_array_equal(back.events.t, cap.events.t)
     assert back.meta["events_binned"] == cap.meta["events_binned"]
+
+
+def test_image_of_another_size_names_the_file(tmp_path):
+    root = tmp_path / "scene"
+    write_ebad_nerf(root)
+    _save_png(root / "images" / "005.png", np.zeros((H + 1, W, 3), np.uint8))
+    with pytest.raises(CaptureError, match=r"005\.png.*8x7x3, the first image 8x6x3"):
+        load(root)
+    write_e2nerf(tmp_path / "lego")
+    _save_png(tmp_path / "lego" / "train" / "r_2.png", np.zeros((H, W + 2), np.uint8))
+    with pytest.raises(CaptureError, match=r"r_2\.png.*10x6x1"):
+        load(tmp_path / "lego")
