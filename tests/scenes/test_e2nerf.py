@@ -281,3 +281,29 @@ def test_image_of_another_size_names_the_file(tmp_path):
     _save_png(tmp_path / "lego" / "train" / "r_2.png", np.zeros((H, W + 2), np.uint8))
     with pytest.raises(CaptureError, match=r"r_2\.png.*10x6x1"):
         load(tmp_path / "lego")
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_edi_on_binned_events_is_exact_when_the_scene_steps_at_bin_centres(seed):
+    """If the true log intensity jumps by c x count at each bin centre, the stand-in events are
+    the true events, and EDI recovers the latent image at every bin edge."""
+    import edi
+
+    c = 0.2
+    rng = np.random.default_rng(seed)
+    counts = rng.integers(-1, 2, (1, BINS, H * W))
+    exps = nominal_exposures(1, BINS)
+    events = events_from_bins(counts, exps, W, H)
+    t0, t1 = exps[0]
+    T = t1 - t0
+    L0 = rng.uniform(0.1, 0.3, H * W)  # below saturation after up to BINS steps of c
+    eps = edi.LOG_EPS
+    # pieces between bin centres: E = cumulative counts; durations T/2B, T/B, ..., T/B, T/2B
+    E = np.concatenate([np.zeros((1, H * W)), np.cumsum(counts[0], 0)])  # [B + 1, P]
+    L = (L0 + eps) * np.exp(c * E) - eps
+    dur = np.array([0.5] + [1.0] * (BINS - 1) + [0.5]) * T / BINS
+    blur = (dur[:, None] * L).sum(0) / T
+    assert blur.max() < edi.SATURATION and L.min() > 0
+    edges = np.linspace(t0, t1, BINS + 1)[:-1]  # bin b's start: the piece after centre b - 1
+    lat = edi.deblur(blur.reshape(H, W), (t0, t1), events, times=list(edges), c=c)
+    np.testing.assert_allclose(lat.reshape(BINS, -1), L[:BINS], rtol=1e-9, atol=1e-12)
