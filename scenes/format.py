@@ -13,21 +13,32 @@ import math
 import os
 import shutil
 import tempfile
+import zipfile
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from edi import EventError, EventStream
+from edi import EbadError, EventStream, read_events
 
 from .capture import Capture, TestView, check_rigid
 from .errors import CaptureError
 from .images import read_image, write_image
 
-__all__ = ["FORMAT", "load_capture_folder", "save", "read_event_file"]
+__all__ = ["FORMAT", "load_capture_folder", "save", "read_event_file", "nearest_rigid", "ROTATION_REPAIR_TOL",
+           "read_ground_truth", "GroundTruth"]
 
 FORMAT = "ebad-capture/1"
-_T_UNITS = {"us": 1, "ns": None, "s": None, "ms": None}
+T_UNITS = ("us", "ns", "ms", "s")
+EVENT_SUFFIXES = (".npz", ".h5", ".hdf5")
+# What numpy, zipfile and h5py raise on a truncated or corrupt file (h5py raises OSError).
+CORRUPT_FILE_ERRORS = (OSError, EOFError, ValueError, zipfile.BadZipFile)
+# Largest deviation of a pose's rotation from orthonormal (|singular value - 1|) that is
+# repaired (re-orthonormalised by SVD) instead of refused. Poses written with 5 decimals are
+# off by ~1e-5; 1e-3 still refuses any real scale (a 0.1% zoom) and every reflection.
+ROTATION_REPAIR_TOL = 1e-3
+EXACT_RIGID_TOL = 1e-9  # a pose this close to rigid is kept bit for bit (float64 round trips of rigid poses)
 
 
 def _req(d: dict, key: str, file: str, where: str) -> Any:
@@ -47,68 +58,87 @@ def _num(v: Any, file: str, field: str) -> float:
     return x
 
 
-def _times_to_us(t: np.ndarray, unit: str, file: str) -> np.ndarray:
-    if unit == "us":
-        if t.dtype.kind == "f":
-            if not np.isfinite(t).all():
-                raise CaptureError(file, "t", "non-finite timestamp")
-            return np.round(t).astype(np.int64)
-        return t.astype(np.int64)
-    if t.dtype.kind == "f" and not np.isfinite(t).all():
-        raise CaptureError(file, "t", "non-finite timestamp")
-    if unit == "ns":
-        return (t.astype(np.int64) + 500) // 1000 if t.dtype.kind in "iu" else np.round(t / 1e3).astype(np.int64)
-    if unit == "ms":
-        return np.round(t.astype(np.float64) * 1e3).astype(np.int64)
-    if unit == "s":
-        return np.round(t.astype(np.float64) * 1e6).astype(np.int64)
-    raise CaptureError(file, "t_unit", f"must be one of us, ns, ms, s; got {unit!r}")
-
-
 def read_event_file(path: Path, t_unit: str, width: int, height: int, t0_us: int = 0) -> EventStream:
-    """Read events from a .npz or .h5 file with arrays x, y, t, p (an h5 may keep them under
-    an ``events/`` group). Raises CaptureError naming the file and the field."""
+    """Read events from a .npz or .h5 file with arrays x, y, t, p (an h5 may keep them under an
+    ``events/`` group) through ``edi.read_events``, the project's one event-file reader and
+    seconds-to-microseconds conversion. Raises CaptureError naming the file and the field."""
     path = Path(path)
     if not path.is_file():
         raise CaptureError(str(path), "events.file", "file not found")
-    arrays: dict[str, np.ndarray] = {}
+    if path.suffix.lower() not in EVENT_SUFFIXES:
+        raise CaptureError(str(path), "events.file", f"events must be a {' or '.join(EVENT_SUFFIXES)} file")
+    if t_unit not in T_UNITS:
+        raise CaptureError(str(path), "events.t_unit", f"must be one of {', '.join(T_UNITS)}; got {t_unit!r}")
     try:
-        if path.suffix == ".npz":
-            with np.load(path, allow_pickle=False) as z:
-                for k in ("t", "x", "y", "p"):
-                    if k in z.files:
-                        arrays[k] = z[k]
-        elif path.suffix in (".h5", ".hdf5"):
-            import h5py
-
-            with h5py.File(path, "r") as h:
-                g = h["events"] if "events" in h and isinstance(h["events"], h5py.Group) else h
-                for k in ("t", "x", "y", "p"):
-                    if k in g:
-                        arrays[k] = g[k][()]
-        else:
-            raise CaptureError(str(path), "events.file", "events must be a .npz or .h5 file")
-    except CaptureError:
-        raise
-    except Exception as exc:
+        events = read_events(path, t_unit=t_unit, width=width, height=height)
+    except EbadError as exc:
+        raise CaptureError(str(path), "events", str(exc).replace(f"{path}: ", "")) from None
+    except CORRUPT_FILE_ERRORS as exc:
         raise CaptureError(str(path), "events.file", f"unreadable ({type(exc).__name__}: {exc})") from None
-    for k in ("t", "x", "y", "p"):
-        if k not in arrays:
-            raise CaptureError(str(path), k, "missing array")
-    t = _times_to_us(np.asarray(arrays["t"]).reshape(-1), t_unit, str(path))
+    if t0_us:
+        object.__setattr__(events, "t0", int(t0_us))
+    return events
+
+
+def nearest_rigid(m: Any,  # [4, 4]
+                  file: str | None, field_name: str, tol: float = ROTATION_REPAIR_TOL) -> np.ndarray:
+    """A camera pose read from a file as a float64 [4, 4] rigid transform.
+
+    A pose already orthonormal to ``EXACT_RIGID_TOL`` is returned unchanged (so save -> load
+    stays lossless). A rotation block within ``tol`` of orthonormal (every singular value in [1 - tol, 1 + tol],
+    det > 0; e.g. poses rounded to 5 decimals) is replaced by the nearest rotation (SVD:
+    R = U V^T); a scale, a shear or a reflection is refused, as is a last row that is not
+    [0, 0, 0, 1] within ``tol``.
+
+    Raises:
+        CaptureError: naming ``file`` and ``field_name`` and what is wrong.
+    """
     try:
-        return EventStream(t, arrays["x"].reshape(-1), arrays["y"].reshape(-1), arrays["p"].reshape(-1),
-                           width, height, t0=t0_us)
-    except EventError as exc:
-        raise CaptureError(str(path), "events", str(exc)) from None
+        a = np.array(m, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise CaptureError(file, field_name, "must be a 4x4 list of numbers") from None
+    if a.shape != (4, 4):
+        raise CaptureError(file, field_name, f"must be a 4x4 matrix, got shape {a.shape}")
+    if not np.isfinite(a).all():
+        raise CaptureError(file, field_name, "has a non-finite entry")
+    if np.abs(a[3] - np.array([0.0, 0.0, 0.0, 1.0])).max() > tol:
+        raise CaptureError(file, field_name, f"last row must be [0, 0, 0, 1], got {a[3].tolist()}")
+    u, sv, vt = np.linalg.svd(a[:3, :3])
+    det = float(np.linalg.det(a[:3, :3]))
+    if det <= 0:
+        raise CaptureError(file, field_name, f"is not a rigid transform: the rotation is a reflection (det R = {det:.6f})")
+    dev = float(np.abs(sv - 1.0).max())
+    if dev > tol:
+        raise CaptureError(file, field_name, f"is not a rigid transform: the rotation block scales by "
+                                             f"{sv.min():.6f}..{sv.max():.6f} (repaired only within {tol:g} of 1)")
+    if dev > EXACT_RIGID_TOL or np.abs(a[3] - np.array([0.0, 0.0, 0.0, 1.0])).max() > EXACT_RIGID_TOL:
+        a[:3, :3] = u @ vt
+        a[3] = (0.0, 0.0, 0.0, 1.0)
+    return check_rigid(a, file, field_name)
+
+
+def read_json_object(path: Path) -> dict:
+    """A JSON file whose top level is an object; CaptureError naming the file otherwise."""
+    path = Path(path)
+    if not path.is_file():
+        raise CaptureError(str(path), None, "file not found")
+    try:
+        doc = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise CaptureError(str(path), None, f"not valid JSON ({exc})") from None
+    if not isinstance(doc, dict):
+        raise CaptureError(str(path), None, "top level must be an object")
+    return doc
 
 
 def _matrix(v: Any, file: str, field: str) -> np.ndarray:
-    try:
-        a = np.array(v, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise CaptureError(file, field, "must be a 4x4 list of numbers") from None
-    return check_rigid(a, file, field)
+    return nearest_rigid(v, file, field)
+
+
+def _str(v: Any, file: str, field: str) -> str:
+    if not isinstance(v, str) or not v:
+        raise CaptureError(file, field, f"must be a non-empty string, got {v!r}")
+    return v
 
 
 def load_capture_folder(path: Path) -> Capture:
@@ -117,14 +147,7 @@ def load_capture_folder(path: Path) -> Capture:
     root = path.parent if path.is_file() else path
     js = root / "capture.json"
     jf = str(js)
-    if not js.is_file():
-        raise CaptureError(jf, None, "file not found")
-    try:
-        doc = json.loads(js.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise CaptureError(jf, None, f"not valid JSON ({exc})") from None
-    if not isinstance(doc, dict):
-        raise CaptureError(jf, None, "top level must be an object")
+    doc = read_json_object(js)
     fmt = _req(doc, "format", jf, "")
     if fmt != FORMAT:
         raise CaptureError(jf, "format", f"expected {FORMAT!r}, got {fmt!r}")
@@ -146,17 +169,15 @@ def load_capture_folder(path: Path) -> Capture:
         distortion = np.array([_num(x, jf, f"distortion[{i}]") for i, x in enumerate(dv)])
 
     evd = _req(doc, "events", jf, "")
-    ev_file = _req(evd, "file", jf, "events")
+    ev_file = _str(_req(evd, "file", jf, "events"), jf, "events.file")
     t_unit = evd.get("t_unit", "us")
-    if t_unit not in _T_UNITS:
-        raise CaptureError(jf, "events.t_unit", f"must be one of us, ns, ms, s; got {t_unit!r}")
+    if t_unit not in T_UNITS:
+        raise CaptureError(jf, "events.t_unit", f"must be one of {', '.join(T_UNITS)}; got {t_unit!r}")
     t0_us = evd.get("t0_us", 0)
     if isinstance(t0_us, bool) or not isinstance(t0_us, int):
         raise CaptureError(jf, "events.t0_us", f"must be an integer, got {t0_us!r}")
     # t0_us is the stream's reference: stored times are relative, so t0 is re-attached, not subtracted
-    events = read_event_file(root / str(ev_file), t_unit, width, height)
-    if t0_us:
-        object.__setattr__(events, "t0", int(t0_us))
+    events = read_event_file(root / ev_file, t_unit, width, height, t0_us=t0_us)
 
     frames_doc = _req(doc, "frames", jf, "")
     if not isinstance(frames_doc, list) or not frames_doc:
@@ -168,17 +189,17 @@ def load_capture_folder(path: Path) -> Capture:
         raise CaptureError(jf, f"frames[{i}].c2w", "missing (either every frame has a pose or none has)")
     for i, fr in enumerate(frames_doc):
         where = f"frames[{i}]"
-        file = _req(fr, "file", jf, where)
+        file = _str(_req(fr, "file", jf, where), jf, f"{where}.file")
         t0 = _num(_req(fr, "t_start", jf, where), jf, f"{where}.t_start")
         t1 = _num(_req(fr, "t_end", jf, where), jf, f"{where}.t_end")
         if t1 < t0:
             raise CaptureError(jf, f"{where}.t_end", f"{t1} is before t_start {t0}")
-        img = read_image(root / str(file), f"{where}.file")
+        img = read_image(root / file, f"{where}.file")
         if img.shape[:2] != (height, width):
-            raise CaptureError(str(root / str(file)), f"{where}.file",
+            raise CaptureError(str(root / file), f"{where}.file",
                                f"frame is {img.shape[1]}x{img.shape[0]}, capture.json says {width}x{height}")
         if frames and img.shape[2] != frames[0].shape[2]:
-            raise CaptureError(str(root / str(file)), f"{where}.file",
+            raise CaptureError(str(root / file), f"{where}.file",
                                f"has {img.shape[2]} channels, frame 0 has {frames[0].shape[2]}")
         frames.append(img)
         exposures.append((t0, t1))
@@ -188,23 +209,29 @@ def load_capture_folder(path: Path) -> Capture:
         if not isinstance(s, str):
             raise CaptureError(jf, f"{where}.split", f"must be a string, got {s!r}")
         split.append(s)
-        nm = fr.get("name", Path(str(file)).stem)
-        names.append(str(nm))
+        names.append(_str(fr.get("name", Path(file).stem), jf, f"{where}.name"))
     test_views = []
-    for j, tv in enumerate(doc.get("test_views", []) or []):
+    tv_doc = doc.get("test_views", []) or []
+    if not isinstance(tv_doc, list):
+        raise CaptureError(jf, "test_views", f"must be a list, got {type(tv_doc).__name__}")
+    for j, tv in enumerate(tv_doc):
         where = f"test_views[{j}]"
-        name = str(_req(tv, "name", jf, where))
+        name = _str(_req(tv, "name", jf, where), jf, f"{where}.name")
         t = _num(_req(tv, "t", jf, where), jf, f"{where}.t")
         has_pose = tv.get("c2w") is not None or not tv.get("file")  # a test view needs a c2w, a file or both
         c2w = _matrix(_req(tv, "c2w", jf, where), jf, f"{where}.c2w") if has_pose else None
         image = None
-        if tv.get("file"):
-            image = read_image(root / str(tv["file"]), f"{where}.file")
+        if tv.get("file") is not None:
+            tv_file = root / _str(tv["file"], jf, f"{where}.file")
+            image = read_image(tv_file, f"{where}.file")
             if image.shape[:2] != (height, width):
-                raise CaptureError(str(root / str(tv["file"])), f"{where}.file",
+                raise CaptureError(str(tv_file), f"{where}.file",
                                    f"image is {image.shape[1]}x{image.shape[0]}, capture.json says {width}x{height}")
         test_views.append(TestView(name=name, t=t, c2w=c2w, image=image))
-    meta = dict(doc.get("meta", {}) or {})
+    meta = doc.get("meta", {}) or {}
+    if not isinstance(meta, dict):
+        raise CaptureError(jf, "meta", f"must be an object, got {type(meta).__name__}")
+    meta = dict(meta)
     if len(set(names)) != len(names):
         names = [f"{i:04d}" for i in range(len(names))]
     cap = Capture(frames=np.stack(frames).astype(np.float32), exposures=np.array(exposures, dtype=np.float64),
@@ -305,3 +332,77 @@ def _write(cap: Capture, root: Path) -> None:
     if cap.distortion is not None:
         doc["distortion"] = [float(v) for v in np.asarray(cap.distortion)]
     (root / "capture.json").write_text(json.dumps(doc, indent=1, allow_nan=False))
+
+
+# --------------------------------------------------------------------------- ground truth
+
+GT_FILE = "gt.json"
+
+
+@dataclass
+class GroundTruth:
+    """What a synthetic scene's ``gt/`` folder records (``scenes.write_scene``), for evaluation
+    only: no code path of the method reads it.
+
+    ``frame_files`` maps a frame name to its sharp mid-exposure image; ``trajectories`` maps a
+    frame name to its true in-exposure trajectory (times [S] seconds, c2w [S, 4, 4]).
+    """
+
+    root: Path
+    frame_files: dict[str, Path] = field(default_factory=dict)
+    trajectories: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def frames(self, names: list[str]) -> np.ndarray | None:  # -> [F, H, W, D] float32
+        """The sharp frames of ``names`` (in that order), or None when one is not recorded."""
+        if not all(n in self.frame_files for n in names):
+            return None
+        return np.stack([read_image(self.frame_files[n], f"{GT_FILE}: frames[{n!r}].file") for n in names])
+
+    def trajectory_c2w(self, names: list[str]) -> np.ndarray | None:  # -> [F, S, 4, 4]
+        """The true trajectories of ``names`` (in that order), or None when one is missing or
+        they have different sample counts."""
+        if not all(n in self.trajectories for n in names):
+            return None
+        c2ws = [self.trajectories[n][1] for n in names]
+        if len({c.shape for c in c2ws}) != 1:
+            return None
+        return np.stack(c2ws)
+
+
+def read_ground_truth(gt_dir: str | os.PathLike) -> GroundTruth:
+    """Parse ``gt_dir/gt.json`` (the one parser of that file; ``scenes.write_scene`` writes it),
+    or, for an EBAD-NeRF folder without one, map its training frames to ``images_gt_blur/``.
+
+    Raises:
+        CaptureError: the file is missing or malformed; names the file and the field.
+    """
+    root = Path(gt_dir)
+    path = root / GT_FILE
+    jf = str(path)
+    if not path.is_file() and (root / "images_gt_blur").is_dir():
+        from .e2nerf import ground_truth_blur
+
+        return ground_truth_blur(root)
+    doc = read_json_object(path)
+    frames_doc = doc.get("frames", []) or []
+    if not isinstance(frames_doc, list):
+        raise CaptureError(jf, "frames", f"must be a list, got {type(frames_doc).__name__}")
+    gt = GroundTruth(root=root, meta=dict(doc.get("meta", {}) or {}))
+    for i, fr in enumerate(frames_doc):
+        where = f"frames[{i}]"
+        name = _str(_req(fr, "name", jf, where), jf, f"{where}.name")
+        if fr.get("file") is not None:
+            gt.frame_files[name] = root / _str(fr["file"], jf, f"{where}.file")
+        if fr.get("trajectory") is not None:
+            traj = fr["trajectory"]
+            try:
+                t = np.array(_req(traj, "t", jf, f"{where}.trajectory"), dtype=np.float64)
+                c2w = np.array(_req(traj, "c2w", jf, f"{where}.trajectory"), dtype=np.float64)
+            except (TypeError, ValueError):
+                raise CaptureError(jf, f"{where}.trajectory", "t and c2w must be numeric arrays") from None
+            if t.ndim != 1 or c2w.shape != (len(t), 4, 4) or not (np.isfinite(t).all() and np.isfinite(c2w).all()):
+                raise CaptureError(jf, f"{where}.trajectory", f"needs t [S] and c2w [S, 4, 4], finite; got "
+                                                             f"{t.shape} and {c2w.shape}")
+            gt.trajectories[name] = (t, c2w)
+    return gt

@@ -1,5 +1,8 @@
-"""Readers for real recordings: the Event Camera Dataset text layout, AEDAT4 files and
-EvDeblurNeRF-style folders, plus ``load`` which detects the layout.
+"""Readers for real recordings and published datasets, plus ``load`` which detects the layout.
+
+Layouts: ``ebad-capture/1`` (scenes.format), the Event Camera Dataset text layout, AEDAT4
+files, EvDeblurNeRF folders, EBAD-NeRF / E2NeRF folders (scenes.e2nerf) and ROS1 bags of the
+rpg_dvs_ros driver (scenes.rosbag, needs the ``ros`` extra).
 
 Distortion: when a recording comes with radial-tangential distortion, ``load`` undistorts the
 frames (bilinear resampling onto the pinhole grid with the same K) and moves every event to
@@ -12,57 +15,79 @@ from __future__ import annotations
 
 import math
 import os
+import zipfile
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
 
-from edi import EventError, EventStream
+from edi import EbadError, EventStream, read_aedat4, read_events
 
 from .capture import Capture
+from .e2nerf import LLFF_HOLD, detect_e2nerf, load_e2nerf, load_ebad_nerf
 from .errors import CaptureError
-from .format import FORMAT, load_capture_folder
+from .format import FORMAT, load_capture_folder, nearest_rigid
 from .images import read_image
+from .poses import interpolate_poses, read_poses_bounds
 from .undistort import undistort_events, undistort_frames
 
-__all__ = ["load", "load_ecd", "load_aedat4", "load_evdeblurnerf", "detect_layout", "interpolate_poses"]
+__all__ = ["load", "load_ecd", "load_aedat4", "load_evdeblurnerf", "detect_layout", "interpolate_poses", "LAYOUTS",
+           "AEDAT_INSTALL"]
 
 ECD_CLAMP_S = 0.05  # frames up to this far outside the ground-truth time range take the end pose
+LAYOUTS = (FORMAT, "aedat4", "ecd", "evdeblurnerf", "ebad-nerf", "e2nerf", "rosbag1")
+AEDAT_INSTALL = "pip install 'ebad[aedat]' (or: pip install aedat)"
 
 
 def detect_layout(path: Path) -> str:
-    """One of "ebad-capture/1", "aedat4", "ecd", "evdeblurnerf"; CaptureError if none fits."""
+    """One of :data:`LAYOUTS`; CaptureError if none fits."""
     path = Path(path)
     if not path.exists():
         raise CaptureError(str(path), None, "no such file or folder")
     if path.is_file():
         if path.suffix.lower() == ".aedat4":
             return "aedat4"
+        if path.suffix.lower() == ".bag":
+            return "rosbag1"
         if path.name == "capture.json":
             return FORMAT
-        raise CaptureError(str(path), None, "not a capture: expected a folder, capture.json or an .aedat4 file")
+        raise CaptureError(str(path), None, "not a capture: expected a folder, capture.json, an .aedat4 or a .bag file")
     if (path / "capture.json").is_file():
         return FORMAT
     if (path / "images.txt").is_file() and (path / "calib.txt").is_file():
         return "ecd"
+    e2 = detect_e2nerf(path)
+    if e2 is not None:
+        return e2
     if (path / "poses_bounds.npy").is_file() and any((path / n).is_file() for n in ("events.h5", "events.npz", "events.txt")):
         return "evdeblurnerf"
-    aed = sorted(path.glob("*.aedat4"))
-    if len(aed) == 1:
-        return "aedat4"
+    for suffix, layout in ((".aedat4", "aedat4"), (".bag", "rosbag1")):
+        found = sorted(path.glob(f"*{suffix}"))
+        if len(found) == 1:
+            return layout
     raise CaptureError(str(path), None, "layout not recognised: expected capture.json (ebad-capture/1), an "
-                                        ".aedat4 file, images.txt + calib.txt (Event Camera Dataset) or "
-                                        "poses_bounds.npy + events.h5 (EvDeblurNeRF)")
+                                        ".aedat4 or .bag file, images.txt + calib.txt (Event Camera Dataset), "
+                                        "events.pt + poses_bounds.npy or transforms_train.json (EBAD-NeRF / "
+                                        "E2NeRF) or poses_bounds.npy + events.h5 (EvDeblurNeRF)")
 
 
-def load(path: str | os.PathLike, undistort: bool = True, K: np.ndarray | None = None) -> Capture:
+def _single_file(path: Path, suffix: str) -> Path:
+    return path if path.is_file() else sorted(path.glob(f"*{suffix}"))[0]
+
+
+def load(path: str | os.PathLike, undistort: bool = True, K: np.ndarray | None = None,
+         exposure_us: int | None = None, llffhold: int = LLFF_HOLD) -> Capture:
     """Read a capture in any supported layout (see :func:`detect_layout`).
 
     Args:
-        path: a capture folder, its capture.json, or an .aedat4 file.
+        path: a capture folder, its capture.json, an .aedat4 or a ROS1 .bag file.
         undistort: undistort frames and events on load when the layout gives distortion
             (default), or carry the coefficients in ``Capture.distortion``.
-        K: [3, 3] intrinsics for layouts without calibration (AEDAT4); ignored otherwise.
+        K: [3, 3] intrinsics for layouts without calibration (AEDAT4, a bag without
+            camera_info); ignored otherwise.
+        exposure_us: APS exposure in microseconds for a ROS bag that did not record
+            ``/dvs/exposure``; ignored otherwise.
+        llffhold: EBAD-NeRF layout: every ``llffhold``-th view is held out (when
+            ``images_gt_novel/`` exists).
 
     Raises:
         CaptureError: unknown layout or malformed input; names the file and the field.
@@ -74,7 +99,15 @@ def load(path: str | os.PathLike, undistort: bool = True, K: np.ndarray | None =
     elif layout == "ecd":
         cap = load_ecd(path)
     elif layout == "aedat4":
-        cap = load_aedat4(path if path.is_file() else sorted(path.glob("*.aedat4"))[0], K=K)
+        cap = load_aedat4(_single_file(path, ".aedat4"), K=K)
+    elif layout == "rosbag1":
+        from .rosbag import load_rosbag
+
+        cap = load_rosbag(_single_file(path, ".bag"), K=K, exposure_us=exposure_us)
+    elif layout == "ebad-nerf":
+        cap = load_ebad_nerf(path, llffhold=llffhold)
+    elif layout == "e2nerf":
+        cap = load_e2nerf(path)
     else:
         cap = load_evdeblurnerf(path)
     if undistort and cap.distortion is not None and np.any(np.asarray(cap.distortion) != 0):
@@ -88,29 +121,6 @@ def load(path: str | os.PathLike, undistort: bool = True, K: np.ndarray | None =
     return cap.validate(str(path))
 
 
-# --------------------------------------------------------------------------- poses
-
-
-def interpolate_poses(t_query: np.ndarray,  # [F] seconds
-                      t_pose: np.ndarray,  # [P] seconds, increasing
-                      pos: np.ndarray,  # [P, 3]
-                      quat_xyzw: np.ndarray,  # [P, 4]
-                      clamp_s: float = ECD_CLAMP_S) -> tuple[np.ndarray, np.ndarray]:
-    """c2w [F, 4, 4] at ``t_query`` (linear position, slerp rotation), and a [F] bool mask of the
-    queries that could be served (inside the range, or within ``clamp_s`` of an end, where the end
-    pose is used)."""
-    rots = Rotation.from_quat(quat_xyzw)
-    slerp = Slerp(t_pose, rots)
-    ok = (t_query >= t_pose[0] - clamp_s) & (t_query <= t_pose[-1] + clamp_s)
-    tq = np.clip(t_query, t_pose[0], t_pose[-1])
-    out = np.tile(np.eye(4), (len(t_query), 1, 1))
-    if ok.any():
-        out[ok, :3, :3] = slerp(tq[ok]).as_matrix()
-        for k in range(3):
-            out[ok, k, 3] = np.interp(tq[ok], t_pose, pos[:, k])
-    return out, ok
-
-
 # --------------------------------------------------------------------------- ECD
 
 
@@ -119,7 +129,7 @@ def _loadtxt(path: Path, ncols: int, field: str, usecols=None) -> np.ndarray:
         raise CaptureError(str(path), field, "file not found")
     try:
         a = np.loadtxt(path, dtype=np.float64, comments="#", ndmin=2, usecols=usecols)
-    except Exception as exc:
+    except (ValueError, OSError, IndexError) as exc:
         raise CaptureError(str(path), field, f"unreadable ({type(exc).__name__}: {exc})") from None
     if a.shape[0] == 0 or a.shape[1] < ncols:
         raise CaptureError(str(path), field, f"expected rows of {ncols} numbers, got shape {a.shape}")
@@ -180,7 +190,7 @@ def load_ecd(root: Path) -> Capture:
         if np.any(np.abs(qn - 1) > 1e-3):
             i = int(np.flatnonzero(np.abs(qn - 1) > 1e-3)[0])
             raise CaptureError(str(gt_path), f"row {i}.q", f"quaternion norm {qn[i]:.4f} is not 1")
-        c2w, keep = interpolate_poses(times, gt[:, 0], gt[:, 1:4], gt[:, 4:8])
+        c2w, keep = interpolate_poses(times, gt[:, 0], gt[:, 1:4], gt[:, 4:8], clamp_s=ECD_CLAMP_S)
         c2w = c2w[keep]
         meta["dropped_frames"] = [lines[i][1] for i in np.flatnonzero(~keep)]
         meta["pose_source"] = "groundtruth.txt (interpolated to frame times)"
@@ -193,12 +203,9 @@ def load_ecd(root: Path) -> Capture:
     h, w, _ = frames[0].shape
     ev_path = root / "events.txt"
     if ev_path.is_file():
-        ev = _loadtxt(ev_path, 4, "events", usecols=(0, 1, 2, 3))
-        try:
-            events = EventStream(np.round(ev[:, 0] * 1e6).astype(np.int64), ev[:, 1], ev[:, 2], ev[:, 3], w, h)
-        except EventError as exc:
-            raise CaptureError(str(ev_path), "events", str(exc)) from None
-        meta["events_span_s"] = [float(ev[0, 0]), float(ev[-1, 0])]
+        events = _read_events(ev_path, "s", w, h)
+        if len(events):
+            meta["events_span_s"] = [float(events.t[0]) * 1e-6, float(events.t[-1]) * 1e-6]
     else:
         events = EventStream.empty(w, h)
     kt = times[keep]
@@ -210,37 +217,52 @@ def load_ecd(root: Path) -> Capture:
 
 # --------------------------------------------------------------------------- AEDAT4 / EvDeblurNeRF
 
-
-def _edi_reader(name: str):
-    import edi
-
-    fn = getattr(edi, name, None)
-    if fn is None:
-        raise NotImplementedError(f"edi.{name} is not available yet; this layout needs it")
-    return fn
+# What a truncated or corrupt recording makes the decoders raise: the aedat decoder reports a
+# short file as RuntimeError("failed to fill whole buffer"); numpy, zipfile and h5py as below.
+CORRUPT_RECORDING_ERRORS = (RuntimeError, OSError, EOFError, ValueError, zipfile.BadZipFile)
 
 
-DAVIS_DEFAULT_HFOV_DEG = 70.0  # used only when an AEDAT4 capture comes with no K
+def _read_events(path: Path, t_unit: str | None, width: int, height: int) -> EventStream:
+    """``edi.read_events`` (the one event-file reader) with its failures as CaptureError."""
+    try:
+        return read_events(path, t_unit=t_unit, width=width, height=height)
+    except EbadError as exc:
+        raise CaptureError(str(path), "events", str(exc).replace(f"{path}: ", "")) from None
+    except CORRUPT_RECORDING_ERRORS as exc:
+        raise CaptureError(str(path), "events", f"unreadable ({type(exc).__name__}: {exc})") from None
+
+
+DAVIS_DEFAULT_HFOV_DEG = 70.0  # used only when a recording comes with no K
+
+
+def guess_K(width: int, height: int) -> np.ndarray:  # -> [3, 3]
+    """Pinhole intrinsics from a 70-degree horizontal field of view (DAVIS346 with its usual
+    lens), for recordings that carry no calibration; callers set ``meta['K_guessed']``."""
+    fx = 0.5 * width / math.tan(math.radians(DAVIS_DEFAULT_HFOV_DEG) / 2)
+    return np.array([[fx, 0, width / 2], [0, fx, height / 2], [0, 0, 1.0]])
 
 
 def load_aedat4(path: Path, K: np.ndarray | None = None) -> Capture:
     """An AEDAT4 recording: APS frames with exposure begin/end and events, no poses. AEDAT4
     holds no calibration: pass ``K``, or a guess from a 70-degree horizontal field of view is
-    used and ``meta['K_guessed'] = True``."""
+    used and ``meta['K_guessed'] = True``. Needs the ``aedat`` package (the ``aedat`` extra):
+    without it a CaptureError says how to install it."""
     path = Path(path)
-    read = _edi_reader("read_aedat4")
     try:
-        rec = read(path)
-    except (ValueError, OSError) as exc:
+        rec = read_aedat4(path)
+    except ImportError:
+        raise CaptureError(str(path), None, f"reading .aedat4 needs the 'aedat' package: {AEDAT_INSTALL}") from None
+    except EbadError as exc:
         raise CaptureError(str(path), getattr(exc, "field", None), str(exc)) from None
+    except CORRUPT_RECORDING_ERRORS as exc:
+        raise CaptureError(str(path), None, f"unreadable AEDAT4 recording ({type(exc).__name__}: {exc})") from None
     frames = np.asarray(rec.frames, dtype=np.float32)
     if frames.ndim != 4 or len(frames) == 0:
         raise CaptureError(str(path), "frames", f"the recording has no APS frames (got shape {frames.shape})")
     f, h, w, _ = frames.shape
     meta = {"source_layout": "aedat4", "source": str(path), "t0_us": int(getattr(rec, "t0", 0))}
     if K is None:
-        fx = 0.5 * w / math.tan(math.radians(DAVIS_DEFAULT_HFOV_DEG) / 2)
-        K = np.array([[fx, 0, w / 2], [0, fx, h / 2], [0, 0, 1.0]])
+        K = guess_K(w, h)
         meta["K_guessed"] = True
     return Capture(frames=frames, exposures=np.asarray(rec.exposures, dtype=np.float64), events=rec.events,
                    K=np.asarray(K, dtype=np.float64), split=["train"] * f, names=[f"{i:05d}" for i in range(f)],
@@ -249,53 +271,37 @@ def load_aedat4(path: Path, K: np.ndarray | None = None) -> Capture:
 
 def load_evdeblurnerf(root: Path) -> Capture:
     """An EvDeblurNeRF-style folder: ``events.h5`` (or .npz/.txt), LLFF ``poses_bounds.npy``
-    ([F, 17]: 3x5 matrix [R | t | (h, w, f)] in LLFF axes (x down, y right, z backward) and two
-    depth bounds) and ``images_1/`` frames with ``images_1/timestamps.npz`` holding start and end
-    times (seconds). Poses become OpenCV c2w: columns (x, y, z)_cv = (y, x, -z)_llff."""
+    (see scenes.poses) and ``images_1/`` frames with ``images_1/timestamps.npz`` holding start
+    and end times (seconds)."""
     root = Path(root)
-    read_events = _edi_reader("read_events")
     pb_path = root / "poses_bounds.npy"
-    try:
-        pb = np.load(pb_path, allow_pickle=False)
-    except Exception as exc:
-        raise CaptureError(str(pb_path), "poses_bounds", f"unreadable ({exc})") from None
-    if pb.ndim != 2 or pb.shape[1] != 17:
-        raise CaptureError(str(pb_path), "poses_bounds", f"expected [F, 17], got {pb.shape}")
+    c2w_llff, hwf, bounds = read_poses_bounds(pb_path)
     img_dir = root / "images_1"
     files = sorted(p for p in img_dir.iterdir() if p.suffix.lower() in (".png", ".jpg", ".jpeg")) if img_dir.is_dir() else []
-    if len(files) != len(pb):
-        raise CaptureError(str(img_dir), "images", f"{len(files)} images for {len(pb)} poses")
+    if len(files) != len(c2w_llff):
+        raise CaptureError(str(img_dir), "images", f"{len(files)} images for {len(c2w_llff)} poses")
     ts_path = img_dir / "timestamps.npz"
     try:
         with np.load(ts_path, allow_pickle=False) as z:
             keys = z.files
             start = next((z[k] for k in ("start", "t_start", "timestamps_start") if k in keys), None)
             end = next((z[k] for k in ("end", "t_end", "timestamps_end") if k in keys), None)
-    except Exception as exc:
-        raise CaptureError(str(ts_path), "timestamps", f"unreadable ({exc})") from None
+    except CORRUPT_RECORDING_ERRORS as exc:
+        raise CaptureError(str(ts_path), "timestamps", f"unreadable ({type(exc).__name__}: {exc})") from None
     if start is None:
         raise CaptureError(str(ts_path), "start", "missing")
     if end is None:
         raise CaptureError(str(ts_path), "end", "missing")
     frames = np.stack([read_image(p, f"images_1/{p.name}") for p in files])
     f, h, w, _ = frames.shape
-    hwf = pb[0, :15].reshape(3, 5)[:, 4]
-    K = np.array([[hwf[2] * w / hwf[1], 0, w / 2], [0, hwf[2] * h / hwf[0], h / 2], [0, 0, 1.0]])
-    c2w = np.tile(np.eye(4), (f, 1, 1))
-    for i in range(f):
-        m = pb[i, :15].reshape(3, 5)
-        r, t = m[:, :4][:, :3], m[:, 3]
-        c2w[i, :3, :3] = np.stack([r[:, 1], r[:, 0], -r[:, 2]], 1)
-        c2w[i, :3, 3] = t
+    K = np.array([[hwf[0, 2] * w / hwf[0, 1], 0, w / 2], [0, hwf[0, 2] * h / hwf[0, 0], h / 2], [0, 0, 1.0]])
+    c2w = np.stack([nearest_rigid(c2w_llff[i], str(pb_path), f"poses_bounds[{i}]") for i in range(f)])
     ev_file = next(root / n for n in ("events.h5", "events.npz", "events.txt") if (root / n).is_file())
-    try:
-        events = read_events(ev_file, width=w, height=h)
-    except (ValueError, OSError) as exc:
-        raise CaptureError(str(ev_file), "events", str(exc)) from None
+    events = _read_events(ev_file, None, w, h)
     exps = np.stack([np.asarray(start, np.float64).reshape(-1), np.asarray(end, np.float64).reshape(-1)], 1)
     if exps.shape != (f, 2) or not np.isfinite(exps).all():
         raise CaptureError(str(ts_path), "start", f"need {f} finite start and end times, got shape {exps.shape}")
-    meta = {"source_layout": "evdeblurnerf", "source": str(root), "bounds": pb[:, 15:17].tolist()}
+    meta = {"source_layout": "evdeblurnerf", "source": str(root), "bounds": bounds.tolist()}
     if exps.max() > 1e3:  # not seconds of a short capture: microseconds on the events' raw clock
         exps = (exps - events.t0) * 1e-6
         meta["timestamps_unit"] = "us (converted to seconds on the events' clock)"

@@ -228,6 +228,15 @@ def test_pose_not_rigid_names_field(saved):
     (lambda d: d["events"].update(t_unit="fortnights"), r"events\.t_unit"),
     (lambda d: d["test_views"][0].pop("t"), r"test_views\[0\]\.t"),
     (lambda d: d.update(distortion=[1, 2]), "distortion"),
+    # wrong types (issue 13 row 9): the field and what is wrong
+    (lambda d: d["frames"][0].update(t_start="0.1"), r"frames\[0\]\.t_start.*must be a number, got '0.1'"),
+    (lambda d: d.update(width="16"), "width.*positive integer"),
+    (lambda d: d["frames"][1].update(file=3), r"frames\[1\]\.file.*string"),
+    (lambda d: d["events"].update(file=["events.npz"]), r"events\.file.*string"),
+    (lambda d: d.update(meta=[1, 2]), "meta.*object"),
+    (lambda d: d.update(test_views={"a": 1}), "test_views.*list"),
+    (lambda d: d["frames"][0].update(c2w="identity"), r"frames\[0\]\.c2w.*4x4"),
+    (lambda d: d["intrinsics"].update(fx=None), r"intrinsics\.fx.*number"),
 ])
 def test_bad_json_fields(saved, edit, field):
     root, doc = saved
@@ -292,7 +301,7 @@ def test_missing_event_array_names_file_and_field(saved):
     z = dict(np.load(root / "events.npz"))
     del z["p"]
     np.savez(root / "events.npz", **z)
-    with pytest.raises(CaptureError, match=r"events\.npz.*'p'.*missing"):
+    with pytest.raises(CaptureError, match=r"events\.npz.*no events field 'p'"):
         load(root)
 
 
@@ -309,17 +318,112 @@ def test_sixteen_bit_colour_png_round_trips(tmp_path):
     np.testing.assert_array_equal(load(tmp_path / "c", undistort=False).frames, cap.frames)
 
 
-def test_filtered_sixteen_bit_colour_png_is_refused_with_the_file_and_field(tmp_path):
-    import struct
-    import zlib
+# ---------------------------------------------------------------- near-rigid poses (issue 13 row 10)
 
-    from scenes.images import _chunk, read_image
+@pytest.mark.parametrize("decimals", [4, 5])
+def test_poses_rounded_to_a_few_decimals_load_re_orthonormalised(saved, decimals):
+    root, doc = saved
+    for fr in doc["frames"]:
+        fr["c2w"] = np.round(np.array(fr["c2w"]), decimals).tolist()
+    _rewrite(root, doc)
+    rounded = np.array([fr["c2w"] for fr in doc["frames"]])
+    r = rounded[:, :3, :3]
+    assert np.abs(np.einsum("fji,fjk->fik", r, r) - np.eye(3)).max() > 10.0 ** -(decimals + 1)  # not rigid as written
+    cap = load(root, undistort=False)
+    rr = cap.c2w[:, :3, :3]
+    np.testing.assert_allclose(np.einsum("fji,fjk->fik", rr, rr), np.broadcast_to(np.eye(3), rr.shape), atol=1e-12)
+    np.testing.assert_allclose(cap.c2w, rounded, atol=2 * 10.0**-decimals)  # the nearest rotation, not another one
+    np.testing.assert_array_equal(cap.c2w[:, :3, 3], rounded[:, :3, 3])
 
-    h, w = 2, 3
-    raw = b"".join(b"\x01" + np.arange(w * 3, dtype=">u2").tobytes() for _ in range(h))  # filter 1 (Sub)
-    png = (b"\x89PNG\r\n\x1a\n" + _chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 16, 2, 0, 0, 0))
-           + _chunk(b"IDAT", zlib.compress(raw)) + _chunk(b"IEND", b""))
-    path = tmp_path / "f.png"
-    path.write_bytes(png)
-    with pytest.raises(CaptureError, match=r"f\.png.*frames\[0\]\.file.*16-bit colour"):
-        read_image(path, field="frames[0].file")
+
+@pytest.mark.parametrize("scale", [1.01, 0.99, 1.002])
+def test_pose_with_a_scale_is_refused(saved, scale):
+    root, doc = saved
+    doc["frames"][1]["c2w"] = (np.diag([scale, scale, scale, 1.0]) @ np.array(doc["frames"][1]["c2w"])).tolist()
+    _rewrite(root, doc)
+    with pytest.raises(CaptureError, match=r"capture\.json.*frames\[1\]\.c2w.*scales by"):
+        load(root)
+
+
+def test_pose_with_a_reflection_is_refused(saved):
+    root, doc = saved
+    doc["test_views"][0]["c2w"] = (np.diag([1.0, 1.0, -1.0, 1.0]) @ np.array(doc["test_views"][0]["c2w"])).tolist()
+    _rewrite(root, doc)
+    with pytest.raises(CaptureError, match=r"capture\.json.*test_views\[0\]\.c2w.*reflection"):
+        load(root)
+
+
+def test_nearest_rigid_within_tolerance_is_the_svd_rotation():
+    from scipy.spatial.transform import Rotation
+
+    for seed in range(5):
+        rng = np.random.default_rng(seed)
+        m = np.eye(4)
+        m[:3, :3] = Rotation.random(random_state=seed).as_matrix()
+        m[:3, 3] = rng.normal(size=3)
+        noisy = m.copy()
+        noisy[:3, :3] += rng.normal(scale=fmt.ROTATION_REPAIR_TOL / 20, size=(3, 3))
+        fixed = fmt.nearest_rigid(noisy, "f", "c2w")
+        u, _, vt = np.linalg.svd(noisy[:3, :3])
+        np.testing.assert_allclose(fixed[:3, :3], u @ vt, atol=1e-14)
+        np.testing.assert_allclose(fixed[:3, :3], m[:3, :3], atol=fmt.ROTATION_REPAIR_TOL)
+        np.testing.assert_array_equal(fmt.nearest_rigid(m, "f", "c2w"), m)  # rigid input is untouched
+
+
+# ---------------------------------------------------------------- corrupt files and wrong types (issue 13 row 9)
+
+def test_truncated_events_npz_names_file(saved):
+    root, _ = saved
+    data = (root / "events.npz").read_bytes()
+    (root / "events.npz").write_bytes(data[: len(data) // 2])
+    with pytest.raises(CaptureError, match=r"events\.npz.*events\.file.*unreadable"):
+        load(root)
+
+
+def test_corrupt_events_h5_names_file(saved):
+    root, doc = saved
+    (root / "ev.h5").write_bytes(b"\x89HDF\r\n\x1a\n" + b"\x00" * 100)
+    doc["events"] = {"file": "ev.h5", "t_unit": "us"}
+    _rewrite(root, doc)
+    with pytest.raises(CaptureError, match=r"ev\.h5.*unreadable"):
+        load(root)
+
+
+def test_truncated_frame_png_names_file_and_field(saved):
+    root, doc = saved
+    p = root / doc["frames"][2]["file"]
+    data = p.read_bytes()
+    p.write_bytes(data[: len(data) // 2])
+    with pytest.raises(CaptureError, match=r"f2\.png.*frames\[2\]\.file.*unreadable"):
+        load(root)
+
+
+def test_capture_json_that_is_not_json(saved):
+    root, _ = saved
+    (root / "capture.json").write_text('{"format": "ebad-capture/1", "width": ')
+    with pytest.raises(CaptureError, match=r"capture\.json.*not valid JSON"):
+        load(root)
+
+
+# ---------------------------------------------------------------- gt.json
+
+def test_read_ground_truth_of_a_written_scene(tmp_path):
+    from scenes import make_scene, write_scene
+
+    scene = make_scene("boxes", "tiny", n_frames=3, n_test=1)
+    write_scene(scene, tmp_path / "s", trajectory_samples=5)
+    gt = fmt.read_ground_truth(tmp_path / "s" / "gt")
+    names = scene.capture.names
+    np.testing.assert_array_equal(gt.frames(names), scene.gt_frames)
+    traj = gt.trajectory_c2w(names)
+    assert traj.shape == (3, 5, 4, 4)
+    np.testing.assert_allclose(traj[1], scene.gt_trajectory(1, 5))
+    assert gt.frames(names + ["absent"]) is None and gt.trajectory_c2w(["absent"]) is None
+
+
+def test_read_ground_truth_errors_name_file_and_field(tmp_path):
+    with pytest.raises(CaptureError, match=r"gt\.json.*not found"):
+        fmt.read_ground_truth(tmp_path)
+    (tmp_path / "gt.json").write_text(json.dumps({"frames": [{"name": "a", "trajectory": {"t": [0, 1], "c2w": [[1]]}}]}))
+    with pytest.raises(CaptureError, match=r"gt\.json.*frames\[0\]\.trajectory"):
+        fmt.read_ground_truth(tmp_path)

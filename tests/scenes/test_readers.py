@@ -82,17 +82,34 @@ def test_ecd_bad_calib_names_file(tmp_path):
         load(root)
 
 
-@pytest.mark.skipif(not STREET.is_file(), reason=f"shared recording not found at {STREET}")
-def test_aedat4_loads_when_edi_reader_exists():
-    if not hasattr(edi, "read_aedat4"):
-        with pytest.raises(NotImplementedError, match="read_aedat4"):
-            load(STREET)
-        pytest.skip("edi.read_aedat4 not available yet: checked the NotImplementedError only")
+needs_street = pytest.mark.skipif(not STREET.is_file(), reason=f"shared recording not found at {STREET}")
+
+
+@needs_street
+def test_aedat4_loads():
     cap = load(STREET)
     assert cap.frames.shape[1:] == (260, 346, 1)
     assert cap.c2w is None and cap.meta["K_guessed"]
     assert np.all(cap.exposures[:, 1] >= cap.exposures[:, 0])
     assert len(cap.events) > 0
+
+
+def test_aedat4_without_the_aedat_package_says_how_to_install(tmp_path, monkeypatch):
+    import sys
+
+    (tmp_path / "rec.aedat4").write_bytes(b"#!AER-DAT4.0\r\n")
+    for mod in ("aedat", "dv_processing"):
+        monkeypatch.setitem(sys.modules, mod, None)  # import fails as if not installed
+    with pytest.raises(CaptureError, match=r"rec\.aedat4.*'aedat' package: pip install 'ebad\[aedat\]'"):
+        load(tmp_path / "rec.aedat4")
+
+
+@needs_street
+def test_truncated_aedat4_names_the_file(tmp_path):
+    data = STREET.read_bytes()
+    (tmp_path / "cut.aedat4").write_bytes(data[: len(data) // 3])
+    with pytest.raises(CaptureError, match=r"cut\.aedat4.*unreadable AEDAT4 recording"):
+        load(tmp_path / "cut.aedat4")
 
 
 def _write_evdeblurnerf(root: Path, cap, t_scale=1.0):
