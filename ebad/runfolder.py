@@ -22,6 +22,7 @@ from torch import nn
 
 from .config import load_config, save_config
 from .errors import UserError
+from .export import write_exports
 from .io import plot_trajectories, read_ply, write_png16, write_ply, write_trajectories
 from .trajectory import ExposureTrajectories
 
@@ -60,6 +61,7 @@ def write_run(run, out: str | Path, gt_trajectories: np.ndarray | None = None) -
     poses, u = run.exposure_poses()
     write_trajectories(out / "trajectories.json", run.names, run.exposures, poses, u)
     plot_trajectories(out / "trajectories.png", poses, gt_trajectories)
+    write_exports(run, out)  # cameras.json, point_cloud.splat, trajectories_tum.txt
     for name, img in zip(run.names, run.deblurred_frames()):
         write_png16(out / "deblurred" / f"{name}.png", img)
     return out
