@@ -170,7 +170,7 @@ def render_views(run, c2w: np.ndarray, K: np.ndarray | None = None, width: int |
     from tqdm import tqdm
 
     T = len(c2w)
-    Ks = None if K is None else np.broadcast_to(np.asarray(K, np.float64), (T, 3, 3))
+    Ks = None if K is None else np.array(np.broadcast_to(np.asarray(K, np.float64), (T, 3, 3)))
     out = []
     with tqdm(total=T, desc="render", unit="view", disable=not progress) as bar:
         for i in range(0, T, RENDER_BATCH):

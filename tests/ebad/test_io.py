@@ -177,3 +177,23 @@ def test_exposure_samples_are_timed_and_sorted():
     t, c = exposure_samples(ex, poses, np.array([0.0, 0.5, 1.0]))
     np.testing.assert_allclose(t, [0.0, 0.2, 0.4, 1.0, 1.25, 1.5])
     np.testing.assert_allclose(c[:, 0, 3], [0, 1, 2, 10, 11, 12])
+
+
+def test_write_run_writes_the_exports(tiny_run):
+    """cameras.json, point_cloud.splat and the TUM file beside point_cloud.ply, matching the run."""
+    from ebad.export import CAMERAS_JSON, SPLAT_FILE, TUM_FILE
+    from ebad.runfolder import load_run
+
+    run = load_run(tiny_run.run)
+    cams = read_cameras_json(tiny_run.run / CAMERAS_JSON)
+    assert cams["names"] == run.names
+    np.testing.assert_allclose(cams["c2w"], run.trajectories.mid_poses().numpy(), atol=1e-6)
+    np.testing.assert_allclose(cams["K"][0], run.K, atol=1e-6)
+    splat = read_splat(tiny_run.run / SPLAT_FILE)
+    assert len(splat["means"]) == run.num_gaussians
+    t, c2w = read_tum(tiny_run.run / TUM_FILE)
+    poses, u = run.exposure_poses()
+    et, ec = exposure_samples(run.exposures, poses, u)
+    assert np.all(np.diff(t) >= 0) and t[0] == pytest.approx(run.exposures[0, 0])
+    np.testing.assert_allclose(t, et, atol=1e-8)
+    np.testing.assert_allclose(c2w, ec, atol=1e-5)
