@@ -107,3 +107,17 @@ def test_view_draws_the_scene_in_a_real_browser(tiny_run, tmp_path):
         print(f"canvas std {region.std():.1f}, Gaussians' effect {effect:.1f} grey levels")
     finally:
         server.stop()
+
+
+def test_view_cli_serves_on_loopback_and_prints_the_ssh_line(tiny_run, monkeypatch, capsys):
+    viser = pytest.importorskip("viser", reason="the 'view' extra (viser) is not installed")
+    hosts = []
+    monkeypatch.setattr(viser.ViserServer, "sleep_forever", lambda self: hosts.append(self.get_host()))
+    port = _free_loopback_port()
+    assert main(["view", str(tiny_run.run), "--capture", str(tiny_run.capture), "--port", str(port)]) == 0
+    out = capsys.readouterr().out
+    assert hosts == ["127.0.0.1"]  # the default listens on loopback only
+    assert f"http://localhost:{port}" in out and f"ssh -L {port}:localhost:{port}" in out
+    assert "2 test views" in out
+    assert main(["view", str(tiny_run.run), "--port", "70000"]) == 2
+    assert "--port" in capsys.readouterr().err
