@@ -9,6 +9,9 @@ Layout::
     RUN/history.json           one StepStats per step
     RUN/trajectories.json      camera-to-world poses sampled over every exposure
     RUN/trajectories.png       their plot
+    RUN/trajectories_tum.txt   the same poses in TUM format (timestamp tx ty tz qx qy qz qw), for evo
+    RUN/cameras.json           training cameras at mid-exposure, 3DGS/SIBR layout
+    RUN/point_cloud.splat      the Gaussians for web splat viewers (antimatter15 layout, sRGB colours)
     RUN/deblurred/NAME.png     every training frame rendered sharp at mid-exposure (16-bit)
     RUN/metrics.json           RunMetrics; written LAST: its "complete" says whether the run finished
     RUN/.lock                  while a process writes the run: its pid and host
@@ -31,6 +34,7 @@ from torch import nn
 
 from .config import load_config, save_config
 from .errors import UserError
+from .export import write_exports
 from .io import plot_trajectories, read_ply, write_png16, write_ply, write_trajectories
 from .trajectory import ExposureTrajectories
 
@@ -172,6 +176,7 @@ def write_run(run, out: str | Path, gt_trajectories: np.ndarray | None = None) -
     poses, u = run.exposure_poses()
     _atomic(out / "trajectories.json", lambda p: write_trajectories(p, run.names, run.exposures, poses, u))
     _atomic(out / "trajectories.png", lambda p: plot_trajectories(p, poses, gt_trajectories))
+    write_exports(run, out)  # cameras.json, point_cloud.splat, trajectories_tum.txt
     for name, img in zip(run.names, run.deblurred_frames()):
         _atomic(out / "deblurred" / f"{name}.png", lambda p: write_png16(p, img))
     metrics = json_safe(run.metrics.to_dict() if run.metrics is not None else {"complete": False})
@@ -181,7 +186,7 @@ def write_run(run, out: str | Path, gt_trajectories: np.ndarray | None = None) -
 
 def load_run(path: str | Path):
     """A ``Run`` from a finished run folder (for rendering and evaluation)."""
-    from .trainer import Run
+    from .trainer import Run, RunMetrics
 
     path = Path(path)
     if not path.is_dir():
@@ -203,7 +208,10 @@ def load_run(path: str | Path):
                                 scale=model["scale"], anchored=model["anchored"])
     with torch.no_grad():
         traj.knots.data = torch.tensor(model["knots"]).reshape(traj.knots.shape)
-    metrics = json.loads(metrics_path.read_text())
+    try:
+        metrics = RunMetrics.from_dict(json.loads(metrics_path.read_text()))
+    except (TypeError, KeyError, ValueError) as exc:
+        raise UserError(f"{metrics_path}: not the metrics of a run of this version ({exc})") from exc
     return Run(params=params, trajectories=traj, config=cfg, K=np.array(model["K"]), width=model["width"],
                height=model["height"], names=model["names"], exposures=np.array(model["exposures"]),
-               V=np.array(model["views"]), metrics=None, step=int(metrics.get("steps", 0)))
+               V=np.array(model["views"]), metrics=metrics, step=metrics.steps)

@@ -339,6 +339,15 @@ class RunMetrics:
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
 
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "RunMetrics":
+        """Inverse of ``to_dict`` (``metrics.json`` read back)."""
+        d = dict(d)
+        for key in ("test", "test_initial"):
+            d[key] = None if d.get(key) is None else ViewScores(**d[key])
+        d["prepare"] = PrepareReport(**d["prepare"])
+        return cls(**d)
+
 
 @dataclass
 class Run:

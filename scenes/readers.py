@@ -35,7 +35,7 @@ __all__ = ["load", "load_ecd", "load_aedat4", "load_evdeblurnerf", "detect_layou
 
 ECD_CLAMP_S = 0.05  # frames up to this far outside the ground-truth time range take the end pose
 LAYOUTS = (FORMAT, "aedat4", "ecd", "evdeblurnerf", "ebad-nerf", "e2nerf", "rosbag1")
-AEDAT_INSTALL = "pip install 'ebad[aedat]' (or: pip install aedat)"
+AEDAT_INSTALL = "pip install aedat (part of ebad's install)"
 
 
 def detect_layout(path: Path) -> str:

@@ -1,4 +1,8 @@
-"""``ebad render``: 16-bit PNG renders of a run's test views or of a smooth camera path."""
+"""``ebad render``: PNG renders of a run's test views, training frames or a smooth camera path.
+
+PNGs are 8-bit sRGB-encoded by default (what image viewers and browsers expect: the linear
+renders go through the sRGB transfer curve), or 16-bit linear intensity ``round(v * 65535)``
+with ``--bits 16`` (for measurements; written by ``scenes.images.write_png16``)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -6,7 +10,8 @@ from pathlib import Path
 import numpy as np
 
 NAME = "render"
-HELP = "render a run's test views (16-bit PNG per view name) or a smooth camera path"
+HELP = "render a run's test views, training frames or a smooth camera path as PNGs (8-bit sRGB or 16-bit linear)"
+DESCRIPTION = __doc__
 
 
 def add_arguments(parser) -> None:
@@ -17,6 +22,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--path", type=int, default=0, metavar="N",
                         help="instead, N frames along a smooth path through the training cameras")
     parser.add_argument("--out", required=True, help="folder for the PNGs")
+    parser.add_argument("--bits", type=int, choices=(8, 16), default=8,
+                        help="8 (default): sRGB-encoded 8-bit PNG, shows correctly in any viewer; "
+                             "16: linear intensity round(v * 65535), for measurements")
 
 
 def smooth_path(c2w: np.ndarray, n: int) -> np.ndarray:  # [F, 4, 4] -> [n, 4, 4]
@@ -47,35 +55,37 @@ def smooth_path(c2w: np.ndarray, n: int) -> np.ndarray:  # [F, 4, 4] -> [n, 4, 4
 
 
 def run(args) -> int:
-    from ..io import write_png16
+    from ..errors import UserError
+    from ..export import write_render
     from ..runfolder import load_run
 
     run_ = load_run(args.run)
     out = Path(args.out)
+    kind = "8-bit sRGB" if args.bits == 8 else "16-bit linear"
     if args.path:
         if args.path < 2:
-            raise ValueError(f"--path needs at least 2 frames, got {args.path}")
+            raise UserError(f"--path needs at least 2 frames, got {args.path}")
         poses = smooth_path(run_.trajectories.mid_poses().numpy().astype(np.float64), args.path)
         imgs = run_.render(poses)
         for i, img in enumerate(imgs):
-            write_png16(out / f"path_{i:04d}.png", img)
-        print(f"ebad render: {len(imgs)} path frames -> {out}")
+            write_render(out / f"path_{i:04d}.png", img, args.bits)
+        print(f"ebad render: {len(imgs)} path frames ({kind} PNG) -> {out}")
         return 0
     if args.split == "train":
         imgs = run_.deblurred_frames()
         for name, img in zip(run_.names, imgs):
-            write_png16(out / f"{name}.png", img)
-        print(f"ebad render: {len(imgs)} training frames (mid-exposure) -> {out}")
+            write_render(out / f"{name}.png", img, args.bits)
+        print(f"ebad render: {len(imgs)} training frames (mid-exposure, {kind} PNG) -> {out}")
         return 0
     if args.capture is None:
-        raise ValueError("--capture is required for --split test (the test views live in the capture)")
+        raise UserError("--capture is required for --split test (the test views live in the capture)")
     import scenes
 
     cap = scenes.load(args.capture)
     if not cap.test_views:
-        raise ValueError(f"capture {args.capture} has no test_views to render")
+        raise UserError(f"capture {args.capture} has no test_views to render")
     imgs = run_.render(np.stack([v.c2w for v in cap.test_views]))
     for v, img in zip(cap.test_views, imgs):
-        write_png16(out / f"{v.name}.png", img)
-    print(f"ebad render: {len(imgs)} test views -> {out}")
+        write_render(out / f"{v.name}.png", img, args.bits)
+    print(f"ebad render: {len(imgs)} test views ({kind} PNG) -> {out}")
     return 0

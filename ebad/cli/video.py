@@ -1,0 +1,272 @@
+"""``ebad video``: a video of a run, along a camera path or through one blurry exposure.
+
+Two modes:
+
+* **Fly-through** (default): ``--frames N`` views along a smooth path through the training
+  cameras (Catmull-Rom through the mid-exposure centres, rotations slerped), or the cameras
+  of a nerfstudio-style ``--camera-path camera_path.json`` (``camera_to_world`` 4x4 row-major
+  in nerfstudio's OpenGL axes, vertical ``fov`` in degrees, ``render_width`` /
+  ``render_height``; poses in the run's world frame).
+* **The sharp video of a blurry exposure**: ``--exposure NAME --instants N``: the frame's
+  recovered trajectory rendered at the centres of N equal sub-intervals of its exposure.
+  With ``--capture CAPTURE`` each video frame is three panels side by side:
+  the blurry frame | EDI's latent at the same instant | the render at that instant.
+  EDI uses the contrast threshold the run used (``metrics.json``), else one estimated from
+  the capture's frames.
+
+Output by the suffix of ``--out``: ``.mp4`` (H.264, yuv420p, needs ``imageio-ffmpeg``, whose
+wheel ships an ffmpeg binary; odd sizes are padded by one edge pixel), ``.gif`` (Pillow), or
+a folder (no suffix): one PNG per frame. Frames are 8-bit sRGB-encoded from the linear
+renders, like ``ebad render``'s default.
+"""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import UserError
+
+NAME = "video"
+HELP = "a video (mp4, GIF or PNGs) along a camera path, or the sharp video of one blurry exposure"
+DESCRIPTION = __doc__
+
+DEFAULT_FRAMES = 60
+DEFAULT_FPS_PATH = 30.0
+DEFAULT_FPS_EXPOSURE = 10.0
+DEFAULT_INSTANTS = 20
+PANEL_GAP = 2  # white pixels between side-by-side panels
+RENDER_BATCH = 8  # views per rasteriser call (one progress-bar step)
+_MP4_QUALITY = 8  # imageio-ffmpeg quality 0..10
+_INSTALL_VIDEO = "pip install imageio-ffmpeg (or the 'video' extra)"
+# nerfstudio cameras: x right, y up, z back (OpenGL); ours: x right, y down, z forward (OpenCV)
+_GL_TO_CV = np.diag([1.0, -1.0, -1.0, 1.0])
+
+
+def add_arguments(p) -> None:
+    p.add_argument("run", help="run folder written by 'ebad reconstruct'")
+    p.add_argument("--out", required=True,
+                   help="FILE.mp4 (needs imageio-ffmpeg), FILE.gif, or a folder for a PNG sequence")
+    p.add_argument("--frames", type=int, default=DEFAULT_FRAMES, help="frames along the smooth training-camera path")
+    p.add_argument("--camera-path", default=None, metavar="JSON",
+                   help="nerfstudio-style camera_path.json to follow instead of the smooth path")
+    p.add_argument("--exposure", default=None, metavar="NAME",
+                   help="instead: the sharp video of this training frame's exposure")
+    p.add_argument("--instants", type=int, default=DEFAULT_INSTANTS,
+                   help="with --exposure: instants rendered inside the exposure")
+    p.add_argument("--capture", default=None,
+                   help="with --exposure: the capture, to show the blurry frame and EDI's latents beside the renders")
+    p.add_argument("--fps", type=float, default=None,
+                   help=f"frames per second (default {DEFAULT_FPS_PATH:g}; {DEFAULT_FPS_EXPOSURE:g} with --exposure)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+# --------------------------------------------------------------------------- writing
+
+def write_video(path: str | Path, frames: np.ndarray, fps: float) -> Path:  # [T, H, W, D] uint8, D in {1, 3}
+    """Write 8-bit frames as ``.mp4`` (imageio-ffmpeg), ``.gif`` (Pillow), or PNGs in a folder
+    (a path without suffix). Returns the path written."""
+    frames = np.asarray(frames)
+    if frames.ndim != 4 or frames.shape[3] not in (1, 3) or frames.dtype != np.uint8 or len(frames) == 0:
+        raise ValueError(f"frames must be uint8 [T, H, W, 1|3] with T >= 1, got {frames.dtype} {frames.shape}")
+    if not (math.isfinite(fps) and fps > 0):
+        raise UserError(f"--fps must be a positive number, got {fps}")
+    path = Path(path)
+    suffix = path.suffix.lower()
+    from PIL import Image
+
+    def pil(a):
+        return Image.fromarray(a[..., 0] if a.shape[2] == 1 else a)
+
+    if suffix == "":
+        path.mkdir(parents=True, exist_ok=True)
+        for i, fr in enumerate(frames):
+            pil(fr).save(path / f"frame_{i:04d}.png", format="PNG")
+        return path
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if suffix == ".gif":
+        ims = [pil(fr) for fr in frames]
+        ims[0].save(path, format="GIF", save_all=True, append_images=ims[1:], duration=round(1000 / fps), loop=0)
+        return path
+    if suffix == ".mp4":
+        try:
+            import imageio_ffmpeg
+        except ImportError:
+            raise UserError(f"--out {path}: writing .mp4 needs imageio-ffmpeg: {_INSTALL_VIDEO}; "
+                            "or write a .gif or a PNG folder instead") from None
+        if frames.shape[3] == 1:
+            frames = np.repeat(frames, 3, axis=3)
+        H, W = frames.shape[1:3]
+        pad = ((0, 0), (0, H % 2), (0, W % 2), (0, 0))  # yuv420p needs even sizes
+        frames = np.pad(frames, pad, mode="edge")
+        writer = imageio_ffmpeg.write_frames(str(path), (frames.shape[2], frames.shape[1]), fps=fps,
+                                             codec="libx264", pix_fmt_in="rgb24", pix_fmt_out="yuv420p",
+                                             quality=_MP4_QUALITY, macro_block_size=1, ffmpeg_log_level="error")
+        writer.send(None)
+        for fr in frames:
+            writer.send(np.ascontiguousarray(fr))
+        writer.close()
+        return path
+    raise UserError(f"--out {path}: use a .mp4 or .gif file, or a folder (no suffix) for PNGs")
+
+
+# --------------------------------------------------------------------------- camera paths
+
+def read_camera_path(path: str | Path) -> tuple[np.ndarray, np.ndarray, int, int]:  # -> [T, 4, 4], [T, 3, 3], W, H
+    """Cameras of a nerfstudio-style ``camera_path.json`` as OpenCV camera-to-world poses,
+    intrinsics from each camera's vertical ``fov`` (principal point at the image centre)."""
+    path = Path(path)
+    try:
+        doc = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise UserError(f"{path}: not valid JSON ({exc})") from None
+    for key in ("render_width", "render_height", "camera_path"):
+        if key not in doc:
+            raise UserError(f"{path}: missing field '{key}'")
+    W, H = int(doc["render_width"]), int(doc["render_height"])
+    if W <= 0 or H <= 0:
+        raise UserError(f"{path}: render_width and render_height must be positive, got {W} x {H}")
+    cams = doc["camera_path"]
+    if not isinstance(cams, list) or not cams:
+        raise UserError(f"{path}: 'camera_path' must be a non-empty list")
+    c2w, K = [], []
+    for i, cam in enumerate(cams):
+        try:
+            T = np.asarray(cam["camera_to_world"], dtype=np.float64).reshape(4, 4)
+            fov = float(cam["fov"])
+        except KeyError as exc:
+            raise UserError(f"{path}: camera_path[{i}] lacks field {exc}") from None
+        except ValueError:
+            raise UserError(f"{path}: camera_path[{i}].camera_to_world must be 16 numbers") from None
+        if not (np.isfinite(T).all() and 0 < fov < 180):
+            raise UserError(f"{path}: camera_path[{i}]: non-finite camera_to_world or fov {fov} outside (0, 180)")
+        f = 0.5 * H / math.tan(math.radians(fov) / 2)
+        c2w.append(T @ _GL_TO_CV)
+        K.append([[f, 0.0, W / 2], [0.0, f, H / 2], [0.0, 0.0, 1.0]])
+    return np.stack(c2w), np.asarray(K), W, H
+
+
+def write_camera_path(path: str | Path, c2w: np.ndarray, K: np.ndarray,  # [T, 4, 4] OpenCV, [3, 3]
+                      width: int, height: int, fps: float = DEFAULT_FPS_PATH) -> Path:
+    """A nerfstudio-style ``camera_path.json`` of OpenCV poses (a starting point to edit)."""
+    c2w = np.asarray(c2w, dtype=np.float64)
+    fov = math.degrees(2 * math.atan(0.5 * height / float(K[1, 1])))
+    cams = [{"camera_to_world": (T @ _GL_TO_CV).reshape(-1).tolist(), "fov": fov, "aspect": width / height}
+            for T in c2w]
+    doc = {"camera_type": "perspective", "render_width": int(width), "render_height": int(height),
+           "fps": fps, "seconds": len(cams) / fps, "camera_path": cams}
+    path = Path(path)
+    path.write_text(json.dumps(doc, indent=1) + "\n")
+    return path
+
+
+# --------------------------------------------------------------------------- frames
+
+def render_views(run, c2w: np.ndarray, K: np.ndarray | None = None, width: int | None = None,
+                 height: int | None = None, progress: bool = True) -> np.ndarray:  # [T, 4, 4] -> [T, H, W, D]
+    """Linear renders of ``c2w`` (K [3, 3] or [T, 3, 3]; default the run's), with a progress bar."""
+    from tqdm import tqdm
+
+    T = len(c2w)
+    Ks = None if K is None else np.array(np.broadcast_to(np.asarray(K, np.float64), (T, 3, 3)))
+    out = []
+    with tqdm(total=T, desc="render", unit="view", disable=not progress) as bar:
+        for i in range(0, T, RENDER_BATCH):
+            sl = slice(i, i + RENDER_BATCH)
+            if Ks is None or np.allclose(Ks[sl], Ks[i]):
+                out.append(run.render(c2w[sl], None if Ks is None else Ks[i], width, height))
+            else:  # per-view intrinsics (a camera path whose fov changes)
+                out.append(np.stack([run.render(c, k, width, height) for c, k in zip(c2w[sl], Ks[sl])]))
+            bar.update(len(out[-1]))
+    return np.concatenate(out)
+
+
+def side_by_side(panels: list[np.ndarray]) -> np.ndarray:  # each [T, H, W, D] -> [T, H, sum W + gaps, D]
+    """Panels next to each other, ``PANEL_GAP`` white columns between them."""
+    T, H, _, D = panels[0].shape
+    gap = np.ones((T, H, PANEL_GAP, D), dtype=panels[0].dtype)
+    parts = []
+    for i, p in enumerate(panels):
+        parts += ([gap] if i else []) + [p]
+    return np.concatenate(parts, axis=2)
+
+
+def exposure_instants(exposure: tuple[float, float], n: int) -> tuple[np.ndarray, np.ndarray]:  # -> [n], [n]
+    """Normalised instants u (centres of n equal sub-intervals) and their times in seconds."""
+    t0, t1 = float(exposure[0]), float(exposure[1])
+    u = (np.arange(n) + 0.5) / n
+    return u, t0 + u * (t1 - t0)
+
+
+def exposure_frames(run, name: str, instants: int, capture=None,
+                    progress: bool = True) -> tuple[np.ndarray, str]:  # -> [N, H, W', D] linear, description
+    """The renders of frame ``name`` along its recovered exposure trajectory at ``instants``
+    instants; with a capture, [blurry | EDI latent | render] side by side."""
+    import torch
+
+    if name not in run.names:
+        shown = ", ".join(run.names[:8]) + (" ..." if len(run.names) > 8 else "")
+        raise UserError(f"--exposure {name!r} is not a training frame of the run (frames: {shown})")
+    if instants < 1:
+        raise UserError(f"--instants must be >= 1, got {instants}")
+    f = run.names.index(name)
+    exposure = run.exposures[f]
+    u, times = exposure_instants(exposure, instants)
+    with torch.no_grad():
+        poses = run.trajectories(torch.tensor([f]), torch.from_numpy(u).float())[0].numpy()
+    renders = render_views(run, poses, progress=progress)
+    if capture is None:
+        return renders, "renders along the recovered trajectory"
+    import edi
+
+    cap_names = list(capture.names)
+    if name not in cap_names:
+        raise UserError(f"--capture: frame {name!r} of the run is not in the capture")
+    j = cap_names.index(name)
+    blurry = np.asarray(capture.frames[j], np.float64)
+    if blurry.shape != renders.shape[1:]:
+        raise UserError(f"--capture: frame {name!r} is {blurry.shape}, the run renders {renders.shape[1:]}")
+    c = run.metrics.prepare.c if run.metrics is not None else None
+    if c is None:
+        c = float(edi.estimate_c(np.asarray(capture.frames), np.asarray(capture.exposures), capture.events))
+    lat = np.asarray(edi.deblur(blurry, (float(exposure[0]), float(exposure[1])), capture.events,
+                                times=times.tolist(), c=c), np.float64).reshape(renders.shape)
+    panels = side_by_side([np.broadcast_to(blurry, renders.shape), np.clip(lat, 0, 1), renders])
+    return panels, f"blurry | EDI latent (c = {c:.3f}) | render, at the same instants"
+
+
+def run(args) -> int:
+    from ..export import to_display8
+    from ..runfolder import load_run
+
+    run_ = load_run(args.run)
+    progress = not args.no_progress
+    if args.exposure is not None:
+        capture = None
+        if args.capture is not None:
+            import scenes
+
+            capture = scenes.load(args.capture)
+        imgs, what = exposure_frames(run_, args.exposure, args.instants, capture, progress)
+        fps = DEFAULT_FPS_EXPOSURE if args.fps is None else args.fps
+    else:
+        if args.capture is not None:
+            raise UserError("--capture is only used with --exposure")
+        if args.camera_path is not None:
+            c2w, K, W, H = read_camera_path(args.camera_path)
+            imgs = render_views(run_, c2w, K, W, H, progress=progress)
+            what = f"{len(c2w)} cameras of {args.camera_path}"
+        else:
+            if args.frames < 2:
+                raise UserError(f"--frames must be >= 2, got {args.frames}")
+            from .render import smooth_path
+
+            c2w = smooth_path(run_.trajectories.mid_poses().numpy().astype(np.float64), args.frames)
+            imgs = render_views(run_, c2w, progress=progress)
+            what = f"smooth path through the {len(run_.names)} training cameras"
+        fps = DEFAULT_FPS_PATH if args.fps is None else args.fps
+    out = write_video(args.out, to_display8(imgs), fps)
+    print(f"ebad video: {len(imgs)} frames {imgs.shape[2]}x{imgs.shape[1]} at {fps:g} fps ({what}) -> {out}")
+    return 0

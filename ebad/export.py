@@ -1,0 +1,287 @@
+"""Files other tools open: display PNGs, 3DGS ``cameras.json``, the web ``.splat``, TUM trajectories.
+
+- **Display images** (``ebad render``, ``ebad video``): renders are linear intensity; image
+  viewers, browsers and video players expect sRGB-encoded 8-bit values. ``to_display8``
+  applies the sRGB transfer curve (IEC 61966-2-1) and rounds; ``write_render`` writes
+  8-bit sRGB by default and 16-bit *linear* (``round(v * 65535)``, the project's codec
+  ``scenes.images.write_png16``) with ``bits=16``.
+- **cameras.json**: the layout the 3DGS trainer writes and SIBR-style viewers read: a list of
+  ``{"id", "img_name", "width", "height", "position", "rotation", "fx", "fy"}``, position
+  and rotation of the camera-to-world pose (OpenCV axes, rotation as three rows). We add
+  ``cx``, ``cy`` (ignored by other readers).
+- **.splat**: the antimatter15 web-viewer layout, 32 bytes per Gaussian, little endian:
+  position f32x3, scale f32x3 (activated, ``exp``), colour RGBA u8x4 (sRGB-encoded
+  ``0.5 + SH_C0 * f_dc``; alpha = ``sigmoid(opacity)``), rotation u8x4 (w, x, y, z of the unit
+  quaternion, ``round(q * 128 + 128)`` clipped to 0..255); sorted by
+  ``exp(sum log scale) * sigmoid(opacity)`` descending. A grey model writes its value into
+  R, G and B (the file is for display). Web viewers show the colour bytes as they are, so
+  they are sRGB-encoded like every other display output.
+- **TUM trajectories** (what ``evo`` reads): one line per pose,
+  ``timestamp tx ty tz qx qy qz qw``, camera-to-world, seconds on the capture's clock,
+  Hamilton quaternion with the real part LAST (TUM's order, unlike the project's w-first).
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .errors import UserError
+from .gaussians import activate
+from .io import write_png16
+from .lie import quat_to_rotmat
+
+__all__ = ["srgb_encode", "srgb_decode", "to_display8", "write_render", "rotmat_to_quat",
+           "write_cameras_json", "read_cameras_json", "write_splat", "read_splat", "write_tum", "read_tum",
+           "exposure_samples", "write_exports", "CAMERAS_JSON", "SPLAT_FILE", "TUM_FILE", "SPLAT_BYTES"]
+
+CAMERAS_JSON = "cameras.json"
+SPLAT_FILE = "point_cloud.splat"
+TUM_FILE = "trajectories_tum.txt"
+
+# sRGB transfer curve (IEC 61966-2-1)
+_SRGB_LINEAR_LIMIT = 0.0031308
+_SRGB_ENCODED_LIMIT = 0.04045
+_SRGB_SLOPE = 12.92
+_SRGB_GAMMA = 2.4
+_SRGB_A = 0.055
+
+SPLAT_BYTES = 32  # per Gaussian: 3 f32 position, 3 f32 scale, 4 u8 RGBA, 4 u8 quaternion
+_SPLAT_DTYPE = np.dtype([("position", "<f4", 3), ("scale", "<f4", 3), ("rgba", "u1", 4), ("rot", "u1", 4)])
+_QUAT_BYTE_SCALE = 128.0  # byte = round(q * 128 + 128)
+_TUM_SAMPLES = 9  # poses per exposure in the TUM file (the same sampling as trajectories.json)
+
+
+# --------------------------------------------------------------------------- display images
+
+def srgb_encode(x: np.ndarray) -> np.ndarray:
+    """Linear intensity [0, 1] -> sRGB-encoded [0, 1] (clipped first)."""
+    x = np.clip(np.asarray(x, dtype=np.float64), 0.0, 1.0)
+    return np.where(x <= _SRGB_LINEAR_LIMIT, _SRGB_SLOPE * x,
+                    (1 + _SRGB_A) * np.power(x, 1 / _SRGB_GAMMA) - _SRGB_A)
+
+
+def srgb_decode(y: np.ndarray) -> np.ndarray:
+    """sRGB-encoded [0, 1] -> linear intensity [0, 1] (inverse of ``srgb_encode``)."""
+    y = np.clip(np.asarray(y, dtype=np.float64), 0.0, 1.0)
+    return np.where(y <= _SRGB_ENCODED_LIMIT, y / _SRGB_SLOPE, np.power((y + _SRGB_A) / (1 + _SRGB_A), _SRGB_GAMMA))
+
+
+def to_display8(img: np.ndarray) -> np.ndarray:  # [..., H, W, D] linear -> uint8 sRGB
+    """8-bit sRGB values of linear intensities: ``round(255 * srgb_encode(v))``."""
+    a = np.asarray(img)
+    if not np.isfinite(a).all():
+        raise ValueError("image has non-finite values")
+    return np.round(srgb_encode(a) * 255.0).astype(np.uint8)
+
+
+def write_render(path: str | Path, img: np.ndarray, bits: int = 8) -> Path:  # [H, W, D], D in {1, 3}
+    """Write a linear render as a PNG: ``bits=8`` sRGB-encoded (what viewers expect),
+    ``bits=16`` linear ``round(v * 65535)`` (for measurements)."""
+    a = np.asarray(img)
+    if a.ndim != 3 or a.shape[2] not in (1, 3):
+        raise ValueError(f"image must be [H, W, 1|3], got {a.shape}")
+    if bits == 16:
+        return write_png16(path, a)
+    if bits != 8:
+        raise ValueError(f"bits must be 8 or 16, got {bits}")
+    from PIL import Image
+
+    q = to_display8(a)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    Image.fromarray(q[..., 0] if q.shape[2] == 1 else q).save(path, format="PNG")
+    return path
+
+
+# --------------------------------------------------------------------------- rotations
+
+def rotmat_to_quat(R: np.ndarray) -> np.ndarray:  # [..., 3, 3] -> [..., 4] (w, x, y, z), w >= 0
+    """Unit quaternions (real part first, non-negative) of rotation matrices (Shepperd's method:
+    the largest of w, x, y, z is computed from the trace, the others from off-diagonals)."""
+    R = np.asarray(R, dtype=np.float64)
+    m00, m11, m22 = R[..., 0, 0], R[..., 1, 1], R[..., 2, 2]
+    cands = np.stack([1 + m00 + m11 + m22, 1 + m00 - m11 - m22, 1 - m00 + m11 - m22, 1 - m00 - m11 + m22], -1)
+    k = np.argmax(cands, -1)
+    s = 2.0 * np.sqrt(np.take_along_axis(cands, k[..., None], -1)[..., 0])  # 4 * |largest component|
+    d21, d02, d10 = R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]
+    s01, s02, s12 = R[..., 0, 1] + R[..., 1, 0], R[..., 0, 2] + R[..., 2, 0], R[..., 1, 2] + R[..., 2, 1]
+    q = np.stack([
+        np.stack([s / 4, d21 / s, d02 / s, d10 / s], -1),
+        np.stack([d21 / s, s / 4, s01 / s, s02 / s], -1),
+        np.stack([d02 / s, s01 / s, s / 4, s12 / s], -1),
+        np.stack([d10 / s, s02 / s, s12 / s, s / 4], -1),
+    ], -2)
+    q = np.take_along_axis(q, k[..., None, None], -2)[..., 0, :]
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    return np.where(q[..., :1] < 0, -q, q)
+
+
+def _quat_to_rotmat_np(q: np.ndarray) -> np.ndarray:  # [N, 4] (w, x, y, z) -> [N, 3, 3]
+    return quat_to_rotmat(torch.from_numpy(np.asarray(q, dtype=np.float64))).numpy()
+
+
+def _check_poses(c2w: np.ndarray, name: str) -> np.ndarray:  # [C, 4, 4]
+    c2w = np.asarray(c2w, dtype=np.float64)
+    if c2w.ndim != 3 or c2w.shape[1:] != (4, 4):
+        raise ValueError(f"{name} must be [C, 4, 4], got {c2w.shape}")
+    if not np.isfinite(c2w).all():
+        raise ValueError(f"{name} has non-finite values")
+    return c2w
+
+
+# --------------------------------------------------------------------------- cameras.json
+
+def write_cameras_json(path: str | Path, names: list[str], c2w: np.ndarray,  # [C, 4, 4]
+                       K: np.ndarray, width: int, height: int) -> Path:  # K [3, 3] or [C, 3, 3]
+    """The 3DGS ``cameras.json`` (see module docstring) for cameras ``c2w`` (OpenCV axes)."""
+    c2w = _check_poses(c2w, "c2w")
+    C = c2w.shape[0]
+    K = np.broadcast_to(np.asarray(K, dtype=np.float64), (C, 3, 3))
+    if len(names) != C:
+        raise ValueError(f"names has {len(names)} entries for {C} cameras")
+    cams = [{"id": i, "img_name": str(names[i]), "width": int(width), "height": int(height),
+             "position": c2w[i, :3, 3].tolist(), "rotation": c2w[i, :3, :3].tolist(),
+             "fx": float(K[i, 0, 0]), "fy": float(K[i, 1, 1]), "cx": float(K[i, 0, 2]), "cy": float(K[i, 1, 2])}
+            for i in range(C)]
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(cams, indent=1) + "\n")
+    return path
+
+
+def read_cameras_json(path: str | Path) -> dict:
+    """Read a 3DGS ``cameras.json``: ``{"names": [C], "c2w": [C, 4, 4], "K": [C, 3, 3],
+    "width": [C], "height": [C]}`` (principal point at the image centre when absent)."""
+    path = Path(path)
+    try:
+        cams = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise UserError(f"{path}: not valid JSON ({exc})") from None
+    if not isinstance(cams, list) or not cams:
+        raise UserError(f"{path}: expected a non-empty list of cameras")
+    names, c2w, K, W, H = [], [], [], [], []
+    for i, cam in enumerate(cams):
+        missing = [k for k in ("img_name", "width", "height", "position", "rotation", "fx", "fy") if k not in cam]
+        if missing:
+            raise UserError(f"{path}: camera {i} lacks field(s) {missing}")
+        R, t = np.asarray(cam["rotation"], np.float64), np.asarray(cam["position"], np.float64)
+        if R.shape != (3, 3) or t.shape != (3,):
+            raise UserError(f"{path}: camera {i}: rotation must be 3x3 and position 3 values")
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = R, t
+        w, h = int(cam["width"]), int(cam["height"])
+        names.append(str(cam["img_name"]))
+        c2w.append(T)
+        K.append([[float(cam["fx"]), 0.0, float(cam.get("cx", w / 2))],
+                  [0.0, float(cam["fy"]), float(cam.get("cy", h / 2))], [0.0, 0.0, 1.0]])
+        W.append(w)
+        H.append(h)
+    return {"names": names, "c2w": np.stack(c2w), "K": np.asarray(K), "width": np.asarray(W), "height": np.asarray(H)}
+
+
+# --------------------------------------------------------------------------- .splat
+
+def write_splat(path: str | Path, params: dict[str, torch.Tensor]) -> Path:
+    """The antimatter15 ``.splat`` file of a model's parameters (see module docstring)."""
+    act = {k: v.detach().double().cpu().numpy() for k, v in activate(params).items()}
+    N = act["means"].shape[0]
+    colors = act["colors"]
+    if colors.shape[1] == 1:
+        colors = np.repeat(colors, 3, axis=1)
+    elif colors.shape[1] != 3:
+        raise ValueError(f"write_splat supports D = 1 or 3 colour channels, got {colors.shape[1]}")
+    order = np.argsort(-(act["scales"].prod(1) * act["opacities"]), kind="stable")
+    q = act["quats"] / np.maximum(np.linalg.norm(act["quats"], axis=1, keepdims=True), 1e-12)
+    rec = np.zeros(N, _SPLAT_DTYPE)
+    rec["position"] = act["means"]
+    rec["scale"] = act["scales"]
+    rec["rgba"][:, :3] = np.round(srgb_encode(colors) * 255)
+    rec["rgba"][:, 3] = np.round(np.clip(act["opacities"], 0, 1) * 255)
+    rec["rot"] = np.clip(np.round(q * _QUAT_BYTE_SCALE + _QUAT_BYTE_SCALE), 0, 255)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(rec[order].tobytes())
+    return path
+
+
+def read_splat(path: str | Path) -> dict[str, np.ndarray]:
+    """Read a ``.splat`` file: activated values ``means`` [N, 3], ``scales`` [N, 3] (std),
+    ``colors`` [N, 3] linear, ``opacities`` [N] in [0, 1], ``quats`` [N, 4] unit (w, x, y, z)."""
+    path = Path(path)
+    blob = path.read_bytes()
+    if len(blob) % SPLAT_BYTES:
+        raise UserError(f"{path}: size {len(blob)} is not a multiple of {SPLAT_BYTES} bytes (not a .splat file)")
+    rec = np.frombuffer(blob, _SPLAT_DTYPE)
+    q = (rec["rot"].astype(np.float64) - _QUAT_BYTE_SCALE) / _QUAT_BYTE_SCALE
+    return {"means": rec["position"].astype(np.float64), "scales": rec["scale"].astype(np.float64),
+            "colors": srgb_decode(rec["rgba"][:, :3] / 255.0), "opacities": rec["rgba"][:, 3] / 255.0,
+            "quats": q / np.maximum(np.linalg.norm(q, axis=1, keepdims=True), 1e-12)}
+
+
+# --------------------------------------------------------------------------- TUM trajectories
+
+def write_tum(path: str | Path, times: np.ndarray, c2w: np.ndarray) -> Path:  # [M], [M, 4, 4]
+    """TUM trajectory file (see module docstring), poses in the order given."""
+    c2w = _check_poses(c2w, "c2w")
+    times = np.asarray(times, dtype=np.float64)
+    if times.shape != (c2w.shape[0],) or not np.isfinite(times).all():
+        raise ValueError(f"times must be [{c2w.shape[0]}] finite seconds, got {times.shape}")
+    q = rotmat_to_quat(c2w[:, :3, :3])  # (w, x, y, z)
+    t = c2w[:, :3, 3]
+    lines = ["# timestamp tx ty tz qx qy qz qw  (camera-to-world, OpenCV camera axes, seconds)"]
+    lines += [" ".join(f"{v:.9f}" for v in (times[i], *t[i], q[i, 1], q[i, 2], q[i, 3], q[i, 0]))
+              for i in range(len(times))]
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def read_tum(path: str | Path) -> tuple[np.ndarray, np.ndarray]:  # -> [M], [M, 4, 4]
+    """Read a TUM trajectory file (``#`` comments and blank lines skipped)."""
+    path = Path(path)
+    rows = []
+    for n, line in enumerate(path.read_text().splitlines(), 1):
+        s = line.strip()
+        if not s or s.startswith("#"):
+            continue
+        try:
+            vals = [float(v) for v in s.replace(",", " ").split()]
+        except ValueError:
+            raise UserError(f"{path}:{n}: expected 8 numbers 'timestamp tx ty tz qx qy qz qw'") from None
+        if len(vals) != 8:
+            raise UserError(f"{path}:{n}: expected 8 numbers 'timestamp tx ty tz qx qy qz qw', got {len(vals)}")
+        rows.append(vals)
+    if not rows:
+        raise UserError(f"{path}: no poses")
+    a = np.asarray(rows)
+    c2w = np.tile(np.eye(4), (len(a), 1, 1))
+    c2w[:, :3, :3] = _quat_to_rotmat_np(a[:, [7, 4, 5, 6]])
+    c2w[:, :3, 3] = a[:, 1:4]
+    return a[:, 0], c2w
+
+
+def exposure_samples(exposures: np.ndarray, poses: np.ndarray,  # [F, 2], [F, S, 4, 4]
+                     u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # [S] -> [F*S], [F*S, 4, 4]
+    """Timestamps ``t_start + u (t_end - t_start)`` and poses of every sample, sorted by time."""
+    ex = np.asarray(exposures, dtype=np.float64)
+    t = ex[:, :1] + np.asarray(u, np.float64)[None] * (ex[:, 1:] - ex[:, :1])  # [F, S]
+    order = np.argsort(t.ravel(), kind="stable")
+    return t.ravel()[order], np.asarray(poses).reshape(-1, 4, 4)[order]
+
+
+# --------------------------------------------------------------------------- run folder
+
+def write_exports(run, out: str | Path) -> list[Path]:
+    """``cameras.json`` (training cameras at mid-exposure), ``point_cloud.splat`` and the TUM
+    trajectories of a ``Run`` into the run folder ``out``."""
+    out = Path(out)
+    mid = run.trajectories.mid_poses().numpy()
+    poses, u = run.exposure_poses(_TUM_SAMPLES)
+    times, flat = exposure_samples(run.exposures, poses, u)
+    return [write_cameras_json(out / CAMERAS_JSON, run.names, mid, run.K, run.width, run.height),
+            write_splat(out / SPLAT_FILE, run.params),
+            write_tum(out / TUM_FILE, times, flat)]

@@ -1,0 +1,123 @@
+"""``ebad view``: the viser scene, checked in a real browser (headless Chromium)."""
+from __future__ import annotations
+
+import shutil
+import socket
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from ebad.cli import main
+from ebad.cli.view import build_scene, serve, splat_arrays
+from ebad.runfolder import load_run
+
+WINDOW = (1024, 768)  # width, height of the headless browser window
+# a part of the page where viser draws only its 3D canvas (its control panel sits at the top
+# right, a notice at the top left, the axes gizmo at the bottom left): rows, columns
+CANVAS_ONLY = (slice(160, 700), slice(70, 680))
+MIN_CANVAS_STD = 8.0  # grey levels: a blank (uniform) canvas has 0
+MIN_SPLAT_EFFECT = 2.0  # mean |difference| in grey levels between the scene with and without Gaussians
+VIRTUAL_TIME_MS = 6000  # page time for the client to connect and draw
+BROWSER_TIMEOUT_S = 120
+CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                  "--disable-background-networking", "--disable-component-update", "--disable-sync",
+                  "--enable-unsafe-swiftshader"]  # software WebGL for this trusted local page
+
+
+def _chromium() -> str | None:
+    for name in ("chromium", "chromium-browser", "google-chrome"):
+        path = shutil.which(name)
+        if path:
+            return path
+    return None
+
+
+def _free_loopback_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _screenshot(browser: str, url: str, out, profile) -> np.ndarray:  # -> [H, W] grey float
+    from PIL import Image
+
+    cmd = [browser, *CHROMIUM_FLAGS, f"--user-data-dir={profile}", f"--screenshot={out}",
+           f"--window-size={WINDOW[0]},{WINDOW[1]}", f"--virtual-time-budget={VIRTUAL_TIME_MS}", url]
+    res = subprocess.run(cmd, capture_output=True, text=True, timeout=BROWSER_TIMEOUT_S)
+    assert res.returncode == 0 and out.exists(), res.stderr[-2000:]
+    print(f"browser screenshot: {out}")
+    with Image.open(out) as im:
+        return np.asarray(im.convert("L"), dtype=np.float64)
+
+
+def test_splat_arrays_match_the_model(tiny_run):
+    import torch
+
+    from ebad.gaussians import activate
+    from ebad.lie import quat_to_rotmat
+
+    run = load_run(tiny_run.run)
+    a = splat_arrays(run.params)
+    N = run.num_gaussians
+    assert a["centers"].shape == (N, 3) and a["covariances"].shape == (N, 3, 3)
+    assert a["rgbs"].shape == (N, 3) and a["opacities"].shape == (N, 1)
+    act = activate(run.params)
+    # covariance = R diag(s^2) R^T: symmetric, eigenvalues the squared scales
+    np.testing.assert_allclose(a["covariances"], np.swapaxes(a["covariances"], 1, 2), atol=1e-9)
+    ev = np.sort(np.linalg.eigvalsh(a["covariances"].astype(np.float64)), 1)
+    np.testing.assert_allclose(ev, np.sort(act["scales"].detach().numpy().astype(np.float64) ** 2, 1),
+                               rtol=1e-3, atol=1e-9)
+    R = quat_to_rotmat(act["quats"][:1].detach().double())[0].numpy()
+    axis_var = R[:, 0] @ a["covariances"][0].astype(np.float64) @ R[:, 0]
+    assert axis_var == pytest.approx(float(act["scales"][0, 0].detach()) ** 2, rel=1e-3)
+    assert np.all((a["opacities"] > 0) & (a["opacities"] < 1)) and np.all((a["rgbs"] >= 0) & (a["rgbs"] <= 1))
+    assert torch.equal(torch.from_numpy(a["centers"]), run.params["means"].detach())
+
+
+def test_view_without_viser_names_the_install(tiny_run, monkeypatch, capsys):
+    monkeypatch.setitem(sys.modules, "viser", None)  # import fails as if not installed
+    assert main(["view", str(tiny_run.run)]) == 2
+    assert "pip install viser" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_view_draws_the_scene_in_a_real_browser(tiny_run, tmp_path):
+    pytest.importorskip("viser", reason="the 'view' extra (viser) is not installed")
+    browser = _chromium()
+    if browser is None:
+        pytest.skip("no Chromium: apt-get install -y chromium (Debian) to run the browser test")
+    import scenes
+
+    run = load_run(tiny_run.run)
+    views = scenes.load(tiny_run.capture).test_views
+    server, handles = serve(run, host="127.0.0.1", port=_free_loopback_port(), test_views=views)
+    try:
+        assert server.get_host() == "127.0.0.1"  # loopback only
+        assert len(handles["train"]) == len(run.names) and len(handles["test"]) == len(views)
+        url = f"http://127.0.0.1:{server.get_port()}/"
+        full = _screenshot(browser, url, tmp_path / "view_scene.png", tmp_path / "profile1")
+        region = full[CANVAS_ONLY]
+        assert region.std() > MIN_CANVAS_STD, f"blank canvas (std {region.std():.2f}); see {tmp_path / 'view_scene.png'}"
+        handles["splats"].visible = False
+        bare = _screenshot(browser, url, tmp_path / "view_no_gaussians.png", tmp_path / "profile2")
+        effect = np.abs(region - bare[CANVAS_ONLY]).mean()
+        assert effect > MIN_SPLAT_EFFECT, f"the Gaussians changed the canvas by only {effect:.2f} grey levels"
+        print(f"canvas std {region.std():.1f}, Gaussians' effect {effect:.1f} grey levels")
+    finally:
+        server.stop()
+
+
+def test_view_cli_serves_on_loopback_and_prints_the_ssh_line(tiny_run, monkeypatch, capsys):
+    viser = pytest.importorskip("viser", reason="the 'view' extra (viser) is not installed")
+    hosts = []
+    monkeypatch.setattr(viser.ViserServer, "sleep_forever", lambda self: hosts.append(self.get_host()))
+    port = _free_loopback_port()
+    assert main(["view", str(tiny_run.run), "--capture", str(tiny_run.capture), "--port", str(port)]) == 0
+    out = capsys.readouterr().out
+    assert hosts == ["127.0.0.1"]  # the default listens on loopback only
+    assert f"http://localhost:{port}" in out and f"ssh -L {port}:localhost:{port}" in out
+    assert "2 test views" in out
+    assert main(["view", str(tiny_run.run), "--port", "70000"]) == 2
+    assert "--port" in capsys.readouterr().err
