@@ -18,7 +18,7 @@ from .errors import UserError
 from .gaussians import scene_scale
 from .virtual_views import choose_num_views, event_sums, events_per_pixel
 
-__all__ = ["TrainingData", "PrepareReport", "prepare", "focus_depth", "depth_range",
+__all__ = ["TrainingData", "PrepareReport", "prepare", "focus_depth", "depth_range", "align_poses", "test_poses",
            "FOCUS_DEPTH_RANGE", "SPREAD_DEPTH_RANGE"]
 
 # Intrinsics outside this horizontal/vertical field of view (degrees) are taken for a mistake
@@ -69,7 +69,8 @@ class TrainingData:
     report: PrepareReport
     points: Tensor | None = None  # [P, 3] SfM points, when any
     point_colors: Tensor | None = None  # [P, D]
-    test_views: list = field(default_factory=list)
+    test_views: list = field(default_factory=list)  # the capture's test views that carry an image
+    test_c2w: dict[str, np.ndarray] = field(default_factory=dict)  # their poses in this run's frame, by name
 
     @property
     def height(self) -> int:
@@ -117,19 +118,19 @@ def _check_capture(capture) -> None:
 
 
 def _poses(capture, cfg: Config, idx: list[int]):
-    """Mid-exposure poses of the training frames, and SfM points when SfM ran."""
+    """Mid-exposure poses of the training frames, SfM points and test-view poses when SfM ran."""
     src = cfg.trajectory.pose_source
     usable = capture.c2w is not None and (src == "capture" or capture.effective_pose_trust != "none")
     if src in ("auto", "capture") and usable:
-        return np.asarray(capture.c2w, dtype=np.float64)[idx], None, None, "capture", idx
+        return np.asarray(capture.c2w, dtype=np.float64)[idx], None, None, "capture", idx, {}
     if src == "capture":
         raise UserError("--trajectory.pose_source is 'capture' but the capture has no poses (c2w)")
     if src == "static":
-        return np.repeat(np.eye(4)[None], len(idx), axis=0), None, None, "static", idx
-    from scenes.colmap import SfMError, estimate_poses
+        return np.repeat(np.eye(4)[None], len(idx), axis=0), None, None, "static", idx, {}
+    from scenes.colmap import ColmapConfig, SfMError, estimate_poses
 
-    try:
-        est = estimate_poses(capture)
+    try:  # every test image is registered with the frames: its pose is then in this run's frame
+        est = estimate_poses(capture, ColmapConfig(test_views="all"))
     except SfMError as exc:
         raise SfMError(f"{exc} (for a camera that did not move, use --trajectory.pose_source static)") from exc
     keep = [i for i in idx if est.registered[i]]
@@ -145,7 +146,35 @@ def _poses(capture, cfg: Config, idx: list[int]):
         if capture.channels == 1 and cols.shape[1] == 3:
             cols = cols.mean(1, keepdims=True)
         cols = torch.from_numpy(cols)
-    return np.asarray(est.c2w, dtype=np.float64)[keep], pts, cols, "colmap", keep
+    return np.asarray(est.c2w, dtype=np.float64)[keep], pts, cols, "colmap", keep, dict(est.test_c2w)
+
+
+def align_poses(ref_src: np.ndarray,  # [N, 4, 4] cameras in the frame the poses are in
+                ref_dst: np.ndarray,  # [N, 4, 4] the same cameras in the target frame
+                poses: np.ndarray  # [..., 4, 4]
+                ) -> np.ndarray:  # [..., 4, 4]
+    """``poses`` moved into the target frame by the Sim(3) (Umeyama) that maps ``ref_src`` onto ``ref_dst``."""
+    from scenes.colmap import align_similarity, apply_similarity
+
+    return apply_similarity(poses, *align_similarity(ref_src, ref_dst))
+
+
+def test_poses(capture, pose_source: str, idx: list[int], c2w: np.ndarray,  # [F, 4, 4] the run's train poses
+               registered: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """The pose of every test view with an image, in the run's frame, by name: SfM's registration
+    when there is one; else the capture's pose, as it is when the run uses the capture's poses, or
+    moved by the Sim(3) between the capture's training poses and the run's (SfM) ones."""
+    out: dict[str, np.ndarray] = {}
+    for v in capture.test_views:
+        if v.image is None:
+            continue
+        if v.name in registered:
+            out[v.name] = np.asarray(registered[v.name], dtype=np.float64)
+        elif v.c2w is not None and pose_source in ("capture", "static"):
+            out[v.name] = np.asarray(v.c2w, dtype=np.float64)
+        elif v.c2w is not None and capture.c2w is not None and len(idx) >= 2:
+            out[v.name] = align_poses(np.asarray(capture.c2w, np.float64)[idx], c2w, np.asarray(v.c2w, np.float64))
+    return out
 
 
 def depth_range(cfg: Config, c2w: np.ndarray,  # [F, 4, 4]
@@ -190,7 +219,7 @@ def prepare(capture, cfg: Config) -> TrainingData:
     """Validate the capture and make every "skip what is not needed" decision (``TrainingData.report``)."""
     _check_capture(capture)
     idx = _train_indices(capture)
-    c2w, points, point_colors, pose_src, idx = _poses(capture, cfg, idx)
+    c2w, points, point_colors, pose_src, idx, registered = _poses(capture, cfg, idx)
     if len(idx) < MIN_TRAIN_FRAMES:
         raise UserError(f"the capture has {len(idx)} training frame(s) with a pose; a 3D scene needs at least "
                         f"{MIN_TRAIN_FRAMES} (for one frame, 'ebad deblur' gives its sharp image)")
@@ -243,5 +272,6 @@ def prepare(capture, cfg: Config) -> TrainingData:
         exposures=exposures, names=[(capture.names[i] if capture.names else f"{i:04d}") for i in idx],
         c2w=torch.from_numpy(c2w).float(), K=torch.from_numpy(np.asarray(capture.K, dtype=np.float32)),
         V=V, ev_sums=ev, c=c, scale=scene_scale(c2w, d_range), depth_range=d_range, report=report,
-        points=points, point_colors=point_colors, test_views=list(capture.test_views),
+        points=points, point_colors=point_colors, test_views=[v for v in capture.test_views if v.image is not None],
+        test_c2w=test_poses(capture, pose_src, idx, c2w, registered),
     )

@@ -171,7 +171,8 @@ def write_run(run, out: str | Path, gt_trajectories: np.ndarray | None = None) -
              "exposures": run.exposures.tolist(), "views": run.V.tolist(), "kind": run.trajectories.kind,
              "anchored": run.trajectories.anchored, "scale": run.trajectories.scale,
              "c2w_mid": run.trajectories.c2w_mid.tolist(), "knots": run.trajectories.knots.detach().tolist(),
-             "moving": run.trajectories.moving.tolist(), "channels": run.channels}
+             "moving": run.trajectories.moving.tolist(), "channels": run.channels, "pose_source": run.pose_source,
+             "test_c2w": {k: np.asarray(v).tolist() for k, v in run.test_c2w.items()}}
     write_text_atomic(out / "model.json", json.dumps(model) + "\n")
     poses, u = run.exposure_poses()
     _atomic(out / "trajectories.json", lambda p: write_trajectories(p, run.names, run.exposures, poses, u))
@@ -214,4 +215,5 @@ def load_run(path: str | Path):
         raise UserError(f"{metrics_path}: not the metrics of a run of this version ({exc})") from exc
     return Run(params=params, trajectories=traj, config=cfg, K=np.array(model["K"]), width=model["width"],
                height=model["height"], names=model["names"], exposures=np.array(model["exposures"]),
-               V=np.array(model["views"]), metrics=metrics, step=metrics.steps)
+               V=np.array(model["views"]), pose_source=model["pose_source"],
+               test_c2w={k: np.array(v) for k, v in model["test_c2w"].items()}, metrics=metrics, step=metrics.steps)

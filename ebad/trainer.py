@@ -31,7 +31,7 @@ from .state import StepStats, TrainState, capture_fingerprint, max_gaussians
 from .strategy import RenderInfo, Strategy, make_strategy
 from .trajectory import ExposureTrajectories, virtual_instants
 
-__all__ = ["Run", "RunMetrics", "ViewScores", "frame_losses", "train_step", "train", "should_stop",
+__all__ = ["Run", "RunMetrics", "ViewScores", "with_poses", "frame_losses", "train_step", "train", "should_stop",
            "reconstruct", "evaluate_views", "render_images", "Callback", "Evaluator", "ProgressBar",
            "Checkpointer", "StepHook"]
 
@@ -147,6 +147,11 @@ def score_views(images: np.ndarray, views) -> ViewScores:  # [C, H, W, D], C vie
                       ssim=float(np.mean([p["ssim"] for p in per.values()])), n=len(views), per_view=per)
 
 
+def with_poses(views, poses: dict[str, np.ndarray]) -> list:
+    """The views with their pose replaced by ``poses[name]`` where given (poses in the run's frame)."""
+    return [dataclasses.replace(v, c2w=poses[v.name]) if v.name in poses else v for v in views]
+
+
 def _scorable(views) -> list:
     return [v for v in views if getattr(v, "image", None) is not None and getattr(v, "c2w", None) is not None]
 
@@ -174,7 +179,8 @@ class Evaluator:
     """Every ``every`` steps (and at ``last``), the test-view PSNR into ``stats.test_psnr``."""
 
     def __init__(self, data: TrainingData, cfg: Config, views, every: int, last: int):
-        self.data, self.cfg, self.views, self.every, self.last = data, cfg, _scorable(views), every, last
+        self.data, self.cfg, self.every, self.last = data, cfg, every, last
+        self.views = _scorable(with_poses(views, data.test_c2w))
         self.latest: ViewScores | None = None
 
     def scores(self, state: TrainState) -> ViewScores | None:
@@ -362,6 +368,8 @@ class Run:
     names: list[str]
     exposures: np.ndarray  # [F, 2]
     V: np.ndarray  # [F]
+    pose_source: str = "capture"  # where the training poses came from: capture | colmap | static
+    test_c2w: dict[str, np.ndarray] = field(default_factory=dict)  # test-view poses in the run's frame, by name
     history: list[StepStats] = field(default_factory=list)
     metrics: RunMetrics | None = None
     step: int = 0
@@ -447,7 +455,7 @@ def reconstruct(capture, config: Config | str | None = None, out_dir: str | Path
     strategy.check_sanity(state.params, state.optimizers)
     if resumed_from is None:
         state.strategy_state = strategy.initialize_state(state.num_gaussians)
-    views = data.test_views if gt_views is None else gt_views
+    views = data.test_views if gt_views is None else gt_views  # poses from data.test_c2w where known
     evaluator = Evaluator(data, cfg, views, cfg.train.eval_every, cfg.train.iters)
     init_eval = evaluator.scores(state) if state.step == 0 else None
     callbacks: list[Callback] = [evaluator]
@@ -460,7 +468,7 @@ def reconstruct(capture, config: Config | str | None = None, out_dir: str | Path
     stop_reason = train(data, state, strategy, cfg, callbacks)
     run = Run(params=state.params, trajectories=state.trajectories, config=cfg, K=data.K.double().numpy(),
               width=data.width, height=data.height, names=data.names, exposures=data.exposures, V=data.V,
-              history=state.history, step=state.step)
+              pose_source=data.report.pose_source, test_c2w=data.test_c2w, history=state.history, step=state.step)
     data.report.anchored_mid_poses = state.trajectories.anchored
     run.metrics = RunMetrics(
         preset=cfg.name, steps=state.step, stop_reason=stop_reason, complete=not stop_reason.startswith("interrupted"),

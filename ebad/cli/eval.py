@@ -1,4 +1,7 @@
-"""``ebad eval``: PSNR / SSIM of a run on a capture's test views and deblurred frames."""
+"""``ebad eval``: PSNR / SSIM of a run on a capture's test views and deblurred frames.
+
+The protocol (which poses, refinement, metric conventions) is ``ebad.evaluate``'s docstring.
+"""
 from __future__ import annotations
 
 import json
@@ -12,8 +15,11 @@ def add_arguments(parser) -> None:
     parser.add_argument("run", help="run folder written by 'ebad reconstruct'")
     parser.add_argument("capture", help="the capture (its test views carry the images)")
     parser.add_argument("--refine-poses", action="store_true",
-                        help="also refine each test pose against its image with the scene frozen (EBAD-NeRF protocol)")
-    parser.add_argument("--refine-iters", type=int, default=60, help="Adam steps per test pose")
+                        help="also refine each test pose against its image with the scene frozen, until the loss "
+                             "stops improving (BAD-Gaussians / EBAD-NeRF protocol); scores before and after")
+    parser.add_argument("--refine-iters", type=int, default=300, help="at most this many Adam steps per test pose")
+    parser.add_argument("--renders", default=None, help="write each test render (refined when refining) here, "
+                                                         "one 16-bit linear PNG per view, named by the view")
     parser.add_argument("--gt", default=None,
                         help="ground-truth folder with gt.json (default: CAPTURE/../gt when present)")
     parser.add_argument("--out", default=None, help="write the results as JSON here (default RUN/eval.json)")
@@ -22,23 +28,35 @@ def add_arguments(parser) -> None:
 def run(args) -> int:
     import scenes
 
-    from ..evaluate import evaluate, load_gt_frames
     from ..errors import UserError
-    from ..runfolder import json_safe, load_run
+    from ..evaluate import evaluate
+    from ..runfolder import json_safe, load_run, write_text_atomic
 
+    if args.refine_iters < 1:
+        raise UserError(f"--refine-iters must be >= 1, got {args.refine_iters}")
     run_ = load_run(args.run)
     cap = scenes.load(args.capture)
     gt_dir = Path(args.gt) if args.gt else Path(args.capture).resolve().parent / "gt"
     if args.gt and not (gt_dir / "gt.json").exists():
         raise UserError(f"--gt {gt_dir}: no gt.json there")
-    gt = load_gt_frames(gt_dir, run_.names) if gt_dir.exists() else None
-    res = evaluate(run_, cap, refine=args.refine_poses, gt_frames=gt, refine_iters=args.refine_iters)
-    if not res:
-        raise UserError(f"nothing to evaluate: capture {args.capture} has no test images and no ground truth was found")
+    gt = scenes.read_ground_truth(gt_dir).frames(run_.names) if (gt_dir / "gt.json").exists() else None
+    renders_to = None
+    if args.renders:
+        def renders_to(name, img, folder=Path(args.renders)):
+            scenes.write_image(folder / f"{name}.png", img, bits=16)
+    res = evaluate(run_, cap, refine=args.refine_poses, gt_frames=gt, refine_iters=args.refine_iters,
+                   renders_to=renders_to)
+    if not any(k in res for k in ("test", "deblurred")):
+        raise UserError(f"nothing to evaluate: capture {args.capture} has no test view with an image and a pose, "
+                        "and no ground truth was found")
+    missing = [n for n, how in res.get("poses", {}).items() if how == "none"]
+    if missing:
+        print(f"ebad eval: {len(missing)} test view(s) have no pose in the run's frame and are not scored: "
+              f"{', '.join(missing)}")
     for key, label in [("test", "test views"), ("test_refined", "test views, poses refined"),
                        ("deblurred", "deblurred training frames")]:
         if key in res:
             print(f"{label:28s} PSNR {res[key].psnr:6.2f} dB  SSIM {res[key].ssim:.4f}  (n={res[key].n})")
     out = Path(args.out) if args.out else Path(args.run) / "eval.json"
-    out.write_text(json.dumps(json_safe(res), indent=2) + "\n")
+    write_text_atomic(out, json.dumps(json_safe(res), indent=2) + "\n")
     return 0

@@ -10,7 +10,6 @@ evaluation and checkpoint intervals) and refuses the others, naming them.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -119,11 +118,7 @@ def main(argv: list[str]) -> int:
 
 def _gt_trajectories(capture: Path, names: list[str]):
     """The true exposure trajectories of a synthetic capture (CAPTURE/../gt/gt.json), for the plot only."""
-    import numpy as np
+    import scenes
 
-    gt_json = capture.parent / "gt" / "gt.json"
-    if not gt_json.exists():
-        return None
-    doc = json.loads(gt_json.read_text())
-    trajs = {fr["name"]: fr["trajectory"]["c2w"] for fr in doc.get("frames", []) if "trajectory" in fr}
-    return np.array([trajs[n] for n in names]) if all(n in trajs for n in names) else None
+    gt_dir = capture.parent / "gt"
+    return scenes.read_ground_truth(gt_dir).trajectory_c2w(names) if (gt_dir / "gt.json").exists() else None

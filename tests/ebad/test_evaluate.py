@@ -1,0 +1,88 @@
+"""ebad.evaluate: which poses test views are scored at, refinement, and SfM end to end."""
+from __future__ import annotations
+
+import copy
+import json
+
+import numpy as np
+import pytest
+import torch
+
+import scenes
+from ebad import reconstruct
+from ebad.cli import main
+from ebad.config import preset
+from ebad.evaluate import eval_poses, evaluate, refine_pose
+from ebad.lie import compose_pose, so3_exp
+from ebad.runfolder import load_run
+from scenes.colmap import apply_similarity
+
+
+def _perturb(c2w: np.ndarray, deg: float, shift: float) -> np.ndarray:
+    d = compose_pose(so3_exp(torch.tensor([0.0, np.radians(deg), 0.0], dtype=torch.float64)),
+                     torch.tensor([shift, 0.0, 0.0], dtype=torch.float64)).numpy()
+    return c2w @ d
+
+
+def test_refinement_recovers_a_perturbed_pose(tiny_run):
+    run = load_run(tiny_run.run)
+    c2w = run.trajectories.mid_poses()[2].double().numpy()
+    target = run.render(c2w)  # an image the frozen scene explains exactly at c2w
+    start = _perturb(c2w, 1.5, 0.02 * run.trajectories.scale)
+    refined, steps = refine_pose(run, start, target, iters=300)
+    err0 = np.abs(start[:3, 3] - c2w[:3, 3]).max() + np.abs(start[:3, :3] - c2w[:3, :3]).max()
+    err1 = np.abs(refined[:3, 3] - c2w[:3, 3]).max() + np.abs(refined[:3, :3] - c2w[:3, :3]).max()
+    assert err1 < 0.3 * err0, (err0, err1, steps)
+    assert 1 <= steps <= 300
+
+
+def test_test_poses_in_another_frame_are_aligned_by_sim3(tiny_run):
+    """A run in an SfM-like frame (the capture's frame moved by a known similarity): the test
+    views' capture poses come back in the run's frame."""
+    run = load_run(tiny_run.run)
+    cap = scenes.load(tiny_run.capture)
+    s, R = 2.5, so3_exp(torch.tensor([0.3, -0.2, 0.9], dtype=torch.float64)).numpy()
+    t = np.array([1.0, -2.0, 0.5])
+    moved = copy.copy(run)
+    moved.pose_source, moved.test_c2w = "colmap", {}
+    moved.trajectories = copy.deepcopy(run.trajectories)
+    with torch.no_grad():  # the run's cameras, moved; mid poses follow c2w_mid (trajectories anchored)
+        moved.trajectories.c2w_mid.copy_(torch.from_numpy(apply_similarity(cap.c2w, s, R, t)).float())
+        moved.trajectories.knots.zero_()
+    poses, how = eval_poses(moved, cap)
+    assert set(how.values()) == {"aligned"}
+    for v in cap.test_views:
+        assert np.allclose(poses[v.name], apply_similarity(v.c2w, s, R, t), atol=1e-4)
+    poses, how = eval_poses(run, cap)  # a run on the capture's poses stored them as they are
+    assert set(how.values()) == {"run"}
+    assert all(np.allclose(poses[v.name], v.c2w) for v in cap.test_views)
+
+
+def test_eval_cli_reports_before_and_after_and_writes_renders(tiny_run, tmp_path, capsys):
+    out = tmp_path / "renders"
+    assert main(["eval", str(tiny_run.run), str(tiny_run.capture), "--refine-poses", "--refine-iters", "30",
+                 "--renders", str(out), "--out", str(tmp_path / "e.json")]) == 0
+    text = capsys.readouterr().out
+    assert "test views, poses refined" in text and "deblurred training frames" in text
+    res = json.loads((tmp_path / "e.json").read_text())
+    assert res["test_refined"]["psnr"] >= res["test"]["psnr"] - 1e-6  # the best pose seen is kept
+    assert set(res["refine_steps"]) == set(res["poses"]) and max(res["refine_steps"].values()) <= 30
+    assert sorted(p.stem for p in out.glob("*.png")) == sorted(res["poses"])
+
+
+@pytest.mark.slow
+def test_a_capture_without_poses_runs_and_evaluates_end_to_end(tmp_path, capsys):
+    """SfM poses the frames and registers the test images; the run keeps their poses by name, and
+    a copy of the capture whose test views carry other images (noise-free truth) scores at them."""
+    sc = scenes.make_scene("boxes", "tiny", seed=0, poses="none", n_frames=12, n_test=3)
+    scenes.write_scene(sc, tmp_path / "scene")
+    cap = tmp_path / "scene" / "capture"
+    run = tmp_path / "run"
+    assert main(["reconstruct", str(cap), "--out", str(run), "--preset", "3dgs", "--train.iters", "30",
+                 "--no-progress"]) == 0
+    r = load_run(run)
+    assert r.pose_source == "colmap" and sorted(r.test_c2w) == sorted(v.name for v in sc.capture.test_views)
+    assert main(["eval", str(run), str(cap), "--refine-poses", "--refine-iters", "20",
+                 "--out", str(tmp_path / "e.json")]) == 0
+    res = json.loads((tmp_path / "e.json").read_text())
+    assert set(res["poses"].values()) == {"run"} and res["test"]["n"] == 3
