@@ -62,6 +62,8 @@ class ModelConfig:
     stereo_patch: int = 5  # plane-sweep initialisation: side of the cost-averaging patch in pixels (odd)
     max_gaussians: int = 0  # densification stops growing N beyond this; 0: AUTO_CAP_PER_PIXEL x pixels, clamped to AUTO_CAP_RANGE (2 x pixels in [4000, 60000])
     background: float = 0.0  # background intensity (every channel), in [0, 1]
+    response: Literal["linear", "gamma"] = "linear"  # camera response from rendered irradiance to recorded values (ebad.response): linear, or black level + gain + gamma learnt with the scene
+    lr_response: float = 1e-3  # Adam learning rate of the response curve's parameters
 
     def check(self) -> None:
         _finite(self, "model")
@@ -78,6 +80,7 @@ class ModelConfig:
                  f"must be an odd number >= 1, got {self.stereo_patch}")
         _require(self.max_gaussians >= 0, "model.max_gaussians", f"must be >= 0 (0: automatic), got {self.max_gaussians}")
         _require(0 <= self.background <= 1, "model.background", f"must be in [0, 1], got {self.background}")
+        _require(self.lr_response >= 0, "model.lr_response", f"must be >= 0, got {self.lr_response}")
 
 
 @dataclass

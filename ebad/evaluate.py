@@ -56,7 +56,7 @@ def refine_pose(run, c2w: np.ndarray, image: np.ndarray, iters: int = 300, lr: f
     for step in range(1, iters + 1):
         pose = base @ compose_pose(so3_exp(xi[:3]), scale * xi[3:])
         img, _, _ = render(params, pose[None], K, run.width, run.height, run.config.model.background)
-        loss = l1_ssim(img[0], target)
+        loss = l1_ssim(run.response(img[0]), target)  # in the camera's domain, like the image
         value = float(loss.detach())
         losses.append(value)
         if value < best_loss:

@@ -36,6 +36,7 @@ from .config import load_config, save_config
 from .errors import UserError
 from .export import write_exports
 from .io import plot_trajectories, read_ply, write_png16, write_ply, write_trajectories
+from .response import Response
 from .trajectory import ExposureTrajectories
 
 __all__ = ["write_run", "load_run", "json_safe", "write_text_atomic", "RunLock", "check_out_dir"]
@@ -172,7 +173,8 @@ def write_run(run, out: str | Path, gt_trajectories: np.ndarray | None = None) -
              "anchored": run.trajectories.anchored, "scale": run.trajectories.scale,
              "c2w_mid": run.trajectories.c2w_mid.tolist(), "knots": run.trajectories.knots.detach().tolist(),
              "moving": run.trajectories.moving.tolist(), "channels": run.channels, "pose_source": run.pose_source,
-             "test_c2w": {k: np.asarray(v).tolist() for k, v in run.test_c2w.items()}}
+             "test_c2w": {k: np.asarray(v).tolist() for k, v in run.test_c2w.items()},
+             "response": {"kind": run.response.kind, "raw": run.response.raw.detach().tolist()}}
     write_text_atomic(out / "model.json", json.dumps(model) + "\n")
     poses, u = run.exposure_poses()
     _atomic(out / "trajectories.json", lambda p: write_trajectories(p, run.names, run.exposures, poses, u))
@@ -209,6 +211,9 @@ def load_run(path: str | Path):
                                 scale=model["scale"], anchored=model["anchored"])
     with torch.no_grad():
         traj.knots.data = torch.tensor(model["knots"]).reshape(traj.knots.shape)
+    response = Response(model["response"]["kind"])
+    with torch.no_grad():
+        response.raw.copy_(torch.tensor(model["response"]["raw"]))
     try:
         metrics = RunMetrics.from_dict(json.loads(metrics_path.read_text()))
     except (TypeError, KeyError, ValueError) as exc:
@@ -216,4 +221,5 @@ def load_run(path: str | Path):
     return Run(params=params, trajectories=traj, config=cfg, K=np.array(model["K"]), width=model["width"],
                height=model["height"], names=model["names"], exposures=np.array(model["exposures"]),
                V=np.array(model["views"]), pose_source=model["pose_source"],
-               test_c2w={k: np.array(v) for k, v in model["test_c2w"].items()}, metrics=metrics, step=metrics.steps)
+               test_c2w={k: np.array(v) for k, v in model["test_c2w"].items()}, response=response, metrics=metrics,
+               step=metrics.steps)

@@ -25,6 +25,7 @@ from .data import TrainingData
 from .errors import UserError
 from .gaussians import init_params, num_gaussians, plane_sweep_points, points_from_frames
 from .strategy import PARAM_NAMES, RefineReport, StrategyState
+from .response import Response
 from .trajectory import ExposureTrajectories
 
 __all__ = ["StepStats", "TrainState", "init_gaussians", "make_optimizers", "max_gaussians", "capture_fingerprint",
@@ -93,8 +94,10 @@ def init_gaussians(data: TrainingData, cfg: Config) -> dict[str, nn.Parameter]:
 
 
 def make_optimizers(params: dict[str, nn.Parameter], traj: ExposureTrajectories, cfg: Config,
-                    scale: float, log_c: nn.Parameter | None = None) -> dict[str, torch.optim.Optimizer]:
-    """One Adam per Gaussian parameter (so densification can edit its moments) and one for poses."""
+                    scale: float, log_c: nn.Parameter | None = None,
+                    response: Response | None = None) -> dict[str, torch.optim.Optimizer]:
+    """One Adam per Gaussian parameter (so densification can edit its moments), one for poses,
+    and one each for the contrast threshold and the response curve when they are learnt."""
     tc = cfg.train
     lrs = {"means": tc.lr_means * scale, "scales": tc.lr_scales, "quats": tc.lr_quats,
            "opacities": tc.lr_opacities, "colors": tc.lr_colors}
@@ -103,6 +106,8 @@ def make_optimizers(params: dict[str, nn.Parameter], traj: ExposureTrajectories,
         opts["poses"] = torch.optim.Adam([traj.knots], lr=cfg.trajectory.lr)
     if log_c is not None and log_c.requires_grad:
         opts["contrast"] = torch.optim.Adam([log_c], lr=cfg.loss.lr_contrast)
+    if response is not None and response.learnable:
+        opts["response"] = torch.optim.Adam(response.parameters(), lr=cfg.model.lr_response)
     return opts
 
 
@@ -142,6 +147,7 @@ class TrainState:
     optimizers: dict[str, torch.optim.Optimizer]  # one per parameter, "poses", "contrast"
     trajectories: ExposureTrajectories
     log_c: nn.Parameter | None  # log of the contrast threshold (None: no L_ev)
+    response: Response  # rendered irradiance -> recorded values
     strategy_state: StrategyState
     order_rng: np.random.Generator  # the order frames are visited in
     generator: torch.Generator  # initial trajectory noise and densification splits
@@ -162,8 +168,9 @@ class TrainState:
         params = init_gaussians(data, cfg)
         traj = _trajectories(data, cfg, generator, cfg.trajectory.init_noise)
         log_c = _log_c(data, cfg)
-        return cls(params=params, optimizers=make_optimizers(params, traj, cfg, data.scale, log_c),
-                   trajectories=traj, log_c=log_c,
+        response = Response(cfg.model.response)
+        return cls(params=params, optimizers=make_optimizers(params, traj, cfg, data.scale, log_c, response),
+                   trajectories=traj, log_c=log_c, response=response,
                    strategy_state=strategy_state or StrategyState(torch.zeros(num_gaussians(params)),
                                                                   torch.zeros(num_gaussians(params))),
                    order_rng=np.random.default_rng(seed), generator=generator)
@@ -187,6 +194,7 @@ class TrainState:
             "params": {k: v.detach().clone() for k, v in self.params.items()},
             "trajectories": {k: v.detach().clone() for k, v in self.trajectories.state_dict().items()},
             "log_c": None if self.log_c is None else self.log_c.detach().clone(),
+            "response": {k: v.detach().clone() for k, v in self.response.state_dict().items()},
             "optimizers": {k: o.state_dict() for k, o in self.optimizers.items()},
             "strategy_state": self.strategy_state.to_dict(),
             "order": list(self.order),
@@ -230,7 +238,9 @@ class TrainState:
         if log_c is not None and doc["log_c"] is not None:
             with torch.no_grad():
                 log_c.data = doc["log_c"].clone()
-        optimizers = make_optimizers(params, traj, cfg, data.scale, log_c)
+        response = Response(cfg.model.response)
+        response.load_state_dict(doc["response"])
+        optimizers = make_optimizers(params, traj, cfg, data.scale, log_c, response)
         for k, sd in doc["optimizers"].items():
             if k in optimizers:
                 optimizers[k].load_state_dict(sd)
@@ -238,7 +248,7 @@ class TrainState:
         order_rng.bit_generator.state = doc["order_rng"]
         generator.set_state(doc["generator"])
         torch.set_rng_state(doc["torch_rng"])
-        return cls(params=params, optimizers=optimizers, trajectories=traj, log_c=log_c,
+        return cls(params=params, optimizers=optimizers, trajectories=traj, log_c=log_c, response=response,
                    strategy_state=StrategyState.from_dict(doc["strategy_state"]), order_rng=order_rng,
                    generator=generator, step=int(doc["step"]), order=[int(i) for i in doc["order"]],
                    history=[StepStats.from_dict(h) for h in doc["history"]], elapsed=float(doc["elapsed"]))

@@ -27,6 +27,7 @@ from .errors import ConfigError
 from .gaussians import num_gaussians, render
 from .losses import blur_loss, edi_loss, event_loss
 from .metrics import psnr, ssim
+from .response import Response
 from .state import StepStats, TrainState, capture_fingerprint, max_gaussians
 from .strategy import RenderInfo, Strategy, make_strategy
 from .trajectory import ExposureTrajectories, virtual_instants
@@ -61,8 +62,9 @@ def frame_losses(data: TrainingData, state: TrainState, f: int, cfg: Config) -> 
         u = torch.cat([u, torch.tensor([0.5])])
     poses = state.trajectories(torch.tensor([f]), u)[0]  # [V', 4, 4]
     images, _, meta = render(state.params, poses, data.K, data.width, data.height, cfg.model.background)
-    renders = images[:V]
-    blur = blur_loss(renders, data.targets[f], lc.ssim_weight, lc.ssim_window)
+    renders = images[:V]  # irradiance: blur averages it, events see its log
+    recorded_blur = state.response(renders.mean(0, keepdim=True))  # what the APS records of the exposure
+    blur = blur_loss(recorded_blur, data.targets[f], lc.ssim_weight, lc.ssim_window)
     total = lc.w_blur * blur
     ev = edi = None
     if lc.w_event > 0 and data.ev_sums[f] is not None:
@@ -71,10 +73,10 @@ def frame_losses(data: TrainingData, state: TrainState, f: int, cfg: Config) -> 
         total = total + lc.w_event * ev
     if data.latents is not None and lc.w_edi > 0:
         mid = images[V] if need_mid else images[V // 2]
-        edi = edi_loss(mid, data.latents[f], lc.ssim_weight, lc.ssim_window)
+        edi = edi_loss(state.response(mid), data.latents[f], lc.ssim_weight, lc.ssim_window)
         total = total + lc.w_edi * edi
     info = RenderInfo(means2d=meta.get("means2d"), radii=meta.get("radii"), width=data.width, height=data.height)
-    return FrameLosses(total=total, blur=blur, ev=ev, edi=edi, info=info, mean_render=renders.detach().mean(0))
+    return FrameLosses(total=total, blur=blur, ev=ev, edi=edi, info=info, mean_render=recorded_blur.detach()[0])
 
 
 def _budget_fraction(state: TrainState, cfg: Config, elapsed: float) -> float:
@@ -128,15 +130,16 @@ class ViewScores:
 
 
 def render_images(params: dict[str, Tensor], c2w, K, width: int, height: int, background: float = 0.0,
-                  batch: int = 8) -> np.ndarray:  # c2w [C, 4, 4] -> [C, H, W, D]
-    """Render ``C`` views in batches, without gradients, clamped to [0, 1] (numpy float32)."""
+                  batch: int = 8, response: Callable[[Tensor], Tensor] | None = None) -> np.ndarray:
+    """Render ``C`` views [C, 4, 4] in batches, without gradients, through the camera ``response``
+    when given, clamped to [0, 1] -> [C, H, W, D] numpy float32."""
     c2w_t = torch.as_tensor(np.asarray(c2w), dtype=torch.float32)
     K_t = torch.as_tensor(np.asarray(K), dtype=torch.float32)
     out = []
     with torch.no_grad():
         for i in range(0, c2w_t.shape[0], batch):
             img, _, _ = render(params, c2w_t[i:i + batch], K_t, width, height, background)
-            out.append(img.clamp(0, 1))
+            out.append((img if response is None else response(img)).clamp(0, 1))
     return torch.cat(out).numpy()
 
 
@@ -186,7 +189,8 @@ class Evaluator:
     def scores(self, state: TrainState) -> ViewScores | None:
         d = self.data
         return evaluate_views(lambda c2w: render_images(state.params, c2w, d.K, d.width, d.height,
-                                                        self.cfg.model.background), self.views)
+                                                        self.cfg.model.background, response=state.response),
+                              self.views)
 
     def on_step(self, state: TrainState, stats: StepStats) -> None:
         if self.views and self.every and (state.step % self.every == 0 or state.step == self.last):
@@ -340,6 +344,7 @@ class RunMetrics:
     prepare: PrepareReport  # what prepare decided
     anchored_mid_poses: bool
     c_final: float | None = None  # the contrast threshold at the end (learnt or not)
+    response: dict[str, float] | None = None  # the learnt response curve (black, gain, gamma)
     resumed_from: int | None = None  # the step a resumed run continued from
 
     def to_dict(self) -> dict[str, Any]:
@@ -370,6 +375,7 @@ class Run:
     V: np.ndarray  # [F]
     pose_source: str = "capture"  # where the training poses came from: capture | colmap | static
     test_c2w: dict[str, np.ndarray] = field(default_factory=dict)  # test-view poses in the run's frame, by name
+    response: Response = field(default_factory=Response)  # rendered irradiance -> recorded values
     history: list[StepStats] = field(default_factory=list)
     metrics: RunMetrics | None = None
     step: int = 0
@@ -398,7 +404,8 @@ class Run:
         H = int(self.height if height is None else height)
         if W <= 0 or H <= 0:
             raise ValueError(f"width and height must be positive, got {W} x {H}")
-        res = render_images(self.params, c2w_t, self.K if K is None else K, W, H, self.config.model.background, batch)
+        res = render_images(self.params, c2w_t, self.K if K is None else K, W, H, self.config.model.background, batch,
+                            response=self.response)
         return res[0] if single else res
 
     @torch.no_grad()
@@ -468,7 +475,8 @@ def reconstruct(capture, config: Config | str | None = None, out_dir: str | Path
     stop_reason = train(data, state, strategy, cfg, callbacks)
     run = Run(params=state.params, trajectories=state.trajectories, config=cfg, K=data.K.double().numpy(),
               width=data.width, height=data.height, names=data.names, exposures=data.exposures, V=data.V,
-              pose_source=data.report.pose_source, test_c2w=data.test_c2w, history=state.history, step=state.step)
+              pose_source=data.report.pose_source, test_c2w=data.test_c2w, response=state.response,
+              history=state.history, step=state.step)
     data.report.anchored_mid_poses = state.trajectories.anchored
     run.metrics = RunMetrics(
         preset=cfg.name, steps=state.step, stop_reason=stop_reason, complete=not stop_reason.startswith("interrupted"),
@@ -476,5 +484,6 @@ def reconstruct(capture, config: Config | str | None = None, out_dir: str | Path
         final_loss=state.history[-1].loss if state.history else None, test=evaluator.scores(state),
         test_initial=init_eval, prepare=data.report, anchored_mid_poses=state.trajectories.anchored,
         c_final=None if state.log_c is None else float(torch.exp(state.log_c.detach())), resumed_from=resumed_from,
+        response=state.response.values() if state.response.learnable else None,
     )
     return run

@@ -81,11 +81,20 @@ def run(args) -> int:
         raise UserError("--capture is required for --split test (the test views live in the capture)")
     import scenes
 
+    from ..evaluate import eval_poses
+
     cap = scenes.load(args.capture)
     if not cap.test_views:
         raise UserError(f"capture {args.capture} has no test_views to render")
-    imgs = run_.render(np.stack([v.c2w for v in cap.test_views]))
-    for v, img in zip(cap.test_views, imgs):
+    poses, _ = eval_poses(run_, cap)  # in the run's frame: registered by its SfM, given, or aligned
+    for v in cap.test_views:  # a view without an image: its given pose, when the run is in the capture's frame
+        if v.name not in poses and v.c2w is not None and run_.pose_source in ("capture", "static"):
+            poses[v.name] = np.asarray(v.c2w, np.float64)
+    views = [v for v in cap.test_views if v.name in poses]
+    if not views:
+        raise UserError(f"no test view of {args.capture} has a pose in the run's frame")
+    imgs = run_.render(np.stack([poses[v.name] for v in views]))
+    for v, img in zip(views, imgs):
         write_render(out / f"{v.name}.png", img, args.bits)
     print(f"ebad render: {len(imgs)} test views ({kind} PNG) -> {out}")
     return 0
