@@ -19,7 +19,7 @@ from ebad.trainer import prepare
 
 @pytest.fixture(scope="module")
 def tiny():
-    return scenes.make_scene("boxes", size="tiny", seed=0, n_frames=6, n_test=2)
+    return scenes.make_scene("boxes", size="tiny", seed=0, n_frames=6, n_test=2, sensor="ideal")
 
 
 def _cfg(name, iters):
@@ -50,9 +50,9 @@ def test_skip_rules_are_decided_and_recorded(tiny):
     import copy
 
     # sharp frames get one view, blurry ones V
-    sc = scenes.make_scene("boxes", size="tiny", seed=1, n_frames=6, n_test=1, sharp_fraction=0.5)
+    sc = scenes.make_scene("boxes", size="tiny", seed=1, n_frames=6, n_test=1, sharp_fraction=0.5, sensor="ideal")
     p = prepare(sc.capture, _cfg("ebad", 1))
-    sharp = set(sc.capture.meta["sharp_frames"])
+    sharp = set(sc.truth["sharp_frames"])
     assert sharp and all((p.V[i] == 1) == (i in sharp) for i in range(6)), (p.V, sharp)
     assert p.report["renders_per_pass"] < p.report["renders_without_skip"]
     assert p.ev_sums[sorted(sharp)[0]] is None
