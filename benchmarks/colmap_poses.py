@@ -8,8 +8,8 @@ Synthetic rows: ``scenes.make_scene(..., poses="none")`` (the capture carries no
 neither for its frames nor for its test views) and ``scenes.colmap.estimate_poses`` on
 
 - the blurry frames as recorded ("blurry"),
-- EDI-deblurred frames with one contrast threshold estimated from the capture ("edi c"),
-- EDI-deblurred frames with c_pos, c_neg estimated from the capture ("edi c+-", the default),
+- EDI-deblurred frames with one contrast threshold estimated from the capture ("edi c", the default),
+- EDI-deblurred frames with c_pos, c_neg estimated from the capture ("edi c+-"),
 
 with the test images registered by the same SfM. Nothing of the truth (c, response, poses)
 reaches ``estimate_poses``: the truth is used afterwards only, to score. The estimate is
@@ -142,7 +142,7 @@ def main(argv=None) -> int:
     slider = []
     if args.slider and SLIDER.is_dir():
         slider = slider_rows([int(s) for s in split(args.slider_steps)], args.threads)
-        print(f"\nSfM on slider_depth (EDI c+- frames), similarity-aligned to ground truth")
+        print("\nSfM on slider_depth (default settings: EDI frames, one c), similarity-aligned to ground truth")
         print(f"{'step':>4} {'frames':>6} {'reg':>4} {'ATE m':>8} {'ATE %':>6} {'rot deg':>8} {'time s':>7}")
         for r in slider:
             if "error" in r:

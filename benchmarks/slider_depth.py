@@ -1,6 +1,6 @@
 """Real data: novel views on slider_depth (Event Camera Dataset, DAVIS240C) from its frames.
 
-    python benchmarks/slider_depth.py [--quick] [--data PATH] [--out bench_out/slider_depth.json]
+    python -m benchmarks.slider_depth [--quick] [--data PATH]
 
 The capture is read with ``scenes.load`` (ECD text layout, poses interpolated to the frame
 times, undistorted). Every 8th frame is held out as a test view (pose + image); the others
@@ -11,21 +11,15 @@ events exist). Prints novel-view PSNR / SSIM and writes JSON.
 """
 from __future__ import annotations
 
-import os
-
-# before torch is imported: torch's spinning OpenMP threads slow the numba kernels (see ebad/cli)
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 import argparse
 import copy
-import json
 import sys
 import time
 from pathlib import Path
 
-# benchmarks/edi.py would shadow the edi package when this file runs as a script
-_HERE = Path(__file__).resolve().parent
-sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != _HERE]
+from ._common import write_json
+
 
 
 DEFAULT_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "slider_depth"
@@ -56,7 +50,7 @@ def main(argv=None) -> int:
     ap.add_argument("--data", default=str(DEFAULT_DATA))
     ap.add_argument("--iters", type=int, default=None, help="steps (default 1500; quick 300)")
     ap.add_argument("--presets", default="3dgs,ebad")
-    ap.add_argument("--out", default="bench_out/slider_depth.json")
+    ap.add_argument("--name", default="slider_depth", help="results file benchmarks/results/NAME.json")
     args = ap.parse_args(argv)
     import scenes
 
@@ -78,16 +72,14 @@ def main(argv=None) -> int:
         t0 = time.perf_counter()
         run = reconstruct(cap, cfg)
         m = run.metrics
-        rows.append({"preset": name, "test_psnr": m["test"]["psnr"], "test_ssim": m["test"]["ssim"],
-                     "initial_psnr": m["test_initial"]["psnr"], "steps": m["steps"], "seconds": time.perf_counter() - t0,
+        rows.append({"preset": name, "test_psnr": m.test.psnr, "test_ssim": m.test.ssim,
+                     "initial_psnr": m.test_initial.psnr, "steps": m.steps, "seconds": time.perf_counter() - t0,
+                     "pose_source": m.prepare.pose_source, "poses_held": m.anchored_mid_poses,
                      "gaussians": run.num_gaussians, "train_frames": len(cap.frames), "test_views": len(cap.test_views)})
         r = rows[-1]
         print(f"{name:6s} novel-view PSNR {r['test_psnr']:6.2f} dB SSIM {r['test_ssim']:.3f} (initial {r['initial_psnr']:.2f}), "
               f"{r['steps']} steps, {r['seconds']:.0f} s, {r['gaussians']} Gaussians", flush=True)
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"data": str(data), "iters": iters, "rows": rows}, indent=2) + "\n")
-    print(f"wrote {out}")
+    print(f"wrote {write_json(args.name, {'data': str(data), 'iters': iters, 'rows': rows})}")
     return 0
 
 

@@ -31,7 +31,7 @@ from .losses import l1_ssim
 from .metrics import psnr, ssim
 from .trainer import ViewScores, score_views, with_poses
 
-__all__ = ["refine_pose", "evaluate", "eval_poses", "oracle_capture", "score_frames", "REFINE_TOL",
+__all__ = ["refine_pose", "evaluate", "eval_poses", "sharp_capture", "score_frames", "REFINE_TOL",
            "REFINE_WINDOW", "REFINE_LR"]
 
 REFINE_TOL = 1e-4  # refinement stops when the loss improved by less than this fraction ...
@@ -129,8 +129,8 @@ def score_frames(images: np.ndarray, truth: np.ndarray) -> ViewScores:  # [F, H,
     return ViewScores(psnr=float(np.mean(ps)), ssim=float(np.mean(ss)), n=len(ps))
 
 
-def oracle_capture(scene):
-    """The ``oracle`` preset's input: a synthetic capture whose frames are the sharp
+def sharp_capture(scene):
+    """The ``3dgs-sharp`` preset's input: a synthetic capture whose frames are the sharp
     mid-exposure ground truth with zero-length exposures (its poses as the capture gives them)."""
     cap = copy.copy(scene.capture)
     cap.frames = np.asarray(scene.gt_frames, dtype=np.float32)

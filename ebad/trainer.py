@@ -431,7 +431,8 @@ def _resolve(config: Config | str | None) -> Config:
 
 
 def reconstruct(capture, config: Config | str | None = None, out_dir: str | Path | None = None,
-                resume: bool = False, gt_views=None, on_step: Callable[[int, StepStats], None] | None = None) -> Run:
+                resume: bool = False, gt_views=None, on_step: Callable[[int, StepStats], None] | None = None,
+                callbacks: Sequence[Callback] = ()) -> Run:
     """Recover Gaussians and per-exposure trajectories from ``capture``.
 
     Args:
@@ -444,6 +445,7 @@ def reconstruct(capture, config: Config | str | None = None, out_dir: str | Path
             from the same capture).
         gt_views: test views with images to report PSNR on (default: the capture's).
         on_step: optional callback(step, stats) after every step.
+        callbacks: more ``Callback`` objects, called after the built-in ones (they see the state).
     """
     cfg = _resolve(config)
     torch.manual_seed(cfg.train.seed)
@@ -465,6 +467,7 @@ def reconstruct(capture, config: Config | str | None = None, out_dir: str | Path
     views = data.test_views if gt_views is None else gt_views  # poses from data.test_c2w where known
     evaluator = Evaluator(data, cfg, views, cfg.train.eval_every, cfg.train.iters)
     init_eval = evaluator.scores(state) if state.step == 0 else None
+    extra = list(callbacks)
     callbacks: list[Callback] = [evaluator]
     if cfg.train.progress:
         callbacks.append(ProgressBar(cfg, state.step))
@@ -472,7 +475,7 @@ def reconstruct(capture, config: Config | str | None = None, out_dir: str | Path
         callbacks.append(StepHook(on_step))
     if ckpt is not None:
         callbacks.append(Checkpointer(ckpt, cfg.train.checkpoint_every, fingerprint))
-    stop_reason = train(data, state, strategy, cfg, callbacks)
+    stop_reason = train(data, state, strategy, cfg, [*callbacks, *extra])
     run = Run(params=state.params, trajectories=state.trajectories, config=cfg, K=data.K.double().numpy(),
               width=data.width, height=data.height, names=data.names, exposures=data.exposures, V=data.V,
               pose_source=data.report.pose_source, test_c2w=data.test_c2w, response=state.response,

@@ -9,8 +9,9 @@ Public API::
     save(capture, path)                   # ebad-capture/1, atomic, lossless
     CaptureError                          # ValueError naming the file and the field
     simulate_events(images, times, ...)   # ESIM-style event simulator
-    make_scene(name, size, ...) -> SynthScene, SCENES, write_scene(scene, out_dir)
-    scenes.colmap.estimate_poses(capture) -> PoseEstimate   # pycolmap SfM, K fixed
+    make_scene(name, size, sensor="realistic"|"ideal"|Sensor, poses=None, ...) -> SynthScene, SCENES, SENSORS,
+    write_scene(scene, out_dir)
+    scenes.colmap.estimate_poses(capture) -> PoseEstimate   # pycolmap SfM, K fixed, test views registered too
 """
 from .capture import Capture, TestView
 from .errors import CaptureError
@@ -19,9 +20,14 @@ from .images import read_image, write_image
 from .readers import detect_layout, load
 from .render import Quad, RayScene, Sphere, project_points, render
 from .simulate import simulate_events
-from .synth import SCENES, SIZES, SynthScene, make_scene, write_scene
+from .synth import SCENES, SENSORS, SIZES, Sensor, SynthScene, make_scene, write_scene
 from . import colmap  # noqa: E402  (pycolmap itself is imported when estimate_poses runs)
 
+<<<<<<< HEAD
 __all__ = ["Capture", "TestView", "CaptureError", "load", "save", "read_image", "write_image", "read_ground_truth",
            "detect_layout", "simulate_events", "make_scene", "write_scene", "SynthScene", "SCENES", "SIZES", "render", "RayScene", "Quad",
+=======
+__all__ = ["Capture", "TestView", "CaptureError", "load", "save", "detect_layout", "simulate_events",
+           "make_scene", "write_scene", "SynthScene", "Sensor", "SENSORS", "SCENES", "SIZES", "render", "RayScene", "Quad",
+>>>>>>> realistic
            "Sphere", "project_points", "colmap"]

@@ -62,7 +62,9 @@ class ColmapConfig:
     # test views with an image registered with the frames: "unposed" (those without c2w),
     # "all" (every test view with an image, e.g. to align a capture's given test poses), "none"
     test_views: Literal["unposed", "all", "none"] = "unposed"
-    c_polarity: bool = True  # EDI: estimate c_pos and c_neg separately (DAVIS thresholds differ)
+    # EDI: estimate c_pos and c_neg separately; measured (benchmarks/colmap_poses.py, 3 seeds x 2
+    # scenes) no better than one c on realistic captures with c_pos != c_neg, at twice the time
+    c_polarity: bool = False
 
 
 @dataclass
@@ -82,7 +84,7 @@ class PoseEstimate:
         return np.flatnonzero(~self.registered).tolist()
 
 
-def _sfm_frames(capture: Capture, deblur: bool, report: dict, polarity: bool = True) -> np.ndarray:
+def _sfm_frames(capture: Capture, deblur: bool, report: dict, polarity: bool = False) -> np.ndarray:
     """[F, H, W, D] frames for SfM: EDI latents at mid-exposure where possible, else raw. The
     contrast threshold is estimated from the capture (one c, or (c_pos, c_neg) with ``polarity``)."""
     frames = capture.frames.astype(np.float64)

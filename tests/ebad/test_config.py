@@ -8,7 +8,7 @@ import pytest
 
 
 def test_presets_registry_and_json_roundtrip(tmp_path):
-    assert set(C.PRESETS) == {"3dgs", "bad", "edi-3dgs", "ebad", "oracle"}
+    assert set(C.PRESETS) == {"3dgs", "bad", "edi-3dgs", "ebad", "3dgs-sharp"}
     e = C.preset("ebad")
     assert (e.loss.w_blur, e.loss.w_event, e.loss.w_edi) == (1.0, 0.1, 1.0)
     assert C.preset("bad").loss.w_event == 0 and C.preset("bad").trajectory.kind == "linear"

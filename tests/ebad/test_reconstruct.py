@@ -20,7 +20,7 @@ from ebad.data import prepare
 
 @pytest.fixture(scope="module")
 def tiny():
-    return scenes.make_scene("boxes", size="tiny", seed=0, n_frames=6, n_test=2)
+    return scenes.make_scene("boxes", size="tiny", seed=0, n_frames=6, n_test=2, sensor="ideal")
 
 
 def _cfg(name, iters):

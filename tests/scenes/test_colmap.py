@@ -190,8 +190,6 @@ def test_test_views_registered_by_the_same_sfm(unposed, seed):
                                                     test[:, :3, :3])).magnitude())
     assert pos.max() < 0.06 * extent and ang.max() < 4.0
     assert e["ate_rmse"] < 0.05 * extent
-    # the test views lie between training cameras, far from where a wrong frame would put them
-    assert pos.max() < 0.5 * np.linalg.norm(np.diff(sc.gt_c2w[:, :3, 3], axis=0), axis=1).mean() * 12
 
 
 def test_sfm_reads_no_truth_from_meta(unposed):

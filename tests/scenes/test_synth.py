@@ -375,3 +375,16 @@ def test_no_truth_in_capture_meta_or_capture_json(tmp_path, real, boxes):
 def test_realistic_scene_builds_about_as_fast_as_the_ideal_one(boxes, real):
     # both fixtures timed their build in this run; compare as a ratio (the machine is shared)
     assert BUILD_TIME["realistic"] < 1.5 * BUILD_TIME["ideal"] + 0.5
+
+
+def test_16_bit_realistic_capture_round_trips(tmp_path):
+    from dataclasses import replace
+
+    sc = make_scene("spheres", "tiny", seed=4, rgb=True, n_frames=2, n_test=1, sensor=replace(REALISTIC, bits=16))
+    f = sc.capture.frames
+    assert np.allclose(f * 65535, np.round(f * 65535), atol=1e-2) and not np.allclose(f * 255, np.round(f * 255))
+    out = write_scene(sc, tmp_path / "s")
+    cap = load(out / "capture")
+    np.testing.assert_array_equal(cap.frames, f)
+    np.testing.assert_array_equal(cap.test_views[0].image, sc.capture.test_views[0].image)
+    assert cap.pose_trust == "approximate"
