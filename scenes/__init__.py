@@ -23,11 +23,7 @@ from .simulate import simulate_events
 from .synth import SCENES, SENSORS, SIZES, Sensor, SynthScene, make_scene, write_scene
 from . import colmap  # noqa: E402  (pycolmap itself is imported when estimate_poses runs)
 
-<<<<<<< HEAD
 __all__ = ["Capture", "TestView", "CaptureError", "load", "save", "read_image", "write_image", "read_ground_truth",
-           "detect_layout", "simulate_events", "make_scene", "write_scene", "SynthScene", "SCENES", "SIZES", "render", "RayScene", "Quad",
-=======
-__all__ = ["Capture", "TestView", "CaptureError", "load", "save", "detect_layout", "simulate_events",
-           "make_scene", "write_scene", "SynthScene", "Sensor", "SENSORS", "SCENES", "SIZES", "render", "RayScene", "Quad",
->>>>>>> realistic
+           "detect_layout", "simulate_events", "make_scene", "write_scene", "SynthScene", "Sensor", "SENSORS", "SCENES",
+           "SIZES", "render", "RayScene", "Quad",
            "Sphere", "project_points", "colmap"]
