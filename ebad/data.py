@@ -95,18 +95,11 @@ def _train_indices(capture) -> list[int]:
 
 
 def _check_capture(capture) -> None:
-    fr = capture.frames
-    if not isinstance(fr, np.ndarray) or fr.ndim != 4 or fr.shape[-1] not in (1, 3):
-        raise UserError(f"capture.frames must be [F, H, W, 1|3], got {getattr(fr, 'shape', type(fr))}")
-    if not np.isfinite(fr).all():
-        raise UserError("capture.frames has non-finite values")
-    ex = np.asarray(capture.exposures)
-    if ex.shape != (fr.shape[0], 2):
-        raise UserError(f"capture.exposures must be [F, 2] = {(fr.shape[0], 2)}, got {ex.shape}")
+    """The capture is well formed (``Capture.validate``: shapes, dtypes, ranges, rigid poses) and its
+    intrinsics can see a scene."""
+    capture.validate()
     K = np.asarray(capture.K, dtype=np.float64)
-    if K.shape != (3, 3):
-        raise UserError(f"capture.K must be [3, 3], got {K.shape}")
-    H, W = fr.shape[1:3]
+    H, W = capture.height, capture.width
     fov = np.degrees(2 * np.arctan2(np.array([W, H]) / 2.0, np.abs(np.array([K[0, 0], K[1, 1]]))))
     if not (np.all(np.isfinite(fov)) and np.all(fov > MIN_FOV_DEG) and np.all(fov < MAX_FOV_DEG)):
         raise UserError(f"capture intrinsics: fx = {K[0, 0]:g}, fy = {K[1, 1]:g} give a field of view of "

@@ -4,6 +4,7 @@ from __future__ import annotations
 import torch
 
 from ebad.lie import so3_exp, so3_log, viewmat_from_c2w
+from tests.ebad._helpers import random_c2w
 
 
 def test_so3_exp_log_roundtrip_and_identity_gradient():
@@ -21,17 +22,9 @@ def test_so3_exp_log_roundtrip_and_identity_gradient():
 
 
 def test_viewmat_inverts_c2w():
-    c2w = _random_c2w(3)
+    c2w = random_c2w(3)
     assert torch.allclose(viewmat_from_c2w(c2w) @ c2w, torch.eye(4).expand(3, 4, 4), atol=1e-5)
 
-
-def _random_c2w(F, seed=0):
-    g = torch.Generator().manual_seed(seed)
-    R = so3_exp(torch.randn(F, 3, generator=g))
-    c2w = torch.eye(4).repeat(F, 1, 1)
-    c2w[:, :3, :3] = R
-    c2w[:, :3, 3] = torch.randn(F, 3, generator=g)
-    return c2w
 
 
 def test_quaternion_convention_is_real_part_first():

@@ -13,6 +13,7 @@ from ebad import reconstruct
 from ebad.cli import main
 from ebad.config import preset
 from ebad.errors import ConfigError, UserError
+from scenes import CaptureError
 from ebad.io import read_png16
 from ebad.metrics import psnr
 from ebad.data import prepare
@@ -85,7 +86,7 @@ def test_bad_capture_errors_name_the_field(tiny):
 
     cap = copy.copy(tiny.capture)
     cap.frames = cap.frames[..., 0]
-    with pytest.raises(ValueError, match="capture.frames"):
+    with pytest.raises(CaptureError, match="frames"):
         reconstruct(cap, _cfg("3dgs", 1))
     cap = copy.copy(tiny.capture)
     cap.split = ["test"] * cap.num_frames

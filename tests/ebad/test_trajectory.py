@@ -6,19 +6,12 @@ import torch
 
 from ebad.lie import so3_exp, so3_log
 from ebad.trajectory import TRAJECTORIES, ExposureTrajectories, bspline_weights, virtual_instants
+from tests.ebad._helpers import random_c2w
 
-
-def _random_c2w(F, seed=0):
-    g = torch.Generator().manual_seed(seed)
-    R = so3_exp(torch.randn(F, 3, generator=g))
-    c2w = torch.eye(4).repeat(F, 1, 1)
-    c2w[:, :3, :3] = R
-    c2w[:, :3, 3] = torch.randn(F, 3, generator=g)
-    return c2w
 
 
 def test_linear_trajectory_endpoints_and_midpoint():
-    c2w = _random_c2w(3).double()
+    c2w = random_c2w(3).double()
     knots = torch.randn(3, 2, 6, generator=torch.Generator().manual_seed(2), dtype=torch.float64) * 0.1
     poses = TRAJECTORIES["linear"].poses(c2w, knots, torch.tensor([0.0, 0.5, 1.0], dtype=torch.float64), 2.0)
     R0 = c2w[:, :3, :3] @ so3_exp(knots[:, 0, :3])
@@ -36,7 +29,7 @@ def test_linear_trajectory_endpoints_and_midpoint():
 def test_cubic_and_fixed_trajectories():
     B = bspline_weights(torch.linspace(0, 1, 7, dtype=torch.float64))
     assert torch.allclose(B.sum(-1), torch.ones(7, dtype=torch.float64))
-    c2w = _random_c2w(2).double()
+    c2w = random_c2w(2).double()
     zero = torch.zeros(2, 4, 6, dtype=torch.float64)
     u = torch.linspace(0, 1, 5, dtype=torch.float64)
     assert torch.allclose(TRAJECTORIES["cubic"].poses(c2w, zero, u), c2w[:, None].expand(-1, 5, -1, -1))
@@ -49,7 +42,7 @@ def test_cubic_and_fixed_trajectories():
 
 
 def test_exposure_trajectories_module():
-    c2w = _random_c2w(4)
+    c2w = random_c2w(4)
     moving = torch.tensor([True, False, True, True])
     traj = ExposureTrajectories(c2w, "linear", moving, scale=1.0, init_noise=1e-2,
                                 generator=torch.Generator().manual_seed(0))
@@ -70,7 +63,7 @@ def test_exposure_trajectories_module():
 
 @pytest.mark.parametrize("kind", ["linear", "cubic"])
 def test_anchored_trajectory_keeps_mid_pose(kind):
-    c2w = _random_c2w(3)
+    c2w = random_c2w(3)
     traj = ExposureTrajectories(c2w, kind, scale=0.5, init_noise=0.0, anchored=True)
     with torch.no_grad():
         traj.knots.normal_(0, 0.05)
