@@ -10,6 +10,7 @@ run would have taken (tested: save, load, one step equals one step without the r
 from __future__ import annotations
 
 import dataclasses
+import errno
 import math
 import os
 from dataclasses import dataclass, field
@@ -204,7 +205,13 @@ class TrainState:
             "history": [h.to_dict() for h in self.history],
         }
         try:
-            torch.save(doc, tmp)
+            try:
+                torch.save(doc, tmp)
+            except RuntimeError as exc:  # torch's zip writer reports a failed write (a full disk) this way
+                if "write" not in str(exc).lower():
+                    raise
+                raise OSError(errno.EIO, f"could not write the checkpoint ({exc}); nothing was replaced",
+                              str(path)) from exc
             os.replace(tmp, path)
         finally:
             if tmp.exists():

@@ -598,8 +598,15 @@ def write_scene(scene: SynthScene, out_dir: str | os.PathLike, overwrite: bool =
     none): they are held out, never trained on; the training frames' sharp renders exist only
     under gt/."""
     out = Path(out_dir)
-    if out.exists() and any(out.iterdir()) and not overwrite:
-        raise CaptureError(None, "out_dir", f"{out} already exists and is not empty (pass overwrite)")
+    if out.exists() and not out.is_dir():
+        raise CaptureError(None, "out_dir", f"{out} exists and is not a folder")
+    if out.exists() and any(out.iterdir()):
+        if not overwrite:
+            raise CaptureError(None, "out_dir", f"{out} already exists and is not empty (pass overwrite)")
+        held = sorted(p.name for p in out.iterdir())
+        if not (set(held) <= {"capture", "gt"} and (out / "gt" / "gt.json").is_file()):
+            raise CaptureError(None, "out_dir", f"refusing to overwrite {out}: it is not a synthetic scene written by "
+                                                f"write_scene (it holds {', '.join(held[:5])}{' ...' if len(held) > 5 else ''})")
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp-", dir=out.parent))
     try:

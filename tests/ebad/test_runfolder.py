@@ -108,3 +108,37 @@ def test_sigint_checkpoints_writes_the_run_and_resume_finishes(tmp_path):
     m = json.loads((run / "metrics.json").read_text())
     assert m["complete"] is True and m["steps"] == steps + 5 and m["resumed_from"] == steps
     assert load_run(run).step == steps + 5
+
+
+def test_a_full_disk_is_one_line_and_leaves_no_complete_looking_run(tmp_path, capsys, monkeypatch):
+    """A write that fails (torch's zip writer on a full disk) mid-checkpoint: one line naming the
+    file, no temporary left behind, no metrics.json (the run is not presented as complete), and
+    the previous checkpoint untouched."""
+    import torch
+
+    scene = scenes.make_scene("boxes", size="tiny", seed=0, n_frames=3, n_test=1, sensor="ideal")
+    scenes.write_scene(scene, tmp_path / "scene")
+    cap = str(tmp_path / "scene" / "capture")
+    run = tmp_path / "run"
+    args = ["reconstruct", cap, "--out", str(run), "--preset", "3dgs", "--train.iters", "6",
+            "--train.checkpoint_every", "3", "--no-progress"]
+    real_save = torch.save
+    calls = []
+
+    def failing_save(obj, f, *a, **k):
+        calls.append(f)
+        if len(calls) == 2:  # the second checkpoint finds the disk full half-way
+            Path(f).write_bytes(b"PK\x03\x04partial")
+            raise RuntimeError("[enforce fail at inline_container.cc:859] . PytorchStreamWriter failed writing "
+                               "file data/0: file write failed")
+        return real_save(obj, f, *a, **k)
+
+    monkeypatch.setattr(torch, "save", failing_save)
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "last.pt" in err and "could not write the checkpoint" in err
+    assert not (run / "metrics.json").exists()
+    assert not [p for p in run.rglob("*") if ".tmp" in p.name]
+    assert (run / "checkpoints" / "last.pt").stat().st_size > 1000  # the first checkpoint, whole
+    with pytest.raises(UserError, match="unfinished run"):
+        load_run(run)

@@ -205,6 +205,24 @@ def test_cli_synth(tmp_path, capsys):
     assert "--c" in capsys.readouterr().err
 
 
+def test_overwrite_replaces_only_a_synthetic_scene(tmp_path, capsys):
+    args = ["synth", "boxes", "--size", "tiny", "--frames", "2", "--test-views", "1"]
+    assert main(args + ["--out", str(tmp_path / "s")]) == 0
+    assert main(args + ["--out", str(tmp_path / "s"), "--overwrite", "--seed", "3"]) == 0  # an ebad synth output
+    assert json.loads((tmp_path / "s" / "gt" / "gt.json").read_text())["truth"]["seed"] == 3
+    precious = tmp_path / "home"
+    (precious / "photos").mkdir(parents=True)
+    (precious / "photos" / "a.jpg").write_bytes(b"x")
+    capsys.readouterr()
+    assert main(args + ["--out", str(precious), "--overwrite"]) == 2
+    err = capsys.readouterr().err
+    assert "refusing to overwrite" in err and "photos" in err
+    assert (precious / "photos" / "a.jpg").read_bytes() == b"x"  # nothing deleted
+    (tmp_path / "f").write_text("x")
+    assert main(args + ["--out", str(tmp_path / "f"), "--overwrite"]) == 2
+    assert (tmp_path / "f").read_text() == "x"
+
+
 def test_write_scene_failing_midway_leaves_nothing(tmp_path, boxes, monkeypatch):
     import scenes.synth as synth
 
