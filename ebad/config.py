@@ -115,13 +115,13 @@ class LossConfig:
     w_edi: float = 1.0  # weight of L_EDI (mid-exposure render vs EDI latent); 0 disables
     ssim_weight: float = 0.2  # the 0.2 in 0.8 L1 + 0.2 (1 - SSIM)
     ssim_window: int = 7  # SSIM window (odd; small images need a small one)
-    contrast: float | None = None  # event contrast threshold c; None: edi.estimate_c from the data
+    contrast: tuple[float, float] | None = None  # event contrast thresholds (c_pos, c_neg) in natural-log units; None: estimated from the data (edi.estimate_c, one per polarity)
     # refine c (as log c) jointly, through L_ev. Off by default: c -> 0 with flat renders is a
     # degenerate minimum of L_ev and c drifts towards it (benchmarks/learn_contrast.py, small
     # grey scene, true c 0.2, 60 s: c 0.187 -> 0.07 in two runs), while novel-view PSNR is
     # equal within run-to-run noise (learnt minus fixed: -0.24 dB in one run, +0.26 dB in another)
-    learn_contrast: bool = False  # refine c (as log c) jointly through L_ev (off: c drifts to a degenerate minimum)
-    lr_contrast: float = 1e-2  # Adam learning rate of log c
+    learn_contrast: bool = False  # refine (c_pos, c_neg) (as logs) jointly through L_ev (off: c drifts to a degenerate minimum)
+    lr_contrast: float = 1e-2  # Adam learning rate of log c_pos and log c_neg
 
     def check(self) -> None:
         _finite(self, "loss")
@@ -130,7 +130,8 @@ class LossConfig:
         _require(0 <= self.ssim_weight <= 1, "loss.ssim_weight", f"must be in [0, 1], got {self.ssim_weight}")
         _require(self.ssim_window >= 1 and self.ssim_window % 2 == 1, "loss.ssim_window",
                  f"must be an odd number >= 1, got {self.ssim_window}")
-        _require(self.contrast is None or self.contrast > 0, "loss.contrast", f"must be > 0, got {self.contrast}")
+        _require(self.contrast is None or (len(self.contrast) == 2 and min(self.contrast) > 0), "loss.contrast",
+                 f"must be two thresholds > 0 (c_pos c_neg), got {self.contrast}")
         _require(self.lr_contrast >= 0, "loss.lr_contrast", f"must be >= 0, got {self.lr_contrast}")
 
 

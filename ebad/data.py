@@ -16,7 +16,7 @@ from torch import Tensor
 from .config import Config
 from .errors import UserError
 from .gaussians import scene_scale
-from .virtual_views import choose_num_views, event_sums, events_per_pixel
+from .virtual_views import choose_num_views, event_counts, events_per_pixel
 
 __all__ = ["TrainingData", "PrepareReport", "prepare", "focus_depth", "depth_range", "align_poses", "test_poses",
            "FOCUS_DEPTH_RANGE", "SPREAD_DEPTH_RANGE"]
@@ -43,7 +43,7 @@ class PrepareReport:
     views: list[int]  # V per training frame (1: sharp, no trajectory)
     renders_per_pass: int  # sum of V: renders of one pass over the frames
     renders_without_skip: int  # what a pass would cost with the configured V for every frame
-    c: float | None = None  # contrast threshold in use (None: no events used)
+    c: tuple[float, float] | None = None  # contrast thresholds (c_pos, c_neg) in use (None: no events used)
     c_source: str | None = None  # config | edi.estimate_c
     skipped: str | None = None  # a loss switched off for lack of data, and why
     events_per_pixel: list[float] | None = None  # events during each exposure per sensor pixel
@@ -62,8 +62,8 @@ class TrainingData:
     c2w: Tensor  # [F, 4, 4] initial mid-exposure poses
     K: Tensor  # [3, 3]
     V: np.ndarray  # [F] virtual views per frame
-    ev_sums: list[Tensor | None]  # per frame [V - 1, H, W] or None (no L_ev)
-    c: float | None  # contrast threshold in use (None: no events used)
+    ev_counts: list[Tensor | None]  # per frame [V - 1, 2, H, W] ON/OFF counts between virtual instants, or None
+    c: tuple[float, float] | None  # contrast thresholds (c_pos, c_neg) in use (None: no events used)
     scale: float  # scene scale (world units)
     depth_range: tuple[float, float]
     report: PrepareReport
@@ -227,11 +227,12 @@ def prepare(capture, cfg: Config) -> TrainingData:
     c, c_source = None, None
     if use_events:
         if lc.contrast is not None:
-            c, c_source = float(lc.contrast), "config"
+            c, c_source = (float(lc.contrast[0]), float(lc.contrast[1])), "config"
         else:
             import edi
 
-            c, c_source = float(edi.estimate_c(frames_np, exposures, events)), "edi.estimate_c"
+            est = edi.estimate_c(frames_np, exposures, events, pair=True)
+            c, c_source = (float(est[0]), float(est[1])), "edi.estimate_c"
 
     V = choose_num_views(exposures, events if tc.adaptive_views else None, tc.num_views,
                          tc.adaptive_views, tc.sharp_events_per_pixel)
@@ -257,14 +258,14 @@ def prepare(capture, cfg: Config) -> TrainingData:
         latents = torch.from_numpy(np.clip(np.stack(lat), 0, 1))
     frames_t = torch.from_numpy(frames_np)
     targets = latents if (lc.target == "edi" and latents is not None) else frames_t
-    ev = [event_sums(events, exposures[f], int(V[f])) if (use_events and lc.w_event > 0 and V[f] > 1) else None
+    ev = [event_counts(events, exposures[f], int(V[f])) if (use_events and lc.w_event > 0 and V[f] > 1) else None
           for f in range(len(idx))]
     d_range = depth_range(cfg, c2w, points)
     return TrainingData(
         frames=frames_t, targets=targets, latents=latents if lc.w_edi > 0 else None,
         exposures=exposures, names=[(capture.names[i] if capture.names else f"{i:04d}") for i in idx],
         c2w=torch.from_numpy(c2w).float(), K=torch.from_numpy(np.asarray(capture.K, dtype=np.float32)),
-        V=V, ev_sums=ev, c=c, scale=scene_scale(c2w, d_range), depth_range=d_range, report=report,
+        V=V, ev_counts=ev, c=c, scale=scene_scale(c2w, d_range), depth_range=d_range, report=report,
         points=points, point_colors=point_colors, test_views=[v for v in capture.test_views if v.image is not None],
         test_c2w=test_poses(capture, pose_src, idx, c2w, registered),
     )

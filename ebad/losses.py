@@ -104,23 +104,28 @@ def blur_loss(renders: Tensor,  # [V, H, W, D]
 
 
 def event_loss(renders: Tensor,  # [V, H, W, D]
-               event_sums: Tensor,  # [V - 1, H, W]
-               c: float, eps: float | None = None) -> Tensor:
-    """L_ev: mean |log L(t_{k+1}) - log L(t_k) - c E_k| over consecutive virtual instants.
+               counts: Tensor,  # [V - 1, 2, H, W] ON and OFF event counts
+               c: float | tuple[float, float] | Tensor, eps: float | None = None) -> Tensor:
+    """L_ev: mean |log L(t_{k+1}) - log L(t_k) - (c_pos N_on,k - c_neg N_off,k)| over consecutive
+    virtual instants.
 
-    ``L`` is the render's luminance (the render itself when grey), ``E_k`` the signed event
-    count between instants k and k + 1. L1 rather than L2: robust to noise events.
+    ``L`` is the render's luminance (the render itself when grey); ``c`` one threshold or the pair
+    (c_pos, c_neg) (a float, a 2-tuple, or a tensor of one or two values, differentiable).
+    L1 rather than L2: robust to noise events.
     """
     V = renders.shape[0]
-    if event_sums.shape != (V - 1,) + tuple(renders.shape[1:3]):
-        raise ValueError(f"event_sums must be [V - 1, H, W] = {(V - 1,) + tuple(renders.shape[1:3])}, "
-                         f"got {tuple(event_sums.shape)}")
+    if counts.shape != (V - 1, 2) + tuple(renders.shape[1:3]):
+        raise ValueError(f"counts must be [V - 1, 2, H, W] = {(V - 1, 2) + tuple(renders.shape[1:3])}, "
+                         f"got {tuple(counts.shape)}")
     if V < 2:
         return renders.sum() * 0.0
     eps = LOG_EPS if eps is None else eps
     logL = torch.log(luminance(renders)[..., 0].clamp_min(0) + eps)  # [V, H, W]
     diff = logL[1:] - logL[:-1]
-    return (diff - c * event_sums.to(diff.dtype)).abs().mean()
+    cc = torch.as_tensor(c, dtype=diff.dtype).reshape(-1)
+    c_pos, c_neg = cc[0], cc[-1]
+    counts = counts.to(diff.dtype)
+    return (diff - (c_pos * counts[:, 0] - c_neg * counts[:, 1])).abs().mean()
 
 
 def edi_loss(render_mid: Tensor,  # [H, W, D]

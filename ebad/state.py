@@ -53,7 +53,7 @@ class StepStats:
     time: float  # training seconds since the run started (resumes included)
     ev: float | None = None  # L_ev, when on for this frame
     edi: float | None = None  # L_EDI, when on
-    c: float | None = None  # the contrast threshold, when learnt
+    c: list[float] | None = None  # (c_pos, c_neg), when learnt
     test_psnr: float | None = None  # mean test-view PSNR, on evaluation steps
     refine: RefineReport = field(default_factory=RefineReport)  # what densification did
 
@@ -135,9 +135,9 @@ def _trajectories(data: TrainingData, cfg: Config, generator: torch.Generator | 
 
 
 def _log_c(data: TrainingData, cfg: Config) -> nn.Parameter | None:
-    if data.c is None or all(e is None for e in data.ev_sums):
+    if data.c is None or all(e is None for e in data.ev_counts):
         return None
-    return nn.Parameter(torch.tensor(math.log(data.c)), requires_grad=cfg.loss.learn_contrast)
+    return nn.Parameter(torch.log(torch.tensor(data.c, dtype=torch.float32)), requires_grad=cfg.loss.learn_contrast)
 
 
 @dataclass
@@ -147,7 +147,7 @@ class TrainState:
     params: dict[str, nn.Parameter]  # PARAM_NAMES -> [N, ...]
     optimizers: dict[str, torch.optim.Optimizer]  # one per parameter, "poses", "contrast"
     trajectories: ExposureTrajectories
-    log_c: nn.Parameter | None  # log of the contrast threshold (None: no L_ev)
+    log_c: nn.Parameter | None  # [2] logs of (c_pos, c_neg) (None: no L_ev)
     response: Response  # rendered irradiance -> recorded values
     strategy_state: StrategyState
     order_rng: np.random.Generator  # the order frames are visited in

@@ -67,9 +67,9 @@ def frame_losses(data: TrainingData, state: TrainState, f: int, cfg: Config) -> 
     blur = blur_loss(recorded_blur, data.targets[f], lc.ssim_weight, lc.ssim_window)
     total = lc.w_blur * blur
     ev = edi = None
-    if lc.w_event > 0 and data.ev_sums[f] is not None:
+    if lc.w_event > 0 and data.ev_counts[f] is not None:
         c = torch.exp(state.log_c) if state.log_c is not None else data.c
-        ev = event_loss(renders, data.ev_sums[f], c)
+        ev = event_loss(renders, data.ev_counts[f], c)
         total = total + lc.w_event * ev
     if data.latents is not None and lc.w_edi > 0:
         mid = images[V] if need_mid else images[V // 2]
@@ -112,7 +112,7 @@ def train_step(data: TrainingData, state: TrainState, strategy: Strategy, f: int
         step=state.step, frame=data.names[f], loss=float(out.total.detach()), blur=float(out.blur.detach()),
         train_psnr=psnr(out.mean_render, data.targets[f]), gaussians=num_gaussians(state.params), time=elapsed,
         ev=None if out.ev is None else float(out.ev.detach()), edi=None if out.edi is None else float(out.edi.detach()),
-        c=None if state.log_c is None or not state.log_c.requires_grad else float(torch.exp(state.log_c.detach())),
+        c=None if state.log_c is None or not state.log_c.requires_grad else torch.exp(state.log_c.detach()).tolist(),
         refine=refine,
     )
 
@@ -343,7 +343,7 @@ class RunMetrics:
     test_initial: ViewScores | None  # test views at initialisation (None on a resumed run)
     prepare: PrepareReport  # what prepare decided
     anchored_mid_poses: bool
-    c_final: float | None = None  # the contrast threshold at the end (learnt or not)
+    c_final: list[float] | None = None  # (c_pos, c_neg) at the end (learnt or not)
     response: dict[str, float] | None = None  # the learnt response curve (black, gain, gamma)
     resumed_from: int | None = None  # the step a resumed run continued from
 
@@ -486,7 +486,7 @@ def reconstruct(capture, config: Config | str | None = None, out_dir: str | Path
         train_seconds=state.elapsed, prepare_seconds=prep_s, gaussians=run.num_gaussians,
         final_loss=state.history[-1].loss if state.history else None, test=evaluator.scores(state),
         test_initial=init_eval, prepare=data.report, anchored_mid_poses=state.trajectories.anchored,
-        c_final=None if state.log_c is None else float(torch.exp(state.log_c.detach())), resumed_from=resumed_from,
+        c_final=None if state.log_c is None else torch.exp(state.log_c.detach()).tolist(), resumed_from=resumed_from,
         response=state.response.values() if state.response.learnable else None,
     )
     return run

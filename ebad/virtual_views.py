@@ -12,7 +12,7 @@ from torch import Tensor
 
 from edi import EventStream, seconds_to_us
 
-__all__ = ["events_per_pixel", "choose_num_views", "event_sums"]
+__all__ = ["events_per_pixel", "choose_num_views", "event_counts"]
 
 
 def events_per_pixel(events: EventStream, exposures: np.ndarray) -> np.ndarray:  # [F, 2] -> [F]
@@ -52,21 +52,24 @@ def choose_num_views(
     return V
 
 
-def event_sums(
+def event_counts(
     events: EventStream,
     exposure: tuple[float, float],
     V: int,
-) -> Tensor:  # [V - 1, H, W] float32
-    """Signed event counts between consecutive virtual instants t_k = t0 + (k + 0.5)/V (t1 - t0)."""
+) -> Tensor:  # [V - 1, 2, H, W] float32
+    """ON and OFF event counts (both >= 0) between consecutive virtual instants
+    t_k = t0 + (k + 0.5)/V (t1 - t0); the window rule is ``EventStream.index_range`` (t_k <= t < t_k+1)."""
     t0, t1 = float(exposure[0]), float(exposure[1])
     H, W = events.height, events.width
     if V < 2:
-        return torch.zeros(0, H, W)
+        return torch.zeros(0, 2, H, W)
     inst = t0 + (np.arange(V) + 0.5) / V * (t1 - t0)
-    out = np.zeros((V - 1, H * W), dtype=np.float64)
+    out = np.zeros((V - 1, 2, H * W), dtype=np.float64)
     for k in range(V - 1):
         i0, i1 = events.index_range(seconds_to_us(inst[k]), seconds_to_us(inst[k + 1]))
         if i1 > i0:
             idx = events.y[i0:i1].astype(np.int64) * W + events.x[i0:i1]
-            out[k] = np.bincount(idx, weights=events.p[i0:i1].astype(np.float64), minlength=H * W)
-    return torch.from_numpy(out.reshape(V - 1, H, W).astype(np.float32))
+            on = events.p[i0:i1] > 0
+            out[k, 0] = np.bincount(idx[on], minlength=H * W)
+            out[k, 1] = np.bincount(idx[~on], minlength=H * W)
+    return torch.from_numpy(out.reshape(V - 1, 2, H, W).astype(np.float32))

@@ -7,7 +7,6 @@ import pytest
 import torch
 
 from ebad.losses import blur_loss, edi_loss, event_loss, l1_ssim, luminance
-from ebad.virtual_views import event_sums
 
 
 def test_losses_known_values():
@@ -22,10 +21,19 @@ def test_losses_known_values():
     c, eps = 0.2, 1e-3
     I0 = torch.full((4, 4, 1), 0.3)
     I1 = (I0 + eps) * math.exp(2 * c) - eps
-    E = torch.full((1, 4, 4), 2.0)
+    E = torch.zeros(1, 2, 4, 4)
+    E[:, 0] = 2.0  # two ON events
     assert float(event_loss(torch.stack([I0, I1]), E, c, eps)) == pytest.approx(0.0, abs=1e-5)
-    assert float(event_loss(torch.stack([I0, I1]), E - 1, c, eps)) == pytest.approx(c, abs=1e-5)
-    with pytest.raises(ValueError, match="event_sums"):
+    short = E.clone()
+    short[:, 0] = 1.0
+    assert float(event_loss(torch.stack([I0, I1]), short, c, eps)) == pytest.approx(c, abs=1e-5)
+    # separate thresholds: three ON at 0.3 and two OFF at 0.2 are a rise of 0.5
+    I2 = (I0 + eps) * math.exp(0.5) - eps
+    mixed = torch.zeros(1, 2, 4, 4)
+    mixed[:, 0], mixed[:, 1] = 3.0, 2.0
+    assert float(event_loss(torch.stack([I0, I2]), mixed, (0.3, 0.2), eps)) == pytest.approx(0.0, abs=1e-5)
+    assert float(event_loss(torch.stack([I0, I2]), mixed, 0.3, eps)) == pytest.approx(0.2, abs=1e-5)  # 0.9 - 0.6 predicted
+    with pytest.raises(ValueError, match="counts"):
         event_loss(torch.stack([I0, I1]), torch.zeros(2, 4, 4), c)
 
 

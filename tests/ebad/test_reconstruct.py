@@ -57,7 +57,7 @@ def test_skip_rules_are_decided_and_recorded(tiny):
     sharp = set(sc.truth["sharp_frames"])
     assert sharp and all((p.V[i] == 1) == (i in sharp) for i in range(6)), (p.V, sharp)
     assert p.report.renders_per_pass < p.report.renders_without_skip
-    assert p.ev_sums[sorted(sharp)[0]] is None
+    assert p.ev_counts[sorted(sharp)[0]] is None
     # grey stays one channel
     assert p.frames.shape[-1] == 1 and p.report.channels == 1
     # no events: no L_ev, no L_EDI, V from exposures only
@@ -65,7 +65,7 @@ def test_skip_rules_are_decided_and_recorded(tiny):
     from edi import EventStream
     cap.events = EventStream.empty(cap.width, cap.height)
     q = prepare(cap, _cfg("ebad", 1))
-    assert q.latents is None and all(e is None for e in q.ev_sums) and q.report.skipped is not None
+    assert q.latents is None and all(e is None for e in q.ev_counts) and q.report.skipped is not None
 
 
 def test_plateau_and_time_budget_stop(tiny):

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from edi import EventStream
-from ebad.virtual_views import choose_num_views, event_sums
+from ebad.virtual_views import choose_num_views, event_counts
 
 
 def _stream(n_per_frame, W=8, H=6, exposures=((0.0, 0.04), (0.1, 0.14))):
@@ -29,14 +29,16 @@ def test_views_sharp_frames_get_one_view():
         choose_num_views(ex, ev, 0)
 
 
-def test_event_sums_match_bruteforce():
+def test_event_counts_match_bruteforce():
     ev = _stream([300, 50])
-    s = event_sums(ev, (0.0, 0.04), 5)
-    assert s.shape == (4, 6, 8)
+    s = event_counts(ev, (0.0, 0.04), 5)
+    assert s.shape == (4, 2, 6, 8)
     inst = (np.arange(5) + 0.5) / 5 * 0.04 * 1e6
-    k = 2
-    m = (ev.t >= round(inst[k])) & (ev.t < round(inst[k + 1]))
-    ref = np.zeros((6, 8))
-    np.add.at(ref, (ev.y[m], ev.x[m]), ev.p[m])
-    assert np.array_equal(s[k].numpy(), ref)
-    assert event_sums(ev, (0.0, 0.04), 1).shape == (0, 6, 8)
+    for k in range(4):
+        m = (ev.t >= round(inst[k])) & (ev.t < round(inst[k + 1]))
+        for j, pol in enumerate((1, -1)):
+            ref = np.zeros((6, 8))
+            np.add.at(ref, (ev.y[m & (ev.p == pol)], ev.x[m & (ev.p == pol)]), 1)
+            assert np.array_equal(s[k, j].numpy(), ref)
+    assert s.sum() == ((ev.t >= round(inst[0])) & (ev.t < round(inst[-1]))).sum()
+    assert event_counts(ev, (0.0, 0.04), 1).shape == (0, 2, 6, 8)
