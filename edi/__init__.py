@@ -11,16 +11,22 @@ Public API::
     medi(frames, exposures, events, c=None) -> [F, H, W(, D)]
 """
 from .contrast import ContrastReport, estimate_c
-from .deblur import LOG_EPS, SATURATION, DeblurReport, deblur
-from .errors import EbadError, EventError
-from .events import EventStream, seconds_to_us
+from .deblur import DeblurReport, deblur
+from .errors import EbadError, EventError, InputError
+from .events import EventStream, events_in_window, seconds_to_us
 from .io import AedatRecording, infer_time_unit, read_aedat4, read_events
 from .medi import medi
+from .model import LOG_EPS, SATURATION, Contrast
+from .moving_texture import moving_texture
 
 __all__ = [
     "EventStream",
     "EbadError",
     "EventError",
+    "InputError",
+    "Contrast",
+    "events_in_window",
+    "moving_texture",
     "seconds_to_us",
     "LOG_EPS",
     "SATURATION",

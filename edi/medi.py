@@ -20,7 +20,7 @@ import numpy as np
 from scipy.linalg import solve_banded
 
 from .contrast import estimate_c
-from .deblur import LOG_EPS, SATURATION, _check_exposure, _check_image, edi_log_ratio, latent_from_ratio, parse_c
+from .model import LOG_EPS, SATURATION, check_exposure as _check_exposure, check_image as _check_image, edi_log_ratio, latent_from_ratio, parse_c
 from .events import EventStream
 
 __all__ = ["medi"]

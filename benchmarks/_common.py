@@ -1,0 +1,70 @@
+"""Shared preamble of the benchmarks: environment header, seeding, JSON output.
+
+Run every benchmark as a module from the repository root, ``python -m benchmarks.NAME``,
+so the project's packages (not a benchmark file) are found first on ``sys.path``.
+"""
+from __future__ import annotations
+
+import datetime
+import json
+import os
+import platform
+import random
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["RESULTS", "environment", "seed_all", "write_json"]
+
+#: Where every benchmark writes its JSON.
+RESULTS = Path(__file__).resolve().parent / "results"
+
+
+def environment() -> dict[str, Any]:
+    """CPU count, library versions, platform and UTC date of this run."""
+    import numba
+    import scipy
+    import torch
+
+    return {
+        "date_utc": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        "cpu_count": os.cpu_count(),
+        "python": platform.python_version(),
+        "platform": platform.platform(),
+        "numpy": np.__version__,
+        "scipy": scipy.__version__,
+        "numba": numba.__version__,
+        "torch": torch.__version__,
+        "torch_threads": torch.get_num_threads(),
+    }
+
+
+def seed_all(seed: int) -> None:
+    """Seed Python's, numpy's legacy and torch's global RNGs (code under test should take a seed)."""
+    import torch
+
+    random.seed(seed)
+    np.random.seed(seed)
+    torch.manual_seed(seed)
+
+
+def _default(o: Any) -> Any:
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"not JSON-serialisable: {type(o).__name__}")
+
+
+def write_json(name: str, obj: dict[str, Any]) -> Path:
+    """Write ``obj`` with an ``environment`` entry to ``benchmarks/results/NAME.json``; returns the path."""
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    path = RESULTS / f"{name}.json"
+    payload = {"environment": environment(), **obj}
+    tmp = path.with_suffix(f".json.tmp{os.getpid()}")
+    tmp.write_text(json.dumps(payload, indent=2, default=_default) + "\n")
+    tmp.replace(path)
+    return path
