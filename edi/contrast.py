@@ -47,7 +47,7 @@ from scipy.optimize import minimize_scalar
 
 from .errors import InputError
 from .events import EventStream, events_in_window
-from .model import LOG_EPS, SATURATION, Contrast, check_exposure, check_image, edi_log_ratio
+from .model import LOG_EPS, SATURATION, Contrast, check_frames, edi_log_ratio
 
 __all__ = ["estimate_c", "ContrastReport", "minimize_log"]
 
@@ -132,13 +132,29 @@ def _valid_mask(b: np.ndarray, border: int) -> np.ndarray:
 
 def _flow_energy(b: np.ndarray, exposure: tuple[float, float], events: EventStream, ratio: float,
                  patch: int = FLOW_PATCH, k: int = FLOW_SUBINTERVALS) -> Callable[[float], float]:
-    """energy(c) of one blurry frame b [H, W, D]: brightness-constancy residual (module docstring)."""
+    """energy(c) of one blurry frame b [H, W, D]: brightness-constancy residual (module docstring).
+
+    Integrated over a sub-interval [a, b) of the exposure, brightness constancy under a flow
+    v is exact: log L(b) - log L(a) = -grad(mean over [a, b) of log L) . v (b - a). The left
+    side is c times the signed count; the mean of log L over [a, b) is log(B + eps) + r(a) +
+    (1 / (b - a)) sum over the events in [a, b) of their increment times (b - t_i)."""
     t_s, t_e = exposure
     lb = np.log(_grey(b) + LOG_EPS)  # [H, W]
     H, W = lb.shape
     valid = _valid_mask(b, FLOW_BORDER)
     bounds = t_s + (t_e - t_s) * np.arange(k + 1) / k
-    mids = 0.5 * (bounds[1:] + bounds[:-1])
+    i0, i1 = events_in_window(events, t_s, t_e)
+    win = events[i0:i1]
+    t_ev = win.times_s()
+    pix = win.y.astype(np.int64) * W + win.x
+    sub = np.clip(np.searchsorted(bounds, t_ev, side="right") - 1, 0, k - 1)  # sub-interval of each event
+    weight = (bounds[sub + 1] - t_ev) / (bounds[1] - bounds[0])  # share of the rest of its sub-interval
+    pos = win.p > 0
+    # per sub-interval: sum of (b - t_i) / (b - a) over positive and over negative events
+    tail_pos = np.stack([np.bincount(pix[pos & (sub == j)], weights=weight[pos & (sub == j)], minlength=H * W)
+                         for j in range(k)]).reshape(k, H, W)
+    tail_neg = np.stack([np.bincount(pix[~pos & (sub == j)], weights=weight[~pos & (sub == j)], minlength=H * W)
+                         for j in range(k)]).reshape(k, H, W)
     ph, pw = max(1, H // patch), max(1, W // patch)
     sh, sw = min(patch, H), min(patch, W)
     crop = (slice(0, ph * sh), slice(0, pw * sw))
@@ -148,14 +164,15 @@ def _flow_energy(b: np.ndarray, exposure: tuple[float, float], events: EventStre
         a = a[..., crop[0], crop[1]] * m
         return a.reshape(a.shape[:-2] + (ph, sh, pw, sw)).sum(axis=(-3, -1))
 
+    def smooth(a: np.ndarray) -> np.ndarray:  # [K, H, W], spatially
+        return ndimage.gaussian_filter1d(ndimage.gaussian_filter1d(a, FLOW_SMOOTH, 1), FLOW_SMOOTH, 2)
+
     def energy(c: float) -> float:
-        r, _ = edi_log_ratio(events, exposure, np.concatenate([bounds, mids]), _pair(c, ratio))
-        d = ndimage.gaussian_filter1d(ndimage.gaussian_filter1d(np.diff(r[: k + 1], axis=0), FLOW_SMOOTH, 1),
-                                      FLOW_SMOOTH, 2)  # [K, H, W] change of log L per sub-interval
-        gx = np.empty_like(d)
-        gy = np.empty_like(d)
-        for j in range(k):
-            gy[j], gx[j] = np.gradient(ndimage.gaussian_filter(lb + r[k + 1 + j], FLOW_SMOOTH))
+        cc = _pair(c, ratio)
+        r, _ = edi_log_ratio(events, exposure, bounds, cc)  # [K + 1, H, W]
+        d = smooth(np.diff(r, axis=0))  # [K, H, W] change of log L per sub-interval
+        mean_log = smooth(lb[None] + r[:-1] + cc.pos * tail_pos - cc.neg * tail_neg)
+        gy, gx = np.gradient(mean_log, axis=(1, 2))
         # per patch: min_w sum (d + gx wx + gy wy)^2 -> normal equations, 2x2 per patch
         axx, axy, ayy = blocks((gx * gx).sum(0)), blocks((gx * gy).sum(0)), blocks((gy * gy).sum(0))
         bx, by, dd = blocks((gx * d).sum(0)), blocks((gy * d).sum(0)), blocks((d * d).sum(0))
@@ -322,29 +339,6 @@ def _consistency(fr: np.ndarray, ex: np.ndarray, events: EventStream, pairs, bra
     return c, e, len(history), history
 
 
-def _as_frames(frames: Any, exposures: Any, events: EventStream) -> tuple[np.ndarray, np.ndarray]:
-    """-> frames [F, H, W, D] float64 in [0, 1], exposures [F, 2]."""
-    ex = np.asarray(exposures, dtype=np.float64)
-    shape = tuple(np.shape(frames))
-    single = ex.ndim == 1
-    if single:
-        ex = ex[None]
-    if ex.ndim != 2 or ex.shape[1] != 2:
-        raise InputError(f"exposures must be [2] or [F, 2] seconds, got shape {tuple(ex.shape)}")
-    # one frame: [H, W] or [H, W, D] matching the sensor; several: [F, H, W] or [F, H, W, D]
-    one = len(shape) == 2 or (len(shape) == 3 and single and shape[:2] == (events.height, events.width))
-    items = [frames] if one else [frames[i] for i in range(shape[0])] if len(shape) in (3, 4) else None
-    if items is None or len(items) != ex.shape[0]:
-        raise InputError(
-            f"frames must be [H, W(, D)] or [F, H, W(, D)] matching exposures [F, 2]; got frames "
-            f"{shape} and exposures {tuple(ex.shape)}"
-        )
-    fr = np.stack([check_image(f, f"frames[{i}]", events)[0] for i, f in enumerate(items)])
-    for i in range(ex.shape[0]):
-        check_exposure(ex[i], f"exposures[{i}]")
-    return fr, ex
-
-
 def estimate_c(
     frames: Any,  # [H, W(, D)] or [F, H, W(, D)], linear [0, 1]
     exposures: Any,  # [2] or [F, 2] seconds
@@ -389,7 +383,7 @@ def estimate_c(
         raise TypeError(f"events must be an edi.EventStream, got {type(events).__name__}")
     if polarity is not None:
         pair = bool(polarity)
-    fr, ex = _as_frames(frames, exposures, events)
+    fr, ex = check_frames(frames, exposures, events)
     lo, hi = (float(v) for v in bracket)
     if not (0 < lo < hi and math.isfinite(hi)):
         raise InputError(f"bracket must be 0 < lo < hi, got {bracket!r}")

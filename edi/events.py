@@ -175,7 +175,9 @@ class EventStream:
         elif polarity in (1, -1):
             w = (self.p == polarity).astype(np.int64)
         else:
-            raise ValueError(f"polarity must be None, +1 or -1, got {polarity!r}")
+            from .errors import InputError
+
+            raise InputError(f"polarity must be None, +1 or -1, got {polarity!r}")
         flat = np.bincount(self.y.astype(np.int64) * self.width + self.x, weights=w,
                            minlength=self.width * self.height)
         return flat.astype(np.int64).reshape(self.height, self.width)

@@ -31,6 +31,7 @@ __all__ = [
     "parse_c",
     "check_exposure",
     "check_image",
+    "check_frames",
     "check_times",
     "edi_log_ratio",
     "latent_from_ratio",
@@ -151,6 +152,30 @@ def check_image(img: Any, name: str, events: EventStream | None) -> tuple[np.nda
             f"{events.height}x{events.width}"
         )
     return arr, is_torch
+
+
+def check_frames(frames: Any, exposures: Any, events: EventStream) -> tuple[np.ndarray, np.ndarray]:
+    """frames [H, W(, D)] or [F, H, W(, D)] and exposures [2] or [F, 2] -> frames [F, H, W, D]
+    float64 in [0, 1] (see ``to_unit_range``) and exposures [F, 2] seconds, checked."""
+    ex = np.asarray(exposures, dtype=np.float64)
+    shape = tuple(np.shape(frames))
+    single = ex.ndim == 1
+    if single:
+        ex = ex[None]
+    if ex.ndim != 2 or ex.shape[1] != 2:
+        raise InputError(f"exposures must be [2] or [F, 2] seconds, got shape {tuple(ex.shape)}")
+    # one frame: [H, W] or [H, W, D] matching the sensor; several: [F, H, W] or [F, H, W, D]
+    one = len(shape) == 2 or (len(shape) == 3 and single and shape[:2] == (events.height, events.width))
+    items = [frames] if one else [frames[i] for i in range(shape[0])] if len(shape) in (3, 4) else None
+    if items is None or len(items) != ex.shape[0]:
+        raise InputError(
+            f"frames must be [H, W(, D)] or [F, H, W(, D)] matching exposures [F, 2]; got frames "
+            f"{shape} and exposures {tuple(ex.shape)}"
+        )
+    fr = np.stack([check_image(f, f"frames[{i}]", events)[0] for i, f in enumerate(items)])
+    for i in range(ex.shape[0]):
+        check_exposure(ex[i], f"exposures[{i}]")
+    return fr, ex
 
 
 def check_times(times: Any, t_s: float, t_e: float) -> tuple[np.ndarray, bool]:
