@@ -443,11 +443,16 @@ def estimate_c(
         raise FloatingPointError("estimate_c produced a non-finite estimate; please report this")
     mean_c = est.mean
     at_bound = mean_c < lo * BOUND_FACTOR or mean_c > hi / BOUND_FACTOR
+    what = f"c = {mean_c:.4g} is at an end of the bracket ({lo:g}, {hi:g})"
+    if pair and not at_bound:
+        rho = est.pos / est.neg
+        at_bound = rho < RATIO_BRACKET[0] * BOUND_FACTOR or rho > RATIO_BRACKET[1] / BOUND_FACTOR
+        what = f"c_pos / c_neg = {rho:.4g} is at an end of its bracket ({RATIO_BRACKET[0]:.3g}, {RATIO_BRACKET[1]:.3g})"
     message = ""
     if at_bound:
-        message = (f"estimate_c: c = {mean_c:.4g} is at an end of the bracket ({lo:g}, {hi:g}) ({used}, {name}): "
-                   "the energy has no interior minimum, so this c is unreliable; give c (ebad deblur --c) or "
-                   "more frames (the consistency estimator)")
+        message = (f"estimate_c: {what} ({used} estimator, {name} energy): the energy has no interior minimum, so "
+                   "this estimate is unreliable; give c (ebad deblur --c C or --c C_POS,C_NEG) or more frames "
+                   "(two or more use the consistency estimator)")
         log.warning(message)
     out: float | Contrast = est if pair else mean_c
     if return_report:
