@@ -230,20 +230,22 @@ def _paper_energy(b: np.ndarray, exposure: tuple[float, float], events: EventStr
 
 
 def _consistency_pairs(fr: np.ndarray, ex: np.ndarray, events: EventStream):
-    """Per consecutive pair (i, i+1): the signed counts N+, N- between the centres and the valid mask."""
+    """Per consecutive pair (i, i+1) of frames: the signed counts N+, N- between the centres
+    (negated when the centres run backwards) and the mask of pixels that fired."""
     centres = ex.mean(axis=1)
     valid = (fr < SATURATION).all(axis=-1) & (fr > 0.0).all(axis=-1)  # [F, H, W]
     pairs = []
-    for i in range(fr.shape[0] - 1):
-        lo, hi = sorted((centres[i], centres[i + 1]))
+    F = fr.shape[0]
+    for i, k in zip(range(F - 1), range(1, F)):
+        lo, hi = sorted((centres[i], centres[k]))
         j0, j1 = events_in_window(events, lo, hi)
         win = events[j0:j1]
-        sign = 1.0 if centres[i + 1] >= centres[i] else -1.0
+        sign = 1.0 if centres[k] >= centres[i] else -1.0
         n_pos = sign * win.count_image(1).astype(np.float64)
         n_neg = sign * win.count_image(-1).astype(np.float64)
-        mask = valid[i] & valid[i + 1] & ((n_pos != 0) | (n_neg != 0))
+        mask = valid[i] & valid[k] & ((n_pos != 0) | (n_neg != 0))
         if mask.any():
-            pairs.append((i, n_pos, n_neg, mask))
+            pairs.append((i, k, n_pos, n_neg, mask))
     return pairs, 1.0 - float(valid.mean())
 
 
@@ -263,13 +265,13 @@ def _consistency_update(fr: np.ndarray, ex: np.ndarray, events: EventStream, pai
     """
     centres = ex.mean(axis=1)
     logs = {}
-    for j in sorted({j for p in pairs for j in (p[0], p[0] + 1)}):
+    for j in sorted({j for p in pairs for j in p[:2]}):
         r, _ = edi_log_ratio(events, (ex[j, 0], ex[j, 1]), centres[j : j + 1], c)
         logs[j] = np.log(fr[j].mean(axis=-1) + LOG_EPS) + r[0]  # log(L + eps), exact (no clipping)
     m = np.zeros((2, 3))  # rows rise / fall: sum D, sum N+, sum N-
     res2 = tot2 = 0.0
-    for i, n_pos, n_neg, mask in pairs:
-        d = (logs[i + 1] - logs[i]) * np.sign(centres[i + 1] - centres[i])
+    for i, k, n_pos, n_neg, mask in pairs:
+        d = (logs[k] - logs[i]) * np.sign(centres[k] - centres[i])
         for row, sel in enumerate((mask & (d >= CONSISTENCY_MIN_STEPS * c.pos),
                                    mask & (d <= -CONSISTENCY_MIN_STEPS * c.neg))):
             m[row] += (d[sel].sum(), n_pos[sel].sum(), n_neg[sel].sum())
@@ -301,14 +303,14 @@ def _consistency(fr: np.ndarray, ex: np.ndarray, events: EventStream, pairs, bra
 
     history: list[tuple[float, float]] = []
 
-    def step(c: Contrast) -> tuple[Contrast, float]:
+    def step(c: Contrast, pair: bool) -> tuple[Contrast, float]:
         new, e = _consistency_update(fr, ex, events, pairs, c, pair)
         history.append((c.mean, e))
         return new, e
 
-    def g(u: float) -> float:
+    def g(u: float) -> float:  # the root search is on one c
         c = math.exp(u)
-        return math.log(step(Contrast(c, c))[0].mean / c)
+        return math.log(step(Contrast(c, c), False)[0].mean / c)
 
     # the first stable crossing from below (g from + to -) on a coarse grid, then brentq: at
     # very large c the selection (a change of at least 1.5 c) empties and g turns positive again
@@ -327,15 +329,16 @@ def _consistency(fr: np.ndarray, ex: np.ndarray, events: EventStream, pairs, bra
     if c0 is None:
         c0 = bracket[1]  # the update points above the bracket
     c = Contrast(c0, c0)
-    new, e = step(c)
-    if pair:
+    rooted = bracket[0] < c0 < bracket[1]
+    new, e = step(c, pair and rooted)
+    if pair and rooted:
         for _ in range(CONSISTENCY_ITERS):
             done = (abs(new.pos - c.pos) <= CONSISTENCY_RTOL * c.pos
                     and abs(new.neg - c.neg) <= CONSISTENCY_RTOL * c.neg)
             c = new
             if done:
                 break
-            new, e = step(c)
+            new, e = step(c, True)
     return c, e, len(history), history
 
 
@@ -362,7 +365,9 @@ def estimate_c(
         events: the event stream.
         method: "single" (an energy of the most blurred frame), "consistency" (mEDI's
             relation between consecutive frames; needs F >= 2), or "auto" (consistency when
-            F >= 2 and some pixel changed between frame centres, else single).
+            F >= 2 and some pixel changed between frame centres, else single; also single
+            when the consistency relation has no root in the bracket, which happens when the
+            exposures fill most of the frame interval: the report's message says so).
         energy: the single-frame energy, "flow" (brightness constancy of the latent video,
             the default) or "paper" (the EDI paper's TV and edge correlation).
         bracket: search interval for c (single) and the range an estimate must fall in.
@@ -400,12 +405,22 @@ def estimate_c(
 
     evals: list[tuple[float, float]] = []
     used = None
+    fallback = ""
     if method in ("auto", "consistency") and fr.shape[0] >= 2:
         pairs, sat = _consistency_pairs(fr, ex, events)
         if pairs:
             est, e, n_steps, evals = _consistency(fr, ex, events, pairs, (lo, hi), pair, xatol)
             n_pass = n_steps * (len(pairs) + 1)
             used, name = "consistency", "consistency"
+            rooted = lo * BOUND_FACTOR <= est.mean <= hi / BOUND_FACTOR
+            blurry = bool((ex[:, 1] > ex[:, 0]).any())
+            if method == "auto" and not rooted and blurry:
+                # no self-consistent c in the bracket: the exposures cover most of the frame
+                # interval, so the latents move with c as much as the counts; one frame instead
+                fallback = (f"consistency: no self-consistent c in the bracket (stopped at {est.mean:.4g}); "
+                            "used the single-frame energy of the most blurred frame")
+                log.info("estimate_c: %s", fallback)
+                used = None
         elif method == "consistency":
             raise InputError("estimate_c: no pixel fired between consecutive frame centres; cannot use 'consistency'")
     elif method == "consistency":
@@ -456,6 +471,8 @@ def estimate_c(
         log.warning(message)
     out: float | Contrast = est if pair else mean_c
     if return_report:
+        if fallback:
+            message = (fallback + "; " + message) if message else fallback
         rep = ContrastReport(est, used, name, (lo, hi), float(e), int(n_pass), evals, float(sat), at_bound, message)
         return out, rep
     return out
