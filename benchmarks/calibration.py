@@ -140,3 +140,28 @@ def load_case(generator: str, seed: int, cache: Path | None) -> Case:
         with open(f, "wb") as fh:
             pickle.dump(case, fh)
     return case
+
+
+# --- the street recording: next-frame prediction ----------------------------------------------------
+
+
+def street_gain(frames: np.ndarray, exposures: np.ndarray, events: edi.EventStream, c) -> float:
+    """dB gained by predicting frame k+1 from frame k and the events between the centres
+    (log(F_k + eps) + c_pos N+ - c_neg N-, clipped to [0, 1]) over holding frame k, pooled
+    over the pixels that fired and are saturated in neither frame."""
+    cc = edi.parse_c(c)
+    centres = exposures.mean(axis=1)
+    se_pred = se_hold = 0.0
+    n = 0
+    for k in range(len(frames) - 1):
+        i0, i1 = edi.events_in_window(events, centres[k], centres[k + 1])
+        win = events[i0:i1]
+        n_pos, n_neg = win.count_image(1), win.count_image(-1)
+        ok = ((n_pos + n_neg) > 0) & (frames[k] < edi.SATURATION) & (frames[k + 1] < edi.SATURATION)
+        if not ok.any():
+            continue
+        pred = np.clip(np.exp(np.log(frames[k] + LOG_EPS) + cc.pos * n_pos - cc.neg * n_neg) - LOG_EPS, 0.0, 1.0)
+        se_pred += float(((pred - frames[k + 1])[ok] ** 2).sum())
+        se_hold += float(((frames[k] - frames[k + 1])[ok] ** 2).sum())
+        n += int(ok.sum())
+    return 10.0 * math.log10(se_hold / se_pred)

@@ -20,13 +20,13 @@ Two estimators (each an energy of c, every evaluation one EDI pass per frame use
   see ``benchmarks/calibration.py``.
 * ``consistency`` (two or more frames; mEDI's relation). For consecutive frames i, i+1
   with latents L_i, L_{i+1} at their exposure centres, log(L_{i+1} + eps) - log(L_i + eps)
-  = c_pos N+ - c_neg N- over the events between the centres. Each pixel whose events there
-  share one polarity gives its own ratio (log change) / (count); c_pos is the mean ratio of
-  the positive pixels, c_neg of the negative ones, and the latents are recomputed with the
-  new pair until it stops moving (a fixed point, a few EDI passes). Pixels enter by the size
-  of their log change, not by their event count: selecting or weighting by the count (as a
-  least squares on c * N does, weight N^2) favours the pixels with low thresholds, which fire
-  more, and read 0.67-0.89x the true mean c under a per-pixel mismatch of 0.03.
+  = c_pos N+ - c_neg N- over the events between the centres, up to the frames' noise and the
+  quantisation of the counts. The pair comes from moment equations with the neighbours'
+  counts as instruments (``_consistency_update``), and the latents are recomputed with the
+  new pair until it stops moving (the root of update(c) = c, a few EDI passes). The least
+  squares on c N it replaces weighted each pixel by N^2, which favours the low-threshold
+  pixels (they fire more), and read 0.67-0.89x the true mean c under a per-pixel mismatch
+  of 0.03 (issue 11).
 
 The 1-D searches use ``scipy.optimize.minimize_scalar(method="bounded")`` on log c. When
 the minimum sits at an end of the bracket the energy has no interior minimum: the report's
@@ -64,8 +64,9 @@ FLOW_SUBINTERVALS = 4
 FLOW_PATCH = 16
 FLOW_SMOOTH = 1.0
 FLOW_BORDER = 2
-#: consistency: a pixel enters when its log change between centres is at least this many c
-CONSISTENCY_MIN_STEPS = 1.5
+
+#: consistency: the instrument of a pixel is the sum of its 8 neighbours' counts
+_NEIGHBOURS = np.array([[1.0, 1.0, 1.0], [1.0, 0.0, 1.0], [1.0, 1.0, 1.0]])
 #: consistency: fixed-point iterations and relative tolerance
 CONSISTENCY_ITERS = 20
 #: consistency: points of the coarse scan of log c that brackets the root
@@ -230,64 +231,70 @@ def _paper_energy(b: np.ndarray, exposure: tuple[float, float], events: EventStr
 
 
 def _consistency_pairs(fr: np.ndarray, ex: np.ndarray, events: EventStream):
-    """Per consecutive pair (i, i+1) of frames: the signed counts N+, N- between the centres
-    (negated when the centres run backwards) and the mask of pixels that fired."""
+    """Per consecutive pair (i, i+1) of frames: the counts N+, N- between the centres (negated
+    when the centres run backwards), their instruments (the 8 neighbours' counts) and the
+    mask of pixels saturated in neither frame."""
     centres = ex.mean(axis=1)
     valid = (fr < SATURATION).all(axis=-1) & (fr > 0.0).all(axis=-1)  # [F, H, W]
     pairs = []
-    F = fr.shape[0]
-    for i, k in zip(range(F - 1), range(1, F)):
-        lo, hi = sorted((centres[i], centres[k]))
+    for i in range(fr.shape[0] - 1):
+        lo, hi = sorted((centres[i], centres[i + 1]))
         j0, j1 = events_in_window(events, lo, hi)
         win = events[j0:j1]
-        sign = 1.0 if centres[k] >= centres[i] else -1.0
+        sign = 1.0 if centres[i + 1] >= centres[i] else -1.0
         n_pos = sign * win.count_image(1).astype(np.float64)
         n_neg = sign * win.count_image(-1).astype(np.float64)
-        mask = valid[i] & valid[k] & ((n_pos != 0) | (n_neg != 0))
-        if mask.any():
-            pairs.append((i, k, n_pos, n_neg, mask))
+        z_pos, z_neg = (ndimage.correlate(n, _NEIGHBOURS, mode="constant") for n in (n_pos, n_neg))
+        ok = valid[i] & valid[i + 1]
+        if ((z_pos != 0) | (z_neg != 0))[ok].any():
+            pairs.append((i, n_pos, n_neg, z_pos, z_neg, ok))
     return pairs, 1.0 - float(valid.mean())
 
 
 def _consistency_update(fr: np.ndarray, ex: np.ndarray, events: EventStream, pairs, c: Contrast,
                         pair: bool) -> tuple[Contrast, float]:
-    """One step of the consistency estimator: latents with ``c`` -> the pair the moment equations give.
+    """One step of the consistency estimator: latents with ``c`` -> the pair the relation gives.
 
-    With D = log(L_{i+1} + eps) - log(L_i + eps) at the pixels whose change is at least
-    ``CONSISTENCY_MIN_STEPS`` c, sums over the rising (D > 0) and the falling (D < 0) pixels:
+    Per pixel D = log(L_{i+1} + eps) - log(L_i + eps) = c_pos N+ - c_neg N- + e, where e holds
+    the frames' noise and the event quantisation (a pixel's count misses up to one step of its
+    change). Both sides are noisy, so neither a least squares on c N (biased by the error of N,
+    and weighting each pixel by N^2, which favours the low-threshold pixels that fire more:
+    0.66-0.86x the true mean c under a mismatch of 0.03) nor a selection of pixels by D or by
+    N is unbiased. The instruments z+, z- (the 8 neighbours' counts of each polarity) follow
+    the true change of the pixel (motion and edges are smooth) but not its own noise, and over
+    all pixels saturated in neither frame
 
-        sum_rise D = c_pos sum_rise N+ - c_neg sum_rise N-,   sum_fall D = c_pos sum_fall N+ - c_neg sum_fall N-
+        sum z+ D = c_pos sum z+ N+ - c_neg sum z+ N-,   sum z- D = c_pos sum z- N+ - c_neg sum z- N-
 
-    (one c: sum |D| = c sum sign(D) (N+ - N-)). A pixel's count has the expectation D / c
-    whatever the phase of its threshold crossings, so these sums are not biased towards the
-    low-threshold pixels as a least squares on c N (weight N^2) or a selection by count is.
-    Also returns the relative residual sum (D - c_pos N+ + c_neg N-)^2 / sum D^2 (the energy).
+    (one c: sum z D = c sum z N, with z = z+ - z-, N = N+ - N-). Also returns the relative
+    residual sum (D - c_pos N+ + c_neg N-)^2 / sum D^2 over the pixels that fired (the energy).
     """
     centres = ex.mean(axis=1)
     logs = {}
-    for j in sorted({j for p in pairs for j in p[:2]}):
+    for j in sorted({j for p in pairs for j in (p[0], p[0] + 1)}):
         r, _ = edi_log_ratio(events, (ex[j, 0], ex[j, 1]), centres[j : j + 1], c)
         logs[j] = np.log(fr[j].mean(axis=-1) + LOG_EPS) + r[0]  # log(L + eps), exact (no clipping)
-    m = np.zeros((2, 3))  # rows rise / fall: sum D, sum N+, sum N-
+    m = np.zeros((2, 3))  # rows z+ / z-: sum z D, sum z N+, sum z N-
     res2 = tot2 = 0.0
-    for i, k, n_pos, n_neg, mask in pairs:
-        d = (logs[k] - logs[i]) * np.sign(centres[k] - centres[i])
-        for row, sel in enumerate((mask & (d >= CONSISTENCY_MIN_STEPS * c.pos),
-                                   mask & (d <= -CONSISTENCY_MIN_STEPS * c.neg))):
-            m[row] += (d[sel].sum(), n_pos[sel].sum(), n_neg[sel].sum())
-            res2 += float(((d[sel] - c.pos * n_pos[sel] + c.neg * n_neg[sel]) ** 2).sum())
-            tot2 += float((d[sel] ** 2).sum())
+    for i, n_pos, n_neg, z_pos, z_neg, ok in pairs:
+        d = (logs[i + 1] - logs[i]) * np.sign(centres[i + 1] - centres[i])
+        for row, z in enumerate((z_pos, z_neg)):
+            m[row] += ((z * d)[ok].sum(), (z * n_pos)[ok].sum(), (z * n_neg)[ok].sum())
+        fired = ok & ((n_pos != 0) | (n_neg != 0))
+        res2 += float(((d - c.pos * n_pos + c.neg * n_neg)[fired] ** 2).sum())
+        tot2 += float((d[fired] ** 2).sum())
     energy = res2 / tot2 if tot2 > 0 else math.inf
     a = np.array([[m[0, 1], -m[0, 2]], [m[1, 1], -m[1, 2]]])
     if pair and abs(np.linalg.det(a)) > 1e-9 * (np.abs(a).max() ** 2 + 1e-300):
         sol = np.linalg.solve(a, m[:, 0])
         if (sol > 0).all():
             return Contrast(float(sol[0]), float(sol[1])), energy
-    den = m[0, 1] - m[0, 2] - (m[1, 1] - m[1, 2])  # sum sign(D) (N+ - N-)
-    if den <= 0:
-        raise InputError("estimate_c: no pixel changed by a whole event step between consecutive frame "
-                         "centres; cannot use 'consistency'")
-    cm = float((m[0, 0] - m[1, 0]) / den)
+    den = m[0, 1] - m[0, 2] - (m[1, 1] - m[1, 2])  # sum z N
+    num = m[0, 0] - m[1, 0]  # sum z D
+    if not (den > 0 and num > 0):
+        raise InputError("estimate_c: the events between consecutive frame centres do not follow the frames' "
+                         "changes; cannot use 'consistency'")
+    cm = float(num / den)
     return Contrast(cm, cm), energy
 
 
@@ -408,19 +415,24 @@ def estimate_c(
     fallback = ""
     if method in ("auto", "consistency") and fr.shape[0] >= 2:
         pairs, sat = _consistency_pairs(fr, ex, events)
+        blurry = bool((ex[:, 1] > ex[:, 0]).any())
         if pairs:
-            est, e, n_steps, evals = _consistency(fr, ex, events, pairs, (lo, hi), pair, xatol)
-            n_pass = n_steps * (len(pairs) + 1)
-            used, name = "consistency", "consistency"
-            rooted = lo * BOUND_FACTOR <= est.mean <= hi / BOUND_FACTOR
-            blurry = bool((ex[:, 1] > ex[:, 0]).any())
-            if method == "auto" and not rooted and blurry:
-                # no self-consistent c in the bracket: the exposures cover most of the frame
-                # interval, so the latents move with c as much as the counts; one frame instead
-                fallback = (f"consistency: no self-consistent c in the bracket (stopped at {est.mean:.4g}); "
-                            "used the single-frame energy of the most blurred frame")
+            try:
+                est, e, n_steps, evals = _consistency(fr, ex, events, pairs, (lo, hi), pair, xatol)
+            except InputError as exc:
+                if method != "auto" or not blurry:
+                    raise
+                fallback = f"{exc}; used the single-frame energy of the most blurred frame"
+            else:
+                n_pass = n_steps * (len(pairs) + 1)
+                used, name = "consistency", "consistency"
+                if method == "auto" and blurry and not lo * BOUND_FACTOR <= est.mean <= hi / BOUND_FACTOR:
+                    # no self-consistent c in the bracket: one frame instead
+                    fallback = (f"consistency: no self-consistent c in the bracket (stopped at {est.mean:.4g}); "
+                                "used the single-frame energy of the most blurred frame")
+                    used = None
+            if fallback:
                 log.info("estimate_c: %s", fallback)
-                used = None
         elif method == "consistency":
             raise InputError("estimate_c: no pixel fired between consecutive frame centres; cannot use 'consistency'")
     elif method == "consistency":

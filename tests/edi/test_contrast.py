@@ -95,10 +95,11 @@ def naive_least_squares(frames, centres, events):
     return num / den
 
 
+@pytest.mark.slow
 def test_consistency_is_unbiased_under_mismatch():
     """Sharp frames (t_start == t_end, the exact log change), c 0.15, mismatch 0.03: the
     least squares on c N weights each pixel by N^2, and low-threshold pixels fire more, so it
-    reads 0.66-0.86x; the moment equations read 0.97-1.0x (seeds 0-5)."""
+    reads 0.66-0.86x; the instrumental moment equations read 0.975-0.995x (seeds 0-5)."""
     ours, naive = [], []
     for seed in range(6):
         s = moving_texture(num_frames=4, seed=seed, c=0.15, sigma_c=0.03)
@@ -113,12 +114,13 @@ def test_consistency_is_unbiased_under_mismatch():
     assert np.mean(naive) < 0.85 and max(naive) < 0.9, np.round(naive, 3)
 
 
-@pytest.mark.parametrize("c_true, tol", [(0.15, 0.05), (0.2, 0.1), (0.3, 0.1)])
+@pytest.mark.slow
+@pytest.mark.parametrize("c_true, tol", [(0.15, 0.05), (0.2, 0.05), (0.3, 0.1)])
 def test_consistency_blurry_frames(c_true, tol):
     """Blurry frames with gaps between the exposures (exposure 20 ms, period 50 ms), mismatch
-    0.03, seeds 0-4. Measured 0.99-1.04x at c 0.15, 1.02-1.06x at 0.2, 1.06-1.09x at 0.3: on
+    0.03, seeds 0-4. Measured 0.97-1.0x at c 0.15, 1.01-1.03x at 0.2, 1.05-1.07x at 0.3: on
     this texture pixels go up and down between two centres, and a pixel that turns loses up
-    to a step to the hysteresis of its reference (the ray-cast scenes read 0.99-1.02x)."""
+    to a step to the hysteresis of its reference (the ray-cast scenes read 0.98-1.01x)."""
     for seed in range(5):
         s = moving_texture(num_frames=4, seed=seed, c=c_true, sigma_c=0.03, exposure=0.02)
         c, rep = estimate_c(s.frames, s.exposures, s.events, return_report=True)
@@ -126,8 +128,9 @@ def test_consistency_blurry_frames(c_true, tol):
         assert abs(c / c_true - 1) <= tol, (seed, c)
 
 
+@pytest.mark.slow
 def test_consistency_pair():
-    """c = (0.15, 0.3), mismatch 0.03: measured 1.00-1.04x (c_pos), 1.05-1.08x (c_neg), seeds 0-4."""
+    """c = (0.15, 0.3), mismatch 0.03: measured 0.99-1.03x (c_pos), 1.03-1.05x (c_neg), seeds 0-4."""
     for seed in range(5):
         s = moving_texture(num_frames=4, seed=seed, c=(0.15, 0.3), sigma_c=0.03, exposure=0.02)
         est, rep = estimate_c(s.frames, s.exposures, s.events, pair=True, return_report=True)
@@ -135,14 +138,15 @@ def test_consistency_pair():
         assert abs(est.pos / 0.15 - 1) < 0.1 and abs(est.neg / 0.3 - 1) < 0.1, (seed, est)
 
 
-def test_auto_falls_back_to_one_frame_when_the_exposures_fill_the_interval():
-    """Exposure 40 ms every 50 ms: the latents move with c as much as the counts, so the
-    consistency relation has no root in the bracket; "auto" says so and uses one frame."""
-    s = moving_texture(num_frames=4, seed=4, c=0.15, sigma_c=0.03)
-    c, rep = estimate_c(s.frames, s.exposures, s.events, return_report=True)
-    assert rep.method == "single" and "no self-consistent c" in rep.message
-    c2, rep2 = estimate_c(s.frames, s.exposures, s.events, method="consistency", return_report=True)
-    assert rep2.at_bound and "no interior minimum" in rep2.message
+def test_auto_falls_back_to_one_frame_when_the_frames_contradict_the_events():
+    """Frames given in the wrong order: the events between the centres run against the
+    frames' changes. "consistency" refuses with a message; "auto" says so and uses one frame."""
+    s = moving_texture(num_frames=3, seed=0, c=0.2, exposure=0.02)
+    shuffled = s.frames[[1, 0, 2]]
+    with pytest.raises(InputError, match="do not follow the frames' changes"):
+        estimate_c(shuffled, s.exposures, s.events, method="consistency")
+    c, rep = estimate_c(shuffled, s.exposures, s.events, return_report=True)
+    assert rep.method == "single" and "used the single-frame energy" in rep.message
 
 
 def test_sharp_frames_torch_input():
@@ -150,7 +154,7 @@ def test_sharp_frames_torch_input():
     sharp = np.stack([s.sharp(t) for t in s.exposures.mean(axis=1)])
     ex = np.repeat(s.exposures.mean(axis=1)[:, None], 2, axis=1)
     c = estimate_c(torch.from_numpy(sharp), ex, s.events)
-    assert abs(c - 0.25) < 0.1 * 0.25, c  # measured 1.068x (ideal sensor, c 0.25: see above)
+    assert abs(c - 0.25) < 0.1 * 0.25, c  # measured 1.061x (ideal sensor, c 0.25: see above)
 
 
 # --- faults -------------------------------------------------------------------------------------
