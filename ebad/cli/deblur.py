@@ -205,6 +205,7 @@ def run(args) -> int:
     if args.medi:
         medi_lat = edi.medi(frames, exposures, events, c=c_all)
         c_source += ", mEDI"
+        print(f"ebad deblur: mEDI: {frames.shape[0]} frames solved jointly")
     per_frame = []
     for i in tqdm(range(frames.shape[0]), desc="deblur", unit="frame"):
         t_s, t_e = (float(v) for v in exposures[i])
