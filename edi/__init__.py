@@ -2,25 +2,37 @@
 
 Public API::
 
-    EventStream, EventError, seconds_to_us          # validated event arrays
-    read_events(path, t_unit=None, width=None, height=None) -> EventStream
+    EventStream, EventError, InputError, EbadError  # validated event arrays; the errors
+    seconds_to_us(t) -> int | int64 array           # the one seconds -> us conversion (nearest, ties even)
+    events_in_window(events, t0, t1) -> (i0, i1)    # the one window rule: t0 <= t < t1
+    read_events(path, t_unit=None, width=None, height=None, return_unit=False) -> EventStream
     read_aedat4(path) -> AedatRecording(events, frames, exposures, t0)
     LOG_EPS, SATURATION                             # log(I + LOG_EPS); saturated pixels
+    Contrast(pos, neg), parse_c(c)                  # a threshold pair; float | pair -> Contrast
     deblur(blur, exposure, events, times=None, c=None) -> [H, W(, D)] | [F, H, W(, D)]
-    estimate_c(frames, exposures, events, return_report=False) -> c | (c, ContrastReport)
+    estimate_c(frames, exposures, events, pair=False, return_report=False)
+        -> float | Contrast (pair=True), and a ContrastReport
     medi(frames, exposures, events, c=None) -> [F, H, W(, D)]
+    moving_texture(...) -> SyntheticSequence        # seeded synthetic ground truth
 """
 from .contrast import ContrastReport, estimate_c
-from .deblur import LOG_EPS, SATURATION, DeblurReport, deblur
-from .errors import EbadError, EventError
-from .events import EventStream, seconds_to_us
+from .deblur import DeblurReport, deblur
+from .errors import EbadError, EventError, InputError
+from .events import EventStream, events_in_window, seconds_to_us
 from .io import AedatRecording, infer_time_unit, read_aedat4, read_events
 from .medi import medi
+from .model import LOG_EPS, SATURATION, Contrast, parse_c
+from .moving_texture import moving_texture
 
 __all__ = [
     "EventStream",
     "EbadError",
     "EventError",
+    "InputError",
+    "Contrast",
+    "parse_c",
+    "events_in_window",
+    "moving_texture",
     "seconds_to_us",
     "LOG_EPS",
     "SATURATION",

@@ -25,7 +25,10 @@ def _edi_pass_numba(t, x, y, p, width, npix, t0_us, t1_us, inst_us, c_pos, c_neg
     n_inst = inst_us.shape[0]
     E = np.zeros(npix, np.float64)
     last = np.full(npix, t0_us, np.float64)
-    m = np.zeros(npix, np.float64)  # running max exponent
+    # running max exponent; it starts at -inf (no interval yet), not at 0: with E far below 0
+    # from the first interval on (800 negative events at t0, c = 1), a start at 0 would
+    # make every dt * exp(E - 0) underflow to 0
+    m = np.full(npix, -np.inf)
     s = np.zeros(npix, np.float64)  # running sum of dt * exp(E - m)
     Ef = np.zeros((n_inst, npix), np.float64)
     k = 0

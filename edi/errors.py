@@ -15,7 +15,7 @@ The subclasses also derive from ``ValueError`` where they did before, so code th
 """
 from __future__ import annotations
 
-__all__ = ["EbadError", "EventError"]
+__all__ = ["EbadError", "EventError", "InputError"]
 
 
 class EbadError(Exception):
@@ -24,3 +24,8 @@ class EbadError(Exception):
 
 class EventError(EbadError, ValueError):
     """An event array or event file is malformed; the message names the field and the first bad index."""
+
+
+class InputError(EbadError, ValueError):
+    """An argument of a public edi function that cannot work (shape, range, unit, exposure);
+    the message names the argument and what was found."""

@@ -14,9 +14,7 @@ import numpy as np
 
 from .errors import EventError
 
-__all__ = ["EventStream", "EventError"]
-
-
+__all__ = ["EventStream", "EventError", "seconds_to_us", "events_in_window"]
 
 
 def _to_numpy(a: Any, name: str) -> np.ndarray:
@@ -150,9 +148,14 @@ class EventStream:
         i1 = int(np.searchsorted(self.t, np.int64(t_end_us), side="left"))
         return i0, max(i0, i1)
 
+    def window(self, t_start: float, t_end: float) -> tuple[int, int]:
+        """Index bounds [i0, i1) of the events of the exposure window [t_start, t_end) in
+        seconds: the project's one window rule (see ``events_in_window``)."""
+        return self.index_range(seconds_to_us(t_start), seconds_to_us(t_end))
+
     def slice_time(self, t_start: float, t_end: float) -> "EventStream":
         """Events with t_start <= t < t_end, both in seconds (relative to the stream's t0)."""
-        i0, i1 = self.index_range(seconds_to_us(t_start), seconds_to_us(t_end))
+        i0, i1 = self.window(t_start, t_end)
         return self[i0:i1]
 
     def __getitem__(self, sl: slice) -> "EventStream":
@@ -172,7 +175,9 @@ class EventStream:
         elif polarity in (1, -1):
             w = (self.p == polarity).astype(np.int64)
         else:
-            raise ValueError(f"polarity must be None, +1 or -1, got {polarity!r}")
+            from .errors import InputError
+
+            raise InputError(f"polarity must be None, +1 or -1, got {polarity!r}")
         flat = np.bincount(self.y.astype(np.int64) * self.width + self.x, weights=w,
                            minlength=self.width * self.height)
         return flat.astype(np.int64).reshape(self.height, self.width)
@@ -182,6 +187,29 @@ class EventStream:
         return self.t.astype(np.float64) * 1e-6
 
 
-def seconds_to_us(t: float) -> int:
-    """Seconds to integer microseconds, rounded to nearest."""
-    return int(round(float(t) * 1e6))
+def seconds_to_us(t: Any) -> Any:
+    """Seconds -> integer microseconds: the project's one conversion.
+
+    Rounding: to the nearest microsecond, an exact half to the even neighbour (``np.rint``),
+    after multiplying by 1e6 in float64; so 0.0400004 s -> 40000 us and 0.0400006 s ->
+    40001 us, and a time written as k * 1e-6 s comes back as k. A float gives an ``int``,
+    an array an int64 array of the same shape. Non-finite values raise ``InputError``.
+    """
+    a = np.asarray(t, dtype=np.float64)
+    if not np.isfinite(a).all():
+        from .errors import InputError
+
+        raise InputError(f"seconds_to_us: times must be finite, got {t!r}")
+    us = np.rint(a * 1e6).astype(np.int64)
+    return int(us) if us.ndim == 0 else us
+
+
+def events_in_window(events: "EventStream", t_start: float, t_end: float) -> tuple[int, int]:
+    """Index bounds [i0, i1) of the events in the exposure window, by binary search.
+
+    The project's one window rule: an event belongs to [t_start, t_end) (seconds, on the
+    stream's clock) when ``seconds_to_us(t_start) <= t < seconds_to_us(t_end)``: an event at
+    the start of an exposure is in, one at its end is out (and in the next window that
+    starts there). ``events[i0:i1]`` is the window's stream; i1 == i0 when it is empty.
+    """
+    return events.window(t_start, t_end)

@@ -9,12 +9,14 @@ Formats (by extension):
   * ``.aedat4``: through the ``aedat`` package (``pip install aedat``, or the project's
     ``[aedat]`` extra); ``dv-processing`` is used when ``aedat`` is missing.
 
-The time unit is given (``t_unit`` in "s", "ms", "us", "ns") or inferred: non-integer
-times -> seconds, integer times spanning more than 1e10 -> nanoseconds, else
-microseconds. The unit used is logged at INFO and returned by
-``read_events(..., return_unit=True)``. Raw epoch
-times (above 1e12 us, ~11.6 days) are made relative by subtracting the first event's time
-in int64 (kept as ``EventStream.t0``).
+The time unit is given (``t_unit`` in "s", "ms", "us", "ns") or inferred from the magnitude
+and the span of the timestamps together (``infer_time_unit``), logged at INFO and returned by
+``read_events(..., return_unit=True)``; what cannot be told apart raises ``EventError``
+asking for ``t_unit``. Times are converted to int64 microseconds by ``to_us`` (nearest,
+ties to even, as ``seconds_to_us``). Raw epoch times (above 1e12 us, ~11.6 days) are made
+relative by subtracting the first event's time in int64 (kept as ``EventStream.t0``).
+A file that cannot be parsed (truncated, not the format its extension says) raises
+``EventError`` naming the file and what is wrong.
 """
 from __future__ import annotations
 
@@ -30,8 +32,17 @@ __all__ = ["read_events", "read_aedat4", "AedatRecording", "infer_time_unit"]
 
 log = logging.getLogger(__name__)
 
-_UNIT_TO_US = {"s": 1e6, "ms": 1e3, "us": 1.0, "ns": 1e-3}
-_EPOCH_US = 10**12  # times above this are raw epoch timestamps
+#: microseconds per unit
+UNITS_US = {"s": 10**6, "ms": 10**3, "us": 1, "ns": 10**-3}
+_EPOCH_US = 10**12  # converted times above this (~11.6 days) are raw epoch timestamps
+#: integer timestamps at or above this are absolute clock readings (read against the epoch)
+ABSOLUTE_MIN = 1e11
+#: plausible dates of an absolute clock reading, seconds since 1970 (1990 .. 2100)
+EPOCH_RANGE_S = (6.3e8, 4.1e9)
+#: relative integer timestamps spanning less than this are microseconds (< 1000 s) ...
+SPAN_US_MAX = 1e9
+#: ... from this span up (2.8 hours in us, 10 s in ns) nanoseconds; in between refused
+SPAN_NS_MIN = 1e10
 
 _ALIASES = {
     "t": ("t", "ts", "timestamp", "timestamps", "time", "times"),
@@ -42,41 +53,77 @@ _ALIASES = {
 
 
 def infer_time_unit(t: np.ndarray) -> tuple[str, str]:
-    """(unit, reason) for raw timestamps t [M]."""
+    """(unit, reason) for raw timestamps t [M], from their magnitude and span together.
+
+    * non-integer floats: seconds;
+    * integers (or whole floats) from ``ABSOLUTE_MIN`` (1e11) up are absolute clock readings:
+      the unit is the one that dates the first event between 1990 and 2100 since the epoch
+      (1.7e18 is nanoseconds, 1.7e15 microseconds, 1.7e12 milliseconds), whatever the span;
+    * smaller integers are relative: a span below ``SPAN_US_MAX`` (1e9) is microseconds
+      (under 1000 s), from ``SPAN_NS_MIN`` (1e10; 10 s in ns, 2.8 hours in us) nanoseconds;
+
+    anything else (an absolute reading that dates to no plausible year in any unit, a
+    relative span from 1e9 to 1e10: 17 minutes to 2.8 hours in us, or 1 to 10 s in ns) raises
+    ``EventError`` asking for ``t_unit``.
+    """
     if len(t) == 0:
         return "us", "no events (defaulting to microseconds)"
     if t.dtype.kind == "f":
         finite = t[np.isfinite(t)]
         if finite.size and np.any(finite != np.round(finite)):
-            return "s", "non-integer timestamps"
-    span = float(np.max(t)) - float(np.min(t))
-    if span > 1e10:
-        return "ns", f"integer timestamps spanning {span:.3g} (> 1e10)"
-    return "us", f"integer timestamps spanning {span:.3g}"
+            return "s", "non-integer timestamps are seconds"
+    elif t.dtype.kind not in "iu":
+        raise EventError(f"field 't' must be numeric, got dtype {t.dtype}")
+    t_min, t_max = float(np.min(t)), float(np.max(t))
+    span = t_max - t_min
+    if t_min >= ABSOLUTE_MIN:
+        for unit in ("ns", "us", "ms"):
+            sec = t_min * UNITS_US[unit] * 1e-6
+            if EPOCH_RANGE_S[0] <= sec <= EPOCH_RANGE_S[1]:
+                year = 1970 + sec / 31_557_600
+                return unit, (f"integer timestamps from {t_min:.4g}: {unit} since 1970 date them to {year:.0f} "
+                              f"(span {span * UNITS_US[unit] * 1e-6:.4g} s)")
+        raise EventError(
+            f"cannot tell the time unit: timestamps from {t_min:.4g} are no date between 1990 and 2100 in s, ms, "
+            f"us or ns since 1970; give t_unit (ebad deblur --t-unit)"
+        )
+    if span >= SPAN_NS_MIN:
+        return "ns", f"relative integer timestamps spanning {span:.4g} (>= {SPAN_NS_MIN:.0e}: {span * 1e-9:.4g} s in ns)"
+    if span < SPAN_US_MAX:
+        return "us", f"relative integer timestamps spanning {span:.4g} (< {SPAN_US_MAX:.0e}: {span * 1e-6:.4g} s in us)"
+    raise EventError(
+        f"cannot tell the time unit: relative integer timestamps spanning {span:.4g} could be {span * 1e-6:.4g} s "
+        f"in microseconds or {span * 1e-9:.4g} s in nanoseconds; give t_unit (ebad deblur --t-unit)"
+    )
 
 
-def _to_us(t: np.ndarray, unit: str, path: str) -> tuple[np.ndarray, int]:
-    """raw times -> (int64 us relative to t0, t0 in us)."""
-    if unit not in _UNIT_TO_US:
-        raise ValueError(f"{path}: t_unit must be one of {sorted(_UNIT_TO_US)}, got {unit!r}")
+def to_us(t: np.ndarray, unit: str, name: str = "t") -> np.ndarray:
+    """Raw times [M] in ``unit`` -> int64 microseconds, to the nearest, ties to even.
+
+    Integers are converted in exact integer arithmetic (ns: divided by 1000 with that
+    rounding); floats through float64, which must hold the result exactly (< 2^53 us)."""
+    if unit not in UNITS_US:
+        raise EventError(f"{name}: t_unit must be one of {sorted(UNITS_US)}, got {unit!r}")
     if t.dtype.kind == "f":
         if not np.isfinite(t).all():
             i = int(np.flatnonzero(~np.isfinite(t))[0])
-            raise EventError(f"{path}: field 't' has a non-finite value at index {i}")
-        us = np.round(t.astype(np.float64) * _UNIT_TO_US[unit])
+            raise EventError(f"{name}: field 't' has a non-finite value at index {i}")
+        us = np.rint(t.astype(np.float64) * UNITS_US[unit])
         if len(us) and np.abs(us).max() > 2**53:
-            raise EventError(f"{path}: float times too large for exact microseconds; store them as int64")
-        t_us = us.astype(np.int64)
-    elif t.dtype.kind in "iu":
-        ti = t.astype(np.int64)
-        if unit == "ns":
-            t_us = (ti + 500) // 1000
-        elif unit == "us":
-            t_us = ti
-        else:
-            t_us = ti * int(_UNIT_TO_US[unit])
-    else:
-        raise EventError(f"{path}: field 't' must be numeric, got dtype {t.dtype}")
+            raise EventError(f"{name}: float times too large for exact microseconds; store them as int64")
+        return us.astype(np.int64)
+    if t.dtype.kind not in "iu":
+        raise EventError(f"{name}: field 't' must be numeric, got dtype {t.dtype}")
+    ti = t.astype(np.int64)
+    if unit != "ns":
+        return ti * int(UNITS_US[unit])
+    q, r = np.divmod(ti, 1000)
+    return q + ((r > 500) | ((r == 500) & (q % 2 == 1)))
+
+
+def _to_us(t: np.ndarray, unit: str, path: str) -> tuple[np.ndarray, int]:
+    """raw times -> (int64 us, t0 in us to subtract: the first time when it is an epoch reading)."""
+    t_us = to_us(t, unit, path)
     t0 = int(t_us.min()) if len(t_us) and int(t_us.min()) > _EPOCH_US else 0
     return t_us, t0
 
@@ -89,7 +136,27 @@ def _pick(keys, field: str, path: str) -> str:
 
 
 def _load_arrays(path: Path) -> dict[str, np.ndarray]:
+    """The arrays of an event file; a file its parser cannot read raises EventError naming it."""
+    import zipfile
+    import zlib
+
+    from scipy.io.matlab import MatReadError
+
+    kind = {".npz": "NumPy .npz", ".h5": "HDF5", ".hdf5": "HDF5", ".mat": "MATLAB .mat", ".txt": "text"}
     ext = path.suffix.lower()
+    if ext not in kind:
+        raise EventError(f"{path}: unknown event file type {ext!r} (use .npz, .h5, .txt, .mat or .aedat4)")
+    try:
+        return _parse_arrays(path, ext)
+    except FileNotFoundError:
+        raise
+    except (OSError, EOFError, zipfile.BadZipFile, zlib.error, MatReadError, ValueError, KeyError) as exc:
+        if isinstance(exc, EventError):
+            raise
+        raise EventError(f"{path}: not a readable {kind[ext]} file ({type(exc).__name__}: {exc})") from exc
+
+
+def _parse_arrays(path: Path, ext: str) -> dict[str, np.ndarray]:
     if ext == ".npz":
         with np.load(path, allow_pickle=False) as z:
             keys = list(z.keys())
@@ -112,7 +179,11 @@ def _load_arrays(path: Path) -> dict[str, np.ndarray]:
     if ext == ".mat":
         from scipy.io import loadmat
 
-        m = {k: v for k, v in loadmat(path).items() if not k.startswith("__")}
+        try:
+            raw = loadmat(path)
+        except IndexError as exc:  # scipy's parser indexes past the end of a garbage header
+            raise EventError(f"{path}: not a readable MATLAB .mat file (IndexError: {exc})") from exc
+        m = {k: v for k, v in raw.items() if not k.startswith("__")}
         if "events" in m and m["events"].ndim == 2 and m["events"].shape[1] == 4:
             a = m["events"]
             return {"t": a[:, 0], "x": a[:, 1], "y": a[:, 2], "p": a[:, 3]}
@@ -124,7 +195,7 @@ def _load_arrays(path: Path) -> dict[str, np.ndarray]:
         if a.shape[1] < 4:
             raise EventError(f"{path}: expected lines 't x y p', got {a.shape[1]} columns")
         return {"t": a[:, 0], "x": a[:, 1], "y": a[:, 2], "p": a[:, 3]}
-    raise ValueError(f"{path}: unknown event file type {ext!r} (use .npz, .h5, .txt, .mat or .aedat4)")
+    raise AssertionError(ext)  # _load_arrays checked the extension
 
 
 def read_events(
@@ -141,15 +212,23 @@ def read_events(
         path: .npz, .h5/.hdf5, .txt (t x y p, seconds), .mat or .aedat4.
         t_unit: "s", "ms", "us" or "ns"; None infers it (see ``infer_time_unit``) and logs it.
             ``.txt`` defaults to seconds; ``.aedat4`` is always microseconds.
-        width, height: sensor size; default from the file (``width``/``height`` or
-            ``sensor_size`` keys), else max coordinate + 1 (logged as a warning).
+        width, height: sensor size. When the file declares one (``width``/``height`` or
+            ``sensor_size`` keys, an AEDAT4 stream) a different given size raises
+            ``EventError`` naming both; without either the declared size is used, else
+            max coordinate + 1 (logged as a warning).
         return_unit: return (events, unit, reason) instead.
+
+    Raises:
+        EventError: unreadable file, missing field, ambiguous time unit (give ``t_unit``),
+            a given size that differs from the declared one, malformed events.
+        FileNotFoundError: no such file.
     """
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"event file not found: {path}")
     if path.suffix.lower() == ".aedat4":
         ev = read_aedat4(path).events
+        _check_declared(path, (ev.width, ev.height), width, height)
         return (ev, "us", "AEDAT4 timestamps are microseconds") if return_unit else ev
     arrs = _load_arrays(path)
     keys = set(arrs)
@@ -161,17 +240,22 @@ def read_events(
         if path.suffix.lower() == ".txt":
             unit, reason = "s", "events.txt stores seconds"
         else:
-            unit, reason = infer_time_unit(t)
+            try:
+                unit, reason = infer_time_unit(t)
+            except EventError as exc:
+                raise EventError(f"{path}: {exc}") from None
         log.info("read_events %s: time unit %r (inferred: %s)", path, unit, reason)
     else:
         unit, reason = t_unit, "given"
     t_us, t0 = _to_us(t, unit, str(path))
+    w_f = next((int(np.asarray(arrs[k]).reshape(-1)[0]) for k in ("width", "sensor_width") if k in arrs), None)
+    h_f = next((int(np.asarray(arrs[k]).reshape(-1)[0]) for k in ("height", "sensor_height") if k in arrs), None)
+    if "sensor_size" in arrs:
+        ss = np.asarray(arrs["sensor_size"]).reshape(-1)
+        h_f, w_f = int(ss[0]), int(ss[1])  # (H, W) as in E-NeRF / tonic
+    if w_f is not None and h_f is not None:
+        _check_declared(path, (w_f, h_f), width, height)
     if width is None or height is None:
-        w_f = next((int(np.asarray(arrs[k]).reshape(-1)[0]) for k in ("width", "sensor_width") if k in arrs), None)
-        h_f = next((int(np.asarray(arrs[k]).reshape(-1)[0]) for k in ("height", "sensor_height") if k in arrs), None)
-        if "sensor_size" in arrs:
-            ss = np.asarray(arrs["sensor_size"]).reshape(-1)
-            h_f, w_f = int(ss[0]), int(ss[1])  # (H, W) as in E-NeRF / tonic
         if w_f is None or h_f is None:
             w_f = int(np.max(x)) + 1 if len(x) else 1
             h_f = int(np.max(y)) + 1 if len(y) else 1
@@ -183,6 +267,16 @@ def read_events(
     except EventError as exc:
         raise EventError(f"{path}: {exc}") from exc
     return (ev, unit, reason) if return_unit else ev
+
+
+def _check_declared(path: Path, declared: tuple[int, int], width: int | None, height: int | None) -> None:
+    """A given sensor size must match the one the file declares."""
+    w, h = declared
+    if (width is not None and int(width) != w) or (height is not None and int(height) != h):
+        raise EventError(
+            f"{path}: the file declares a {w}x{h} (WxH) sensor but {width}x{height} was given "
+            "(the frame's size): the events do not belong to this frame"
+        )
 
 
 @dataclass
@@ -229,22 +323,26 @@ def read_aedat4(path: str | Path) -> AedatRecording:
         return _read_aedat4_dv(path)
     try:
         dec = aedat.Decoder(str(path))
-    except Exception as exc:
-        raise ValueError(f"{path}: not a readable AEDAT4 file ({exc})") from exc
+    except (OSError, RuntimeError, ValueError) as exc:
+        raise EventError(f"{path}: not a readable AEDAT4 file ({type(exc).__name__}: {exc})") from exc
     streams = dec.id_to_stream()
     size = next(((s["width"], s["height"]) for s in streams.values() if s.get("type") == "events"), None)
     if size is None:
         size = next(((s["width"], s["height"]) for s in streams.values() if s.get("type") == "frame"), None)
     if size is None:
-        raise ValueError(f"{path}: no events or frame stream")
+        raise EventError(f"{path}: no events or frame stream")
     ev_chunks, frames, exps = [], [], []
-    for pk in dec:
-        if "events" in pk:
-            ev_chunks.append(pk["events"])
-        elif "frame" in pk:
-            fr = pk["frame"]
-            frames.append(_frame_pixels(fr["pixels"], fr.get("format", "L")))
-            exps.append((int(fr["exposure_begin_t"]), int(fr["exposure_end_t"])))
+    try:
+        for pk in dec:
+            if "events" in pk:
+                ev_chunks.append(pk["events"])
+            elif "frame" in pk:
+                fr = pk["frame"]
+                frames.append(_frame_pixels(fr["pixels"], fr.get("format", "L")))
+                exps.append((int(fr["exposure_begin_t"]), int(fr["exposure_end_t"])))
+    except (OSError, RuntimeError) as exc:  # the decoder's "failed to fill whole buffer" on a truncated file
+        raise EventError(f"{path}: truncated or corrupt AEDAT4 file after {len(ev_chunks)} event and "
+                         f"{len(frames)} frame packets ({type(exc).__name__}: {exc})") from exc
     evs = np.concatenate(ev_chunks) if ev_chunks else None
     t_raw = evs["t"].astype(np.int64) if evs is not None else np.zeros(0, np.int64)
     candidates = [int(t_raw[0])] if len(t_raw) else []

@@ -8,8 +8,9 @@ event model). Per pixel and channel
     minimise  sum_i w_i (x_i - y_i)^2 + lam * sum_i (x_{i+1} - x_i - d_i)^2,
 
 whose normal equations (W + lam D^T D) x = W y + lam D^T d share one tridiagonal matrix
-across all pixels of equal weights (saturated frames get w_i = 1e-6 at that pixel, and are
-then carried by the events from their neighbours). Large lam trusts the events, small lam
+per pixel (saturated frames get w_i = 1e-6 at that pixel, and are then carried by the
+events from their neighbours); every pixel's system is solved with its own weights by a
+vectorised Thomas algorithm (``solve_tridiagonal``). Large lam trusts the events, small lam
 the frames; lam = 1 by default.
 """
 from __future__ import annotations
@@ -17,16 +18,42 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
-from scipy.linalg import solve_banded
 
 from .contrast import estimate_c
-from .deblur import LOG_EPS, SATURATION, _check_exposure, _check_image, edi_log_ratio, latent_from_ratio, parse_c
-from .events import EventStream
+from .errors import InputError
+from .model import LOG_EPS, SATURATION, check_frames, edi_log_ratio, latent_from_ratio, parse_c
+from .events import EventStream, events_in_window
 
-__all__ = ["medi"]
+__all__ = ["medi", "solve_tridiagonal"]
 
 #: data weight of a saturated frame pixel: tiny, so the events carry it, yet the system stays regular
 _SAT_WEIGHT = 1e-6
+
+
+def solve_tridiagonal(
+    lower: np.ndarray,  # [F - 1] sub-diagonal, shared by every system
+    diag: np.ndarray,  # [F, ...] diagonal of each system
+    upper: np.ndarray,  # [F - 1] super-diagonal, shared
+    rhs: np.ndarray,  # [F, ...] right-hand sides
+) -> np.ndarray:
+    """Solve many tridiagonal systems at once (Thomas algorithm, no pivoting), [F, ...].
+
+    Meant for diagonally dominant systems (mEDI's normal equations with weights > 0), where
+    the elimination without pivoting is stable."""
+    F = diag.shape[0]
+    c = np.empty(diag.shape)
+    x = np.empty(np.broadcast_shapes(diag.shape, rhs.shape))
+    den = diag[0]
+    c[0] = upper[0] / den if F > 1 else 0.0
+    x[0] = rhs[0] / den
+    for i in range(1, F):
+        den = diag[i] - lower[i - 1] * c[i - 1]
+        if i < F - 1:
+            c[i] = upper[i] / den
+        x[i] = (rhs[i] - lower[i - 1] * x[i - 1]) / den
+    for i in range(F - 2, -1, -1):
+        x[i] -= c[i] * x[i + 1]
+    return x
 
 
 def medi(
@@ -52,25 +79,20 @@ def medi(
     """
     if not isinstance(events, EventStream):
         raise TypeError(f"events must be an edi.EventStream, got {type(events).__name__}")
-    is_torch = hasattr(frames, "detach")
-    fr = frames.detach().cpu().double().numpy() if is_torch else np.asarray(frames, dtype=np.float64)
-    grey_in = fr.ndim == 3
-    if grey_in:
-        fr = fr[..., None]
-    if fr.ndim != 4:
-        raise ValueError(f"frames must be [F, H, W] or [F, H, W, D], got shape {tuple(np.shape(frames))}")
+    is_torch = hasattr(frames, "detach") and type(frames).__module__.startswith("torch")
+    if np.ndim(frames) not in (3, 4):
+        raise InputError(f"frames must be [F, H, W] or [F, H, W, D], got shape {tuple(np.shape(frames))}")
+    grey_in = np.ndim(frames) == 3
     ex = np.asarray(exposures, dtype=np.float64)
-    if ex.shape != (fr.shape[0], 2):
-        raise ValueError(f"exposures must be [F, 2] = [{fr.shape[0]}, 2], got {tuple(ex.shape)}")
-    for i in range(fr.shape[0]):
-        _check_image(fr[i], f"frames[{i}]", events)
-        _check_exposure(ex[i], f"exposures[{i}]")
+    if ex.shape != (np.shape(frames)[0], 2):
+        raise InputError(f"exposures must be [F, 2] = [{np.shape(frames)[0]}, 2], got {tuple(ex.shape)}")
+    fr, ex = check_frames(frames, ex, events)
     centres = ex.mean(axis=1)
     if np.any(np.diff(centres) < 0):
-        raise ValueError("exposures must be in time order (increasing centres)")
+        raise InputError("exposures must be in time order (increasing centres)")
     if not (np.isfinite(lam) and lam >= 0):
-        raise ValueError(f"lam must be finite and >= 0, got {lam}")
-    cc = parse_c(estimate_c(fr, ex, events)) if c is None else parse_c(c)
+        raise InputError(f"lam must be finite and >= 0, got {lam}")
+    cc = estimate_c(fr, ex, events, pair=True) if c is None else parse_c(c)
     F, H, W, D = fr.shape
 
     y = np.empty((F, H, W, D))
@@ -85,30 +107,19 @@ def medi(
     else:
         d = np.empty((F - 1, H, W))
         for i in range(F - 1):
-            win = events.slice_time(centres[i], centres[i + 1])
+            j0, j1 = events_in_window(events, centres[i], centres[i + 1])
+            win = events[j0:j1]
             d[i] = cc[0] * win.count_image(1) - cc[1] * win.count_image(-1)
-        # banded normal equations per pixel: diag_i = w_i + lam * deg_i, off = -lam
+        # normal equations per pixel and channel: tridiagonal, diag_i = w_i + lam * deg_i, off = -lam
         deg = np.full(F, 2.0)
         deg[0] = deg[-1] = 1.0
-        wf = w.reshape(F, -1)
-        diag = wf + lam * deg[:, None]  # [F, P]
-        rhs = (wf[..., None] * y.reshape(F, -1, D)).copy()  # [F, P, D]
+        wf = w.reshape(F, -1, 1)  # [F, P, 1]
+        diag = np.broadcast_to(wf + lam * deg[:, None, None], (F, H * W, D))
+        rhs = wf * y.reshape(F, -1, D)  # [F, P, D]
         dd = d.reshape(F - 1, -1)[..., None]
         rhs[:-1] -= lam * dd
         rhs[1:] += lam * dd
-        out = np.empty((F, H * W, D))
-        # pixels share the matrix when they share the weights: group by weight pattern
-        keys = np.packbits(wf > 0, axis=0)
-        uniq, inv = np.unique(keys, axis=1, return_inverse=True)
-        inv = inv.reshape(-1)
-        for g in range(uniq.shape[1]):
-            cols = np.flatnonzero(inv == g)
-            ab = np.zeros((3, F))
-            ab[0, 1:] = -lam
-            ab[1] = diag[:, cols[0]]
-            ab[2, :-1] = -lam
-            sol = solve_banded((1, 1), ab, rhs[:, cols, :].reshape(F, -1))
-            out[:, cols, :] = sol.reshape(F, len(cols), D)
+        out = solve_tridiagonal(np.full(F - 1, -lam), diag, np.full(F - 1, -lam), rhs)
         out = out.reshape(F, H, W, D)
     lat = np.clip(np.exp(out) - LOG_EPS, 0.0, 1.0)
     if not np.isfinite(lat).all():

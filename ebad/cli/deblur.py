@@ -1,7 +1,6 @@
-"""``ebad deblur``: sharp frames (and sharp video) from blurry frames and their events (EDI)."""
+"""``ebad deblur``: sharp frames (and sharp video) from blurry frames and their events (EDI, mEDI)."""
 from __future__ import annotations
 
-import argparse
 import json
 import math
 from pathlib import Path
@@ -11,7 +10,7 @@ import numpy as np
 from ..errors import UserError
 
 NAME = "deblur"
-HELP = "deblur frames with their events (EDI): sharp frames, sharp instants, side-by-side images"
+HELP = "deblur frames with their events (EDI or mEDI): sharp frames, sharp instants, side-by-side images"
 DESCRIPTION = """Deblur APS frames with the events of their exposures (Event-based Double Integral).
 
 INPUT is one of
@@ -22,21 +21,31 @@ INPUT is one of
 
 Writes DIR/sharp/NAME.png (mid-exposure), DIR/instants/NAME_KK.png (with --times N: N
 instants per exposure at the centres of N equal sub-intervals), DIR/side_by_side/NAME.png
-(blurry | sharp) and DIR/c.json (the contrast threshold used per frame). PNG values are
-linear intensity; the sharp frames and instants are 16-bit (``--bits 8`` for 8-bit), the
-side-by-side images 8-bit."""
+(blurry | sharp) and DIR/c.json (the contrast thresholds used, per frame, and how they were
+found). PNG values are linear intensity; the sharp frames and instants are 16-bit (``--bits
+8`` for 8-bit), the side-by-side images 8-bit.
 
-_IMAGE_EXT = {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".pgm"}
+The contrast threshold is estimated unless --c is given: jointly from consecutive frames when
+there are two or more (c_pos and c_neg), else from the one frame (brightness constancy of the
+latent video). When that estimate has no interior minimum the command says so: give --c
+(DAVIS sensors: 0.1 to 0.5) or more frames. --medi solves all frames jointly (mEDI: each
+pixel's log intensities follow the events between frames; saturated pixels are carried by
+their neighbours in time)."""
+
+_IMAGE_EXT = {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".pgm", ".npy"}
 
 
-def add_arguments(p: argparse.ArgumentParser) -> None:
+def add_arguments(p) -> None:
     p.add_argument("input", help="capture folder, .aedat4 file, or a frame image (with --events)")
     p.add_argument("--out", required=True, help="output folder (created)")
     p.add_argument("--c", default="auto", help="contrast threshold: 'auto' (estimated), a float, or 'c_pos,c_neg'")
+    p.add_argument("--medi", action="store_true",
+                   help="solve all frames jointly (mEDI; needs two or more frames) instead of one by one")
     p.add_argument("--times", type=int, default=0, metavar="N", help="also write N sharp instants per exposure")
     p.add_argument("--events", help="event file for a frame image (.npz, .h5, .txt, .mat, .aedat4)")
     p.add_argument("--exposure", type=float, nargs=2, metavar=("T0", "T1"), help="exposure of a frame image, seconds")
-    p.add_argument("--t-unit", choices=["s", "ms", "us", "ns"], help="time unit of --events (default: inferred)")
+    p.add_argument("--t-unit", choices=["s", "ms", "us", "ns"],
+                   help="time unit of --events (default: inferred from the timestamps' magnitude and span)")
     p.add_argument("--max-frames", type=int, default=0, help="deblur only the first N frames (0: all)")
     p.add_argument("--skip-sharp", action="store_true", help="skip frames without events or with t_start == t_end")
     p.add_argument("--bits", type=int, choices=(8, 16), default=16,
@@ -44,64 +53,49 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _parse_c(s: str):
+    """'auto' -> None; 'C' or 'C_POS,C_NEG' -> edi.Contrast (validated by edi.parse_c)."""
+    from edi import InputError, parse_c
+
     s = s.strip().lower()
     if s == "auto":
         return None
     try:
         vals = [float(v) for v in s.split(",")]
-    except ValueError:
-        raise UserError(f"--c must be 'auto', a float or 'c_pos,c_neg', got {s!r}") from None
-    if len(vals) not in (1, 2) or not all(math.isfinite(v) and v > 0 for v in vals):
-        raise UserError(f"--c must be 'auto', a positive float or 'c_pos,c_neg', got {s!r}")
-    return vals[0] if len(vals) == 1 else (vals[0], vals[1])
-
-
-def _read_image(path: Path) -> np.ndarray:
-    from skimage import io
-
-    img = io.imread(str(path))
-    if img.dtype == np.uint8:
-        a = img.astype(np.float32) / 255.0
-    elif img.dtype == np.uint16:
-        a = img.astype(np.float32) / 65535.0
-    else:
-        a = np.clip(img.astype(np.float32), 0, 1)
-    if a.ndim == 2:
-        a = a[..., None]
-    elif a.ndim == 3 and a.shape[-1] == 4:
-        a = a[..., :3]
-    if a.ndim != 3 or a.shape[-1] not in (1, 3):
-        raise UserError(f"{path}: expected a grey or RGB image, got shape {img.shape}")
-    return a
+        return parse_c(vals[0] if len(vals) == 1 else vals, "--c")
+    except (ValueError, InputError):
+        raise UserError(f"--c must be 'auto', a positive float or 'c_pos,c_neg', got {s!r}") from None
 
 
 def _load_input(args):
-    """-> frames [F, H, W, D], exposures [F, 2], events, names."""
+    """-> frames [F, H, W, D], exposures [F, 2], events, names, the time unit note."""
     import edi
 
     path = Path(args.input)
     if not path.exists():
-        raise FileNotFoundError(f"INPUT not found: {path}")
+        raise FileNotFoundError(2, "INPUT not found", str(path))
     if path.is_dir():
-        try:
-            from scenes import load  # the capture reader (scenes package)
-        except ImportError:
-            raise UserError(f"{path}: reading capture folders needs scenes.load, which this install lacks") from None
+        from scenes import load  # the capture reader
+
         cap = load(path)
         names = list(cap.names) or [f"{i:04d}" for i in range(cap.num_frames)]
-        return np.asarray(cap.frames), np.asarray(cap.exposures, np.float64), cap.events, names
+        unit = f"capture.json's t_unit ({path / 'capture.json'})"
+        return np.asarray(cap.frames), np.asarray(cap.exposures, np.float64), cap.events, names, unit
     ext = path.suffix.lower()
     if ext == ".aedat4":
         rec = edi.read_aedat4(path)
         if rec.frames.shape[0] == 0:
             raise UserError(f"{path}: the recording has no frames")
-        return rec.frames, rec.exposures, rec.events, [f"{i:04d}" for i in range(rec.frames.shape[0])]
+        return rec.frames, rec.exposures, rec.events, [f"{i:04d}" for i in range(rec.frames.shape[0])], "us (AEDAT4)"
     if ext in _IMAGE_EXT:
+        from scenes.images import read_image
+
         if not args.events:
             raise UserError(f"{path}: a frame image needs --events FILE (and optionally --exposure T0 T1)")
-        img = _read_image(path)
+        img = read_image(path, "INPUT")
         H, W = img.shape[:2]
-        ev = edi.read_events(args.events, t_unit=args.t_unit, width=W, height=H)
+        ev, unit, reason = edi.read_events(args.events, t_unit=args.t_unit, width=W, height=H, return_unit=True)
+        note = f"{unit} ({reason})"
+        print(f"ebad deblur: {args.events}: {len(ev)} events, time unit {note}")
         if args.exposure is not None:
             t0, t1 = args.exposure
             if not (math.isfinite(t0) and math.isfinite(t1)) or t1 < t0:
@@ -111,78 +105,142 @@ def _load_input(args):
                 raise UserError(f"{args.events}: no events, and no --exposure given")
             t0, t1 = float(ev.t[0]) * 1e-6, (float(ev.t[-1]) + 1.0) * 1e-6
             print(f"ebad deblur: exposure from the events' span: {t0:.6f} .. {t1:.6f} s")
-        return img[None], np.array([[t0, t1]]), ev, [path.stem]
+        return img[None], np.array([[t0, t1]]), ev, [path.stem], note
     raise UserError(f"{path}: INPUT must be a capture folder, an .aedat4 file or a frame image")
 
 
+def _event_counts(events, exposures: np.ndarray) -> np.ndarray:
+    import edi
+
+    return np.array([np.subtract(*edi.events_in_window(events, t0, t1)[::-1]) if t1 > t0 else 0
+                     for t0, t1 in exposures])
+
+
+def _check_events_reach_the_frames(events, exposures: np.ndarray, counts: np.ndarray, unit: str) -> None:
+    """No blurry exposure with events: stop, showing the exposures next to the events' times."""
+    blurry = exposures[:, 1] > exposures[:, 0]
+    if not blurry.any() or counts[blurry].any():
+        return
+    ev_range = ("no events at all" if len(events) == 0 else
+                f"events from {events.t[0] * 1e-6:.6f} to {events.t[-1] * 1e-6:.6f} s")
+    raise UserError(
+        f"no exposure has events: exposures from {exposures[:, 0].min():.6f} to {exposures[:, 1].max():.6f} s, "
+        f"{ev_range}, time unit assumed {unit}; check the time unit (--t-unit) or the exposure times"
+    )
+
+
+def _estimate(frames, exposures, events, counts, c_arg):
+    """-> (c for the frames or None to estimate per frame, source text, the report or None)."""
+    import edi
+
+    if c_arg is not None:
+        return c_arg, "given (--c)", None
+    use = counts > 0
+    if frames.shape[0] >= 2:
+        try:
+            c, rep = edi.estimate_c(frames, exposures, events, pair=True, return_report=True)
+        except edi.InputError:
+            return None, "estimated on each frame", None
+        return c, f"estimated jointly ({rep.method}, {rep.energy_name})", rep
+    if not use.any():
+        return None, "unused (no events)", None
+    return None, "estimated on this frame", None
+
+
 def _save(path: Path, img: np.ndarray, bits: int = 8) -> None:
-    from skimage import io
+    from PIL import Image
+
+    from scenes.images import write_png16
 
     path.parent.mkdir(parents=True, exist_ok=True)
     a = np.clip(np.asarray(img, np.float64), 0, 1)
     if bits == 16:
-        from scenes.images import write_png16
-
         write_png16(path, a)
         return
     if a.ndim == 3 and a.shape[-1] == 1:
         a = a[..., 0]
-    io.imsave(str(path), (a * 255.0 + 0.5).astype(np.uint8), check_contrast=False)
+    Image.fromarray((a * 255.0 + 0.5).astype(np.uint8)).save(path, format="PNG")
+
+
+def _say_at_bound(rep, where: str) -> None:
+    if rep is not None and rep.at_bound:
+        print(f"ebad deblur: warning: {where}: {rep.message}")
 
 
 def run(args) -> int:
+    import logging
+
     import edi
     from tqdm import tqdm
+
+    # estimate_c logs a warning when its estimate is unreliable; this command prints that
+    # message itself (with what to do), so the library's copy would repeat it
+    logging.getLogger("edi.contrast").addHandler(logging.NullHandler())
 
     c_arg = _parse_c(args.c)
     if args.times < 0:
         raise UserError(f"--times must be >= 0, got {args.times}")
-    frames, exposures, events, names = _load_input(args)
-    if args.max_frames and args.max_frames > 0:
+    if args.max_frames < 0:
+        raise UserError(f"--max-frames must be >= 0, got {args.max_frames}")
+    frames, exposures, events, names, unit = _load_input(args)
+    if args.max_frames:
         frames, exposures, names = frames[: args.max_frames], exposures[: args.max_frames], names[: args.max_frames]
+    if args.medi and frames.shape[0] < 2:
+        raise UserError(f"--medi needs two or more frames; {args.input} has {frames.shape[0]}")
+    counts = _event_counts(events, exposures)
+    _check_events_reach_the_frames(events, exposures, counts, unit)
+    blurry = exposures[:, 1] > exposures[:, 0]
+    n_empty = int((blurry & (counts == 0)).sum())
+    if n_empty:
+        print(f"ebad deblur: {n_empty} of {int(blurry.sum())} blurry exposure(s) have no events: written "
+              "unchanged (listed in c.json)")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
 
-    c_global = None
-    c_source = "given"
-    if c_arg is None and frames.shape[0] >= 2:
-        try:
-            c_global, rep = edi.estimate_c(frames, exposures, events, return_report=True)
-            c_source = f"estimated jointly ({rep.method}, bracket {rep.bracket[0]:.4f}..{rep.bracket[1]:.4f})"
-        except ValueError:
-            c_global = None  # no events between frames: fall back to one estimate per frame
+    c_all, c_source, c_rep = _estimate(frames, exposures, events, counts, c_arg)
+    if c_all is not None:
+        print(f"ebad deblur: c_pos {c_all[0]:.4f}, c_neg {c_all[1]:.4f} ({c_source})")
+    _say_at_bound(c_rep, "the joint estimate")
+    medi_lat = None
+    if args.medi:
+        medi_lat = edi.medi(frames, exposures, events, c=c_all)
+        c_source += ", mEDI"
+        print(f"ebad deblur: mEDI: {frames.shape[0]} frames solved jointly")
     per_frame = []
-    bar = tqdm(range(frames.shape[0]), desc="deblur", unit="frame")
-    for i in bar:
+    for i in tqdm(range(frames.shape[0]), desc="deblur", unit="frame"):
         t_s, t_e = (float(v) for v in exposures[i])
-        n_ev = len(events.slice_time(t_s, t_e)) if t_e > t_s else 0
-        sharp_frame = t_e <= t_s or n_ev == 0
+        sharp_frame = t_e <= t_s or counts[i] == 0
         if sharp_frame and args.skip_sharp:
             continue
-        c_i = c_arg if c_arg is not None else c_global
-        src = c_source if c_arg is not None or c_global is not None else "estimated on this frame"
-        lat, rep = edi.deblur(frames[i], (t_s, t_e), events, c=c_i, return_report=True)
+        lat, rep = edi.deblur(frames[i], (t_s, t_e), events, c=c_all, return_report=True)
+        if rep.c_report is not None:
+            print(f"ebad deblur: {names[i]}: c {rep.c.mean:.4f} ({c_source})")
+            _say_at_bound(rep.c_report, names[i])
+        if medi_lat is not None:
+            lat = medi_lat[i]
         _save(out / "sharp" / f"{names[i]}.png", lat, args.bits)
         _save(out / "side_by_side" / f"{names[i]}.png", np.concatenate([frames[i], lat], axis=1))
-        if args.times > 0 and t_e > t_s:
+        if args.times > 0 and not sharp_frame:
             ts = t_s + (np.arange(args.times) + 0.5) * (t_e - t_s) / args.times
             lats = edi.deblur(frames[i], (t_s, t_e), events, times=ts, c=rep.c)
             for k in range(args.times):
                 _save(out / "instants" / f"{names[i]}_{k:02d}.png", lats[k], args.bits)
+        c_report = rep.c_report or c_rep
         per_frame.append({
             "name": names[i],
             "t_start": t_s,
             "t_end": t_e,
             "num_events": rep.num_events,
-            "c_pos": None if sharp_frame else rep.c[0],
-            "c_neg": None if sharp_frame else rep.c[1],
-            "c_source": "unused (sharp frame or no events)" if sharp_frame else src,
-            "c_at_bracket_end": bool(rep.c_report.at_bound) if rep.c_report is not None else None,
+            "c_pos": None if sharp_frame else rep.c.pos,
+            "c_neg": None if sharp_frame else rep.c.neg,
+            "c_source": "unused (sharp frame or no events)" if sharp_frame else c_source,
+            "c_at_bracket_end": None if sharp_frame or c_report is None else bool(c_report.at_bound),
+            "c_message": None if sharp_frame or c_report is None else c_report.message,
             "saturated_pixels": int(rep.saturated.sum()),
             "notes": rep.notes,
         })
-        bar.set_postfix(events=rep.num_events, c=f"{rep.c[0]:.3f}")
     with open(out / "c.json", "w") as f:
-        json.dump({"input": str(args.input), "frames": per_frame}, f, indent=2)
+        json.dump({"input": str(args.input), "time_unit": unit, "medi": bool(args.medi), "frames": per_frame},
+                  f, indent=2)
     print(f"ebad deblur: {len(per_frame)} frame(s) written to {out}")
     return 0

@@ -41,3 +41,33 @@ def test_slice_and_counts():
     assert ev.count_image().tolist() == [[2, -2]]
     assert ev.count_image(-1).tolist() == [[0, 2]]
     assert len(ev.slice_time(1.0, 2.0)) == 0
+
+
+def test_seconds_to_us_rounds_to_nearest_ties_to_even():
+    from edi import InputError, seconds_to_us
+
+    assert seconds_to_us(0.04) == 40_000 and isinstance(seconds_to_us(0.04), int)
+    assert seconds_to_us(0.0400004) == 40_000 and seconds_to_us(0.0400006) == 40_001
+    assert seconds_to_us(2.5e-6) == 2 and seconds_to_us(3.5e-6) == 4  # ties to even
+    assert seconds_to_us(-1.2e-6) == -1
+    ks = np.arange(0, 10**7, 9973)
+    np.testing.assert_array_equal(seconds_to_us(ks * 1e-6), ks)  # k * 1e-6 s comes back as k
+    assert seconds_to_us(np.array([[0.1, 0.2]])).dtype == np.int64
+    with pytest.raises(InputError, match="finite"):
+        seconds_to_us(float("nan"))
+
+
+def test_window_rule_at_the_boundaries():
+    from edi import events_in_window
+
+    ev = EventStream([10, 20, 20, 30, 40], [0] * 5, [0] * 5, [1] * 5, 1, 1)
+    assert events_in_window(ev, 20e-6, 30e-6) == (1, 3)  # both events at t_start in, the one at t_end out
+    assert events_in_window(ev, 30e-6, 40e-6) == (3, 4)  # ... and in the next window
+    assert events_in_window(ev, 20e-6, 20e-6) == (1, 1)  # empty window
+    assert events_in_window(ev, 41e-6, 99e-6) == (5, 5)
+    assert ev.window(20e-6, 30e-6) == (1, 3)
+    assert len(ev.slice_time(20e-6, 30e-6)) == 2
+    # adjacent windows partition the stream
+    edges = [0.0, 15e-6, 20e-6, 30e-6, 45e-6]
+    counts = [np.subtract(*events_in_window(ev, a, b)[::-1]) for a, b in zip(edges[:-1], edges[1:])]
+    assert counts == [1, 0, 2, 2]

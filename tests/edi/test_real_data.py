@@ -51,65 +51,52 @@ def test_street_events_predict_the_next_frame(street):
     assert err_pred < 0.95 * err_hold, (err_pred / n, err_hold / n)
 
 
-def _gradient_energy(img):
-    gy, gx = np.gradient(np.asarray(img, np.float64))
-    return float(np.mean(gx**2 + gy**2))
+#: a latent whose impulse noise grows more than this over the blurry frame's is noise, not
+#: detail: measured 1.0 to 3.5 with the estimated c, 14.7 to 259 with c at the top of the
+#: bracket (1.5), 3.4 to 7.3 with c = 0.2 to 0.3 on the frames where the estimate has no
+#: interior minimum (keyboard, toy, text_cambridge)
+NOISE_GAIN_MAX = 5.0
 
 
-@needs_ni
-@pytest.mark.parametrize("name", ["keyboard", "toy", "text_cambridge", "badminton", "night_run", "low_light_model1"])
-def test_ni_joint_blur_gets_sharper(name):
+def sharpness_and_noise(img):
+    """No-reference measures: gradient energy of the 3x3 median (structure, not impulses) and
+    the mean square of what the median removes (salt-and-pepper noise)."""
+    from scipy import ndimage
+
+    img = np.asarray(img, np.float64)
+    med = ndimage.median_filter(img, 3)
+    gy, gx = np.gradient(med)
+    return float(np.mean(gx**2 + gy**2)), float(np.mean((img - med) ** 2))
+
+
+def read_ni(name):
     from skimage import io
 
     png = NI / (name.rstrip("12") + ".png" if name.startswith("low_light") else name + ".png")
-    B = io.imread(png).astype(np.float64) / 255.0
+    B = io.imread(png)  # uint8: deblur divides by 255
     ev = edi.read_events(NI / f"{name}.mat", width=B.shape[1], height=B.shape[0])
-    ex = (ev.t[0] * 1e-6, (ev.t[-1] + 1) * 1e-6)  # no exposure stored: the span of the events
-    L, rep = edi.deblur(B, ex, ev, return_report=True)
-    assert np.isfinite(L).all() and L.shape == B.shape
-    assert rep.num_events == len(ev)
-    # measured gains: 1.1 (night_run, mostly black) to 35 (badminton). The single-frame c
-    # estimate often runs to the bracket's top on these frames (see the edi report), so the
-    # gain is partly noise: judge the images by eye as well (ebad deblur writes them).
-    assert _gradient_energy(L) > 1.1 * _gradient_energy(B)
+    return B, ev, (ev.t[0] * 1e-6, (ev.t[-1] + 1) * 1e-6)  # no exposure stored: the span of the events
+
+
+NI_NAMES = ["keyboard", "toy", "text_cambridge", "badminton", "night_run", "low_light_model1"]
 
 
 @needs_ni
-def test_cli_deblur_frame_and_mat_events(tmp_path):
-    import json
-
-    from skimage import io
-
-    from ebad.cli import main
-
-    out = tmp_path / "out"
-    rc = main(["deblur", str(NI / "toy.png"), "--events", str(NI / "toy.mat"), "--out", str(out), "--c", "0.25", "--times", "3"])
-    assert rc == 0
-    sharp = io.imread(out / "sharp" / "toy.png")
-    assert sharp.shape == (260, 346) and sharp.dtype == np.uint16  # 16-bit by default
-    rc = main(["deblur", str(NI / "toy.png"), "--events", str(NI / "toy.mat"), "--out", str(tmp_path / "o8"),
-               "--c", "0.25", "--bits", "8"])
-    sharp8 = io.imread(tmp_path / "o8" / "sharp" / "toy.png")
-    assert rc == 0 and sharp8.dtype == np.uint8
-    assert np.abs(sharp8 / 255.0 - sharp / 65535.0).max() <= 0.5 / 255 + 1e-6  # the same image
-    assert io.imread(out / "side_by_side" / "toy.png").shape == (260, 692)
-    assert sorted(p.name for p in (out / "instants").iterdir()) == ["toy_00.png", "toy_01.png", "toy_02.png"]
-    meta = json.loads((out / "c.json").read_text())
-    assert meta["frames"][0]["c_pos"] == 0.25 and meta["frames"][0]["num_events"] == 27594
-
-
-@needs_street
-def test_cli_deblur_aedat4_and_bad_arguments(tmp_path, capsys):
-    import json
-
-    from ebad.cli import main
-
-    out = tmp_path / "street"
-    assert main(["deblur", str(STREET), "--out", str(out), "--max-frames", "4"]) == 0
-    meta = json.loads((out / "c.json").read_text())
-    assert len(meta["frames"]) == 4 and meta["frames"][0]["c_pos"] is None  # no events: returned B
-    assert len(list((out / "sharp").iterdir())) == 4
-    assert main(["deblur", str(STREET), "--out", str(out), "--c", "-1"]) == 2
-    assert "--c must be" in capsys.readouterr().err
-    assert main(["deblur", str(NI / "toy.png"), "--out", str(out)]) == 2
-    assert "needs --events" in capsys.readouterr().err
+@pytest.mark.parametrize("name", NI_NAMES)
+def test_ni_joint_estimate_does_not_amplify_noise(name):
+    """With the estimated c the latent is at least as sharp as the frame and its impulse noise
+    stays within NOISE_GAIN_MAX of the frame's; a c at the top of the bracket fails both
+    ways (the test checks that too). An estimate at a bracket end is reported with what to do."""
+    B, ev, ex = read_ni(name)
+    L, rep = edi.deblur(B, ex, ev, return_report=True)
+    assert np.isfinite(L).all() and L.shape == B.shape and rep.num_events == len(ev)
+    s_b, n_b = sharpness_and_noise(B / 255.0)
+    s_l, n_l = sharpness_and_noise(L)
+    assert n_l < NOISE_GAIN_MAX * n_b and s_l >= 0.98 * s_b, (rep.c, s_l / s_b, n_l / n_b)
+    top = rep.c_report.bracket[1]
+    assert rep.c.mean < top / 1.02  # no estimate at the top end
+    n_top = sharpness_and_noise(edi.deblur(B, ex, ev, c=top))[1]
+    if n_top > 2.0 * n_b:  # where c changes the frame at all (night_run is mostly black: 1.6)
+        assert n_top > NOISE_GAIN_MAX * n_b, n_top / n_b  # the bound separates the bracket end
+    if rep.c_report.at_bound:
+        assert "no interior minimum" in rep.c_report.message and "--c" in rep.c_report.message

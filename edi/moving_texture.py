@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .deblur import LOG_EPS
+from .model import LOG_EPS
 from .events import EventStream
 
 __all__ = ["SyntheticSequence", "moving_texture"]

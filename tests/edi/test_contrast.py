@@ -1,0 +1,205 @@
+"""Contrast-threshold estimation (edi.estimate_c) across generators and seeds.
+
+The numbers in the docstrings were measured with ``python -m benchmarks.calibration`` and
+the runs named in the tests; every seed of a range is used, none is picked."""
+import math
+import warnings
+
+import numpy as np
+import pytest
+import torch
+
+from edi import Contrast, EbadError, InputError, LOG_EPS, deblur, estimate_c, events_in_window, moving_texture
+
+C_BY_SEED = (0.15, 0.2, 0.3)
+
+
+def rmse(a, b):
+    return float(np.sqrt(np.mean((np.asarray(a, np.float64) - np.asarray(b, np.float64)) ** 2)))
+
+
+# --- one frame ----------------------------------------------------------------------------------
+
+
+def test_single_frame_flow_energy_ideal_sensor_all_seeds():
+    """Measured c/c_true 1.025 to 1.053 over seeds 0-9 (no mismatch)."""
+    ratios = []
+    for seed in range(10):
+        c = C_BY_SEED[seed % 3]
+        s = moving_texture(num_frames=1, seed=seed, c=c)
+        est, rep = estimate_c(s.frames[0], s.exposures[0], s.events, return_report=True)
+        assert rep.method == "single" and rep.energy_name == "flow" and not rep.at_bound
+        ratios.append(est / c)
+    assert all(abs(r - 1) <= 0.1 for r in ratios), np.round(ratios, 3)
+
+
+def test_single_frame_flow_energy_with_mismatch_all_seeds():
+    """Per-pixel mismatch sigma_c 0.03 (20% of c = 0.15): measured c/c_true 0.81 to 1.05,
+    8 of 10 seeds within 10% (issue 11's target is 9 of 10; not met on this generator)."""
+    ratios = []
+    for seed in range(10):
+        c = C_BY_SEED[seed % 3]
+        s = moving_texture(num_frames=1, seed=seed, c=c, sigma_c=0.03)
+        est, rep = estimate_c(s.frames[0], s.exposures[0], s.events, return_report=True)
+        assert not rep.at_bound
+        ratios.append(est / c)
+    ratios = np.array(ratios)
+    assert (np.abs(ratios - 1) <= 0.1).sum() >= 8 and (np.abs(ratios - 1) <= 0.2).all(), np.round(ratios, 3)
+
+
+def test_single_frame_estimate_sharpens_the_frame():
+    s = moving_texture(num_frames=1, seed=0, c=0.2)
+    B, ex = s.frames[0], s.exposures[0]
+    gt = s.sharp(ex.mean())
+    L, rep = deblur(B, ex, s.events, return_report=True)  # c=None: estimated on this frame
+    assert rep.c_report is not None and rep.c_report.method == "single"
+    assert rep.c == Contrast(*(2 * [estimate_c(B, ex, s.events)]))
+    assert rmse(L, gt) < 0.4 * rmse(B, gt)
+
+
+def test_paper_energy_has_no_interior_minimum():
+    """The EDI paper's energy (TV minus the Sobel correlation with the event integral), as
+    the paper states it, grows with c on this generator: its minimum is the bracket's low
+    end for every seed, and the report says so."""
+    for seed in range(5):
+        s = moving_texture(num_frames=1, seed=seed, c=C_BY_SEED[seed % 3], sigma_c=0.03)
+        est, rep = estimate_c(s.frames[0], s.exposures[0], s.events, energy="paper", return_report=True)
+        assert rep.at_bound and est == pytest.approx(rep.bracket[0], rel=0.02)
+        assert "no interior minimum" in rep.message and "--c" in rep.message
+        cs, es = zip(*sorted(rep.evals))
+        assert es[0] == min(es)
+
+
+def test_single_frame_pair_finds_the_ratio():
+    """c = (0.15, 0.3): measured c_pos / c_neg 0.46 to 0.48 (true 0.5) over seeds 0-3."""
+    for seed in range(4):
+        s = moving_texture(num_frames=1, seed=seed, c=(0.15, 0.3), sigma_c=0.03)
+        est = estimate_c(s.frames[0], s.exposures[0], s.events, pair=True)
+        assert isinstance(est, Contrast)
+        assert abs(est.pos / est.neg / 0.5 - 1) < 0.1, est
+
+
+# --- several frames -------------------------------------------------------------------------------
+
+
+def naive_least_squares(frames, centres, events):
+    """The estimator issue 11 found biased: c = sum D N / sum N^2 (a least squares on c N)."""
+    num = den = 0.0
+    for i in range(len(centres) - 1):
+        j0, j1 = events_in_window(events, centres[i], centres[i + 1])
+        n = events[j0:j1].count_image().astype(np.float64)
+        d = np.log(frames[i + 1].mean(-1) + LOG_EPS) - np.log(frames[i].mean(-1) + LOG_EPS)
+        m = n != 0
+        num += float((d[m] * n[m]).sum())
+        den += float((n[m] ** 2).sum())
+    return num / den
+
+
+@pytest.mark.slow
+def test_consistency_is_unbiased_under_mismatch():
+    """Sharp frames (t_start == t_end, the exact log change), c 0.15, mismatch 0.03: the
+    least squares on c N weights each pixel by N^2, and low-threshold pixels fire more, so it
+    reads 0.66-0.86x; the instrumental moment equations read 0.975-0.995x (seeds 0-5)."""
+    ours, naive = [], []
+    for seed in range(6):
+        s = moving_texture(num_frames=4, seed=seed, c=0.15, sigma_c=0.03)
+        mid = s.exposures.mean(axis=1)
+        sharp = np.stack([s.sharp(t) for t in mid])
+        ex = np.stack([mid, mid], axis=1)
+        c, rep = estimate_c(sharp, ex, s.events, return_report=True)
+        assert rep.method == "consistency"
+        ours.append(c / 0.15)
+        naive.append(naive_least_squares(sharp, mid, s.events) / 0.15)
+    assert all(abs(r - 1) <= 0.05 for r in ours), np.round(ours, 3)
+    assert np.mean(naive) < 0.85 and max(naive) < 0.9, np.round(naive, 3)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("c_true, tol", [(0.15, 0.05), (0.2, 0.05), (0.3, 0.1)])
+def test_consistency_blurry_frames(c_true, tol):
+    """Blurry frames with gaps between the exposures (exposure 20 ms, period 50 ms), mismatch
+    0.03, seeds 0-4. Measured 0.97-1.0x at c 0.15, 1.01-1.03x at 0.2, 1.05-1.07x at 0.3: on
+    this texture pixels go up and down between two centres, and a pixel that turns loses up
+    to a step to the hysteresis of its reference (the ray-cast scenes read 0.98-1.01x)."""
+    for seed in range(5):
+        s = moving_texture(num_frames=4, seed=seed, c=c_true, sigma_c=0.03, exposure=0.02)
+        c, rep = estimate_c(s.frames, s.exposures, s.events, return_report=True)
+        assert rep.method == "consistency" and not rep.at_bound
+        assert abs(c / c_true - 1) <= tol, (seed, c)
+
+
+@pytest.mark.slow
+def test_consistency_pair():
+    """c = (0.15, 0.3), mismatch 0.03: measured 0.99-1.03x (c_pos), 1.03-1.05x (c_neg), seeds 0-4."""
+    for seed in range(5):
+        s = moving_texture(num_frames=4, seed=seed, c=(0.15, 0.3), sigma_c=0.03, exposure=0.02)
+        est, rep = estimate_c(s.frames, s.exposures, s.events, pair=True, return_report=True)
+        assert rep.method == "consistency" and isinstance(est, Contrast)
+        assert abs(est.pos / 0.15 - 1) < 0.1 and abs(est.neg / 0.3 - 1) < 0.1, (seed, est)
+
+
+def test_auto_falls_back_to_one_frame_when_the_frames_contradict_the_events():
+    """Frames given in the wrong order: the events between the centres run against the
+    frames' changes. "consistency" refuses with a message; "auto" says so and uses one frame."""
+    s = moving_texture(num_frames=3, seed=0, c=0.2, exposure=0.02)
+    shuffled = s.frames[[1, 0, 2]]
+    with pytest.raises(InputError, match="do not follow the frames' changes"):
+        estimate_c(shuffled, s.exposures, s.events, method="consistency")
+    c, rep = estimate_c(shuffled, s.exposures, s.events, return_report=True)
+    assert rep.method == "single" and "used the single-frame energy" in rep.message
+
+
+def test_sharp_frames_torch_input():
+    s = moving_texture(num_frames=3, seed=3, c=0.25)
+    sharp = np.stack([s.sharp(t) for t in s.exposures.mean(axis=1)])
+    ex = np.repeat(s.exposures.mean(axis=1)[:, None], 2, axis=1)
+    c = estimate_c(torch.from_numpy(sharp), ex, s.events)
+    assert abs(c - 0.25) < 0.1 * 0.25, c  # measured 1.061x (ideal sensor, c 0.25: see above)
+
+
+# --- faults -------------------------------------------------------------------------------------
+
+
+def test_all_saturated_frames_give_one_message():
+    s = moving_texture(num_frames=3, seed=0, c=0.2)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # any numpy warning fails the test
+        with pytest.raises(InputError, match=r"every pixel of the 3 frame\(s\) is saturated.*give c") as exc:
+            estimate_c(np.ones_like(s.frames), s.exposures, s.events)
+    assert isinstance(exc.value, EbadError)
+
+
+def test_estimate_c_bad_input():
+    s = moving_texture(num_frames=1, seed=0, c=0.2)
+    with pytest.raises(InputError, match="bracket"):
+        estimate_c(s.frames[0], s.exposures[0], s.events, bracket=(0.5, 0.1))
+    with pytest.raises(InputError, match="exposures must be"):
+        estimate_c(s.frames, np.zeros((1, 3)), s.events)
+    with pytest.raises(InputError, match="no blurry frame with events"):
+        estimate_c(s.frames[0], (5.0, 5.1), s.events)
+    with pytest.raises(InputError, match="needs at least two frames"):
+        estimate_c(s.frames[0], s.exposures[0], s.events, method="consistency")
+    with pytest.raises(InputError, match="energy must be"):
+        estimate_c(s.frames[0], s.exposures[0], s.events, energy="tv")
+    with pytest.raises(InputError, match=r"frames\[0\] must be linear intensity"):
+        estimate_c(s.frames[0] * 255, s.exposures[0], s.events)
+
+
+# --- the ray-cast scenes ----------------------------------------------------------------------------
+
+
+@pytest.mark.slow
+def test_ray_cast_scenes_single_and_consistency():
+    """scenes.make_scene, 64x48, 3 frames, c 0.2, mismatch 0.03: measured single-frame
+    0.97-1.06x and consistency 0.999-1.03x (boxes grey, spheres colour, seeds 0-2)."""
+    from scenes import make_scene
+
+    for name, rgb in (("boxes", False), ("spheres", True)):
+        for seed in range(3):
+            sc = make_scene(name, "tiny", seed=seed, rgb=rgb, n_frames=3, n_test=0)
+            cap = sc.capture
+            c_true = 0.5 * (sc.c_pos.mean() + sc.c_neg.mean())  # truth: read here only
+            single, rep = estimate_c(cap.frames[0], cap.exposures[0], cap.events, return_report=True)
+            multi = estimate_c(cap.frames, cap.exposures, cap.events)
+            assert not rep.at_bound
+            assert abs(single / c_true - 1) <= 0.1 and abs(multi / c_true - 1) <= 0.05, (name, seed, single, multi)
