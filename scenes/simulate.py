@@ -1,7 +1,7 @@
 """An ESIM-style event simulator over a sequence of renders.
 
 Each pixel keeps a reference log level ``log(I + eps)`` (I: linear intensity; colour renders
-are averaged over channels first, as ``edi.synthetic`` does). Between two renders the log
+are averaged over channels first, as ``edi.moving_texture`` does). Between two renders the log
 intensity is taken as linear in time; every time it climbs ``C+`` above the reference (or
 falls ``C-`` below it) the pixel fires one event at the interpolated crossing time and the
 reference moves by exactly that threshold. ``C+`` and ``C-`` are drawn per pixel from

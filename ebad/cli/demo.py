@@ -34,9 +34,8 @@ def _upscale(img: np.ndarray, k: int) -> np.ndarray:
 
 
 def comparison_image(rows: list[list[np.ndarray]], k: int = 4, gap: int = 2) -> np.ndarray:  # -> [H', W', 3] uint8
-    """Grid of [H, W, D] images (each upscaled k x, nearest), as 8-bit sRGB."""
-    from ..export import to_display8
-
+    """Grid of [H, W, D] images in [0, 1] as the camera records them (each upscaled k x, nearest),
+    as 8-bit RGB (values shown as they are: the recorded values already carry the camera's response)."""
     out_rows = []
     for row in rows:
         tiles = []
@@ -47,7 +46,7 @@ def comparison_image(rows: list[list[np.ndarray]], k: int = 4, gap: int = 2) -> 
             tiles.append(np.ones((tiles[-1].shape[0], gap, 3), np.float32))
         out_rows.append(np.concatenate(tiles[:-1], 1))
         out_rows.append(np.ones((gap, out_rows[-1].shape[1], 3), np.float32))
-    return to_display8(np.concatenate(out_rows[:-1], 0))
+    return (np.concatenate(out_rows[:-1], 0) * 255 + 0.5).astype(np.uint8)
 
 
 def run(args) -> int:

@@ -230,11 +230,12 @@ def exposure_frames(run, name: str, instants: int, capture=None,
         raise UserError(f"--capture: frame {name!r} is {blurry.shape}, the run renders {renders.shape[1:]}")
     c = run.metrics.prepare.c if run.metrics is not None else None
     if c is None:
-        c = float(edi.estimate_c(np.asarray(capture.frames), np.asarray(capture.exposures), capture.events))
+        c = edi.estimate_c(np.asarray(capture.frames), np.asarray(capture.exposures), capture.events, pair=True)
+    c = (float(c[0]), float(c[1]))
     lat = np.asarray(edi.deblur(blurry, (float(exposure[0]), float(exposure[1])), capture.events,
                                 times=times.tolist(), c=c), np.float64).reshape(renders.shape)
     panels = side_by_side([np.broadcast_to(blurry, renders.shape), np.clip(lat, 0, 1), renders])
-    return panels, f"blurry | EDI latent (c = {c:.3f}) | render, at the same instants"
+    return panels, f"blurry | EDI latent (c_pos {c[0]:.3f}, c_neg {c[1]:.3f}) | render, at the same instants"
 
 
 def run(args) -> int:
