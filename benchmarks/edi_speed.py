@@ -1,31 +1,27 @@
 """Benchmark of edi: EDI throughput, latent error against c error, estimate_c time.
 
-    python benchmarks/edi.py [--quick] [--out bench_out/edi.json]
+    python -m benchmarks.edi_speed [--quick]    (writes benchmarks/results/edi_speed[_quick].json)
 
 * events per second of ``edi.deblur`` (c given; 1 and 8 instants) at 346x260 with 1e5 to
   1e7 uniformly random events over 40 ms, against a naive time-binned EDI (100 bins,
   ``np.add.at`` per bin, the way many re-implementations work) timed in the same run;
   the ratio is the number to compare across machines (timings are noisy on a shared CPU).
 * RMSE of the mid-exposure latent against ground truth on the synthetic moving texture
-  (``edi.synthetic``, c = 0.2) as the c used departs from the true one.
+  (``edi.moving_texture``, c = 0.2) as the c used departs from the true one.
 * wall time of ``estimate_c`` (single-frame and consistency) on that synthetic scene.
 """
 from __future__ import annotations
 
 import argparse
-import json
-import platform
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import edi
+from edi import EventStream, moving_texture
 
-import edi  # noqa: E402
-from edi import EventStream  # noqa: E402
-from edi.synthetic import moving_texture  # noqa: E402
+from ._common import seed_all, write_json
 
 W, H = 346, 260
 
@@ -83,11 +79,11 @@ def estimate_c_timing(repeats):
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="1e5 and 1e6 events only, fewer repeats")
-    ap.add_argument("--out", default="bench_out/edi.json")
     args = ap.parse_args(argv)
+    seed_all(0)
     sizes = (10**5, 10**6) if args.quick else (10**5, 10**6, 10**7)
     repeats = 2 if args.quick else 3
-    res = dict(machine=platform.platform(), python=platform.python_version(), quick=args.quick)
+    res = dict(quick=args.quick)
     res["throughput"] = throughput(sizes, repeats)
     res["c_error"] = c_error_curve()
     res["estimate_c"] = estimate_c_timing(repeats)
@@ -103,9 +99,7 @@ def main(argv=None) -> int:
     print(f"\nestimate_c on {ec['scene']}")
     for m in ("single", "consistency"):
         print(f"  {m:12s} {ec[m]['seconds']:.3f} s, c = {ec[m]['c']:.4f} ({ec[m]['rel_error']:.1%} off), {ec[m]['evals']} evaluations")
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(res, indent=2))
+    out = write_json("edi_speed_quick" if args.quick else "edi_speed", res)
     print(f"\nwritten {out}")
     return 0
 

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 import edi
+from benchmarks.calibration import sharpness_and_noise
 from edi import LOG_EPS
 
 SHARED = Path(__file__).parents[2].parent / "shared" / "data"
@@ -56,17 +57,6 @@ def test_street_events_predict_the_next_frame(street):
 #: bracket (1.5), 3.4 to 7.3 with c = 0.2 to 0.3 on the frames where the estimate has no
 #: interior minimum (keyboard, toy, text_cambridge)
 NOISE_GAIN_MAX = 5.0
-
-
-def sharpness_and_noise(img):
-    """No-reference measures: gradient energy of the 3x3 median (structure, not impulses) and
-    the mean square of what the median removes (salt-and-pepper noise)."""
-    from scipy import ndimage
-
-    img = np.asarray(img, np.float64)
-    med = ndimage.median_filter(img, 3)
-    gy, gx = np.gradient(med)
-    return float(np.mean(gx**2 + gy**2)), float(np.mean((img - med) ** 2))
 
 
 def read_ni(name):
