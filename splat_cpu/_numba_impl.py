@@ -1,8 +1,14 @@
-"""The fast CPU path: torch projection (autograd) + numba tile compositing (hand-written backward)."""
+"""The fast CPU path: numba projection and numba tile compositing, each with a hand-written backward.
+
+torch only carries tensors in and out: while a numba kernel runs, torch's own OpenMP pool is
+limited to one thread (`_torch_pool_idle`), so that its threads, which spin between
+parallel regions unless OMP_WAIT_POLICY=PASSIVE was set before torch started, do not take
+the cores from numba's workers.
+"""
 
 from __future__ import annotations
 
-import math
+import contextlib
 import time
 
 import numba
@@ -11,7 +17,7 @@ import torch
 from torch import Tensor
 
 from . import _numba_kernels as K
-from ._project import project
+from . import _numba_project as P
 from .constants import TILE
 
 _CHUNK = 2  # dynamic scheduling of tiles over threads: tiles cost very different amounts
@@ -28,6 +34,77 @@ class _Plan:
 
 def _np(x: Tensor) -> np.ndarray:
     return np.ascontiguousarray(x.detach().cpu().numpy())
+
+
+@contextlib.contextmanager
+def _torch_pool_idle():
+    """Run the block with torch's intra-op pool at one thread, restoring its size afterwards.
+
+    torch's OpenMP threads spin-wait after each parallel region (libgomp's default policy);
+    on a machine with as many busy threads as cores they then compete with numba's workers
+    (measured in benchmarks/rasterize.py: `--omp-check`). With one torch thread no region
+    is parallel, so torch's pool sleeps while the numba kernels run.
+    """
+    n = torch.get_num_threads()
+    if n == 1:
+        yield
+        return
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(n)
+
+
+class _Project(torch.autograd.Function):
+    """(means, quats, scales, viewmats) -> means2d [C, N, 2], conics [C, N, 3]; hand-written backward.
+
+    The outputs without gradient go into the dict `out`: depths [C, N] and radii [C, N, 2]
+    int32 as tensors, the inclusive pixel boxes [C, N, 4] int64 and the validity mask [C, N]
+    as numpy arrays. Opacities only decide validity here (no gradient through this step).
+    """
+
+    @staticmethod
+    def forward(ctx, means, quats, scales, opacities, viewmats, ks, width: int, height: int, out: dict):
+        n, n_cam = means.shape[0], viewmats.shape[0]
+        arrs = [_np(x) for x in (means, quats, scales, opacities, viewmats, ks)]
+        means2d = np.empty((n_cam, n, 2))
+        conics = np.empty((n_cam, n, 3))
+        depths = np.empty((n_cam, n))
+        radii = np.empty((n_cam, n, 2), dtype=np.int32)
+        box = np.empty((n_cam, n, 4), dtype=np.int64)
+        valid = np.empty((n_cam, n), dtype=np.bool_)
+        P.project_forward(*arrs, width, height, means2d, conics, depths, radii, box, valid)
+        ctx.arrs, ctx.conics, ctx.valid = arrs, conics, valid
+        dt = means.dtype
+        out.update(depths=torch.from_numpy(depths).to(dt), radii=torch.from_numpy(radii),
+                   pix_box=box, valid=valid)
+        return torch.from_numpy(means2d).to(dt), torch.from_numpy(conics).to(dt)
+
+    @staticmethod
+    def backward(ctx, v_means2d, v_conics):
+        with _torch_pool_idle():
+            return _Project._backward(ctx, v_means2d, v_conics)
+
+    @staticmethod
+    def _backward(ctx, v_means2d, v_conics):
+        means, quats, scales, _, viewmats, ks = ctx.arrs
+        n, n_cam = means.shape[0], viewmats.shape[0]
+        zeros = lambda *shape: np.zeros(shape)  # noqa: E731
+        v_m2 = _np(v_means2d).astype(np.float64) if v_means2d is not None else zeros(n_cam, n, 2)
+        v_co = _np(v_conics).astype(np.float64) if v_conics is not None else zeros(n_cam, n, 3)
+        v_means, v_quats, v_scales = np.empty((n, 3)), np.empty((n, 4)), np.empty((n, 3))
+        v_view = np.empty((_PROJECT_CHUNKS, n_cam, 3, 4))
+        P.project_backward(means, quats, scales, viewmats, ks, ctx.valid, ctx.conics, v_m2, v_co,
+                           v_means, v_quats, v_scales, v_view)
+        v_vm = np.zeros((n_cam, 4, 4))
+        v_vm[:, :3, :] = v_view.sum(axis=0)
+        dt = v_means2d.dtype if v_means2d is not None else v_conics.dtype
+        out = [torch.from_numpy(a).to(dt) for a in (v_means, v_quats, v_scales, v_vm)]
+        return out[0], out[1], out[2], None, out[3], None, None, None, None
+
+
+_PROJECT_CHUNKS = 16  # per-chunk partial sums of the pose gradient (deterministic, no atomics)
 
 
 class _Composite(torch.autograd.Function):
@@ -51,11 +128,16 @@ class _Composite(torch.autograd.Function):
                             img, t_final, last)
         ctx.plan, ctx.arrs, ctx.t_final, ctx.last = plan, arrs, t_final, last
         ctx.dtype = means2d.dtype
-        alphas = torch.from_numpy((1.0 - t_final)[..., None]).to(means2d.dtype)
+        alphas = torch.from_numpy((1.0 - t_final)[..., None].astype(arrs[0].dtype))
         return torch.from_numpy(img), alphas
 
     @staticmethod
     def backward(ctx, v_img, v_alphas):
+        with _torch_pool_idle():
+            return _Composite._backward(ctx, v_img, v_alphas)
+
+    @staticmethod
+    def _backward(ctx, v_img, v_alphas):
         p, arrs = ctx.plan, ctx.arrs
         means2d, conics, opac, colors, bg = arrs
         c_n, n = means2d.shape[0], means2d.shape[1]
@@ -94,27 +176,33 @@ def rasterize_numba(
     background: Tensor | None = None,  # [D]
 ) -> tuple[Tensor, Tensor, dict]:
     """Inputs already validated, CPU tensors. See `splat_cpu.rasterize` for the contract."""
+    with _torch_pool_idle():
+        return _rasterize(means, quats, scales, opacities, colors, viewmats, Ks, width, height, background)
+
+
+def _rasterize(means, quats, scales, opacities, colors, viewmats, Ks, width, height, background):
     t0 = time.perf_counter()
-    proj = project(means, quats, scales, opacities, viewmats, Ks, width, height)
+    pr: dict = {}
+    means2d, conics = _Project.apply(means, quats, scales, opacities, viewmats, Ks, width, height, pr)
     t1 = time.perf_counter()
-    n_cam, n = proj.valid.shape
-    key = torch.where(proj.valid, proj.depths, torch.full_like(proj.depths, math.inf))
-    order = torch.sort(key, dim=1, stable=True).indices
-    n_valid = proj.valid.sum(dim=1)
+    valid = pr["valid"]
+    key = np.where(valid, pr["depths"].numpy(), np.inf)
+    order = np.argsort(key, axis=1, kind="stable")
+    n_valid = valid.sum(axis=1)
     tiles_x, tiles_y = -(-width // TILE), -(-height // TILE)
-    pix_box = _np(proj.pix_box)
-    tile_start, gid = K.bin_tiles(_np(order), _np(n_valid), pix_box, tiles_x, tiles_y)
+    pix_box = pr["pix_box"]
+    tile_start, gid = K.bin_tiles(order, n_valid, pix_box, tiles_x, tiles_y)
     plan = _Plan(pix_box, tile_start, gid, width, height, tiles_x, tiles_y)
     t2 = time.perf_counter()
     bg = background if background is not None else torch.zeros(colors.shape[1], dtype=colors.dtype)
-    images, alphas = _Composite.apply(proj.means2d, proj.conics, opacities, colors, bg, plan)
+    images, alphas = _Composite.apply(means2d, conics, opacities, colors, bg, plan)
     t3 = time.perf_counter()
     meta = {
         "path": "numba",
-        "radii": proj.radii,
-        "means2d": proj.means2d,
-        "depths": proj.depths,
-        "n_visible": n_valid,
+        "radii": pr["radii"],
+        "means2d": means2d,
+        "depths": pr["depths"],
+        "n_visible": torch.from_numpy(n_valid),
         "n_isect": int(gid.shape[0]),
         "timings": {"project_ms": 1e3 * (t1 - t0), "bin_ms": 1e3 * (t2 - t1), "composite_ms": 1e3 * (t3 - t2)},
     }
