@@ -1,14 +1,15 @@
 """The fast CPU path: numba projection and numba tile compositing, each with a hand-written backward.
 
-torch only carries tensors in and out: while a numba kernel runs, torch's own OpenMP pool is
-limited to one thread (`_torch_pool_idle`), so that its threads, which spin between
-parallel regions unless OMP_WAIT_POLICY=PASSIVE was set before torch started, do not take
-the cores from numba's workers.
+torch only carries tensors in and out: every conversion is done by numpy, so that no torch
+kernel, hence no OpenMP parallel region, runs inside `rasterize` or its backward. torch's
+OpenMP threads spin-wait at and after each parallel region unless OMP_WAIT_POLICY=PASSIVE
+was set before torch started; on a machine with more busy threads than cores a region then
+costs milliseconds, which is what made the library depend on the caller's environment
+(measured by `python -m benchmarks.rasterize --omp-check`).
 """
 
 from __future__ import annotations
 
-import contextlib
 import time
 
 import numba
@@ -36,24 +37,12 @@ def _np(x: Tensor) -> np.ndarray:
     return np.ascontiguousarray(x.detach().cpu().numpy())
 
 
-@contextlib.contextmanager
-def _torch_pool_idle():
-    """Run the block with torch's intra-op pool at one thread, restoring its size afterwards.
+_NP_DTYPE = {torch.float32: np.float32, torch.float64: np.float64}
 
-    torch's OpenMP threads spin-wait after each parallel region (libgomp's default policy);
-    on a machine with as many busy threads as cores they then compete with numba's workers
-    (measured in benchmarks/rasterize.py: `--omp-check`). With one torch thread no region
-    is parallel, so torch's pool sleeps while the numba kernels run.
-    """
-    n = torch.get_num_threads()
-    if n == 1:
-        yield
-        return
-    torch.set_num_threads(1)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(n)
+
+def _tensor(a: np.ndarray, dtype: torch.dtype) -> Tensor:
+    """numpy -> torch in `dtype`, converted by numpy: no torch kernel (and no OpenMP region) runs."""
+    return torch.from_numpy(np.ascontiguousarray(a, dtype=_NP_DTYPE[dtype]))
 
 
 class _Project(torch.autograd.Function):
@@ -77,17 +66,11 @@ class _Project(torch.autograd.Function):
         P.project_forward(*arrs, width, height, means2d, conics, depths, radii, box, valid)
         ctx.arrs, ctx.conics, ctx.valid = arrs, conics, valid
         dt = means.dtype
-        out.update(depths=torch.from_numpy(depths).to(dt), radii=torch.from_numpy(radii),
-                   pix_box=box, valid=valid)
-        return torch.from_numpy(means2d).to(dt), torch.from_numpy(conics).to(dt)
+        out.update(depths=_tensor(depths, dt), radii=torch.from_numpy(radii), pix_box=box, valid=valid)
+        return _tensor(means2d, dt), _tensor(conics, dt)
 
     @staticmethod
     def backward(ctx, v_means2d, v_conics):
-        with _torch_pool_idle():
-            return _Project._backward(ctx, v_means2d, v_conics)
-
-    @staticmethod
-    def _backward(ctx, v_means2d, v_conics):
         means, quats, scales, _, viewmats, ks = ctx.arrs
         n, n_cam = means.shape[0], viewmats.shape[0]
         zeros = lambda *shape: np.zeros(shape)  # noqa: E731
@@ -100,7 +83,7 @@ class _Project(torch.autograd.Function):
         v_vm = np.zeros((n_cam, 4, 4))
         v_vm[:, :3, :] = v_view.sum(axis=0)
         dt = v_means2d.dtype if v_means2d is not None else v_conics.dtype
-        out = [torch.from_numpy(a).to(dt) for a in (v_means, v_quats, v_scales, v_vm)]
+        out = [_tensor(a, dt) for a in (v_means, v_quats, v_scales, v_vm)]
         return out[0], out[1], out[2], None, out[3], None, None, None, None
 
 
@@ -133,11 +116,6 @@ class _Composite(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, v_img, v_alphas):
-        with _torch_pool_idle():
-            return _Composite._backward(ctx, v_img, v_alphas)
-
-    @staticmethod
-    def _backward(ctx, v_img, v_alphas):
         p, arrs = ctx.plan, ctx.arrs
         means2d, conics, opac, colors, bg = arrs
         c_n, n = means2d.shape[0], means2d.shape[1]
@@ -159,7 +137,7 @@ class _Composite(torch.autograd.Function):
         # background: image += T_final * bg
         v_bg = np.einsum("chw,chwd->d", ctx.t_final, v_img_np)
         dt = ctx.dtype
-        out = [torch.from_numpy(a).to(dt) for a in (v_m, v_c, v_o, v_col, v_bg)]
+        out = [_tensor(a, dt) for a in (v_m, v_c, v_o, v_col, v_bg)]
         return (*out, None)
 
 
@@ -176,11 +154,6 @@ def rasterize_numba(
     background: Tensor | None = None,  # [D]
 ) -> tuple[Tensor, Tensor, dict]:
     """Inputs already validated, CPU tensors. See `splat_cpu.rasterize` for the contract."""
-    with _torch_pool_idle():
-        return _rasterize(means, quats, scales, opacities, colors, viewmats, Ks, width, height, background)
-
-
-def _rasterize(means, quats, scales, opacities, colors, viewmats, Ks, width, height, background):
     t0 = time.perf_counter()
     pr: dict = {}
     means2d, conics = _Project.apply(means, quats, scales, opacities, viewmats, Ks, width, height, pr)
