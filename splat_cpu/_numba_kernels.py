@@ -20,6 +20,9 @@ from .constants import ALPHA_MAX, ALPHA_MIN, T_MIN, TILE
 
 _FASTMATH = {"contract", "arcp", "nsz", "reassoc"}  # FMA and reassociation; no nan/inf assumptions
 _SIGMA_CLAMP = 8.0  # exp(-8) < ALPHA_MIN: beyond it alpha is skipped whatever the opacity
+_ROW_SHIFT = 4  # pixel i of a tile's flat buffers sits at row i >> 4, column i & 15 (TILE = 16)
+_LANE_MASK = 15
+assert TILE == 1 << _ROW_SHIFT == _LANE_MASK + 1
 
 
 @njit(cache=True, inline="always", fastmath=_FASTMATH, error_model="numpy")
@@ -83,6 +86,16 @@ def bin_tiles(
     return tile_start, gid
 
 
+@njit(cache=True, inline="always")
+def _tile_origin(t, tiles_x, n_tiles, width, height):  # -> cam, px0, py0, pw, ph
+    cam = t // n_tiles
+    tt = t - cam * n_tiles
+    ty = tt // tiles_x
+    tx = tt - ty * tiles_x
+    px0, py0 = tx * TILE, ty * TILE
+    return cam, px0, py0, min(TILE, width - px0), min(TILE, height - py0)
+
+
 @njit(cache=True, parallel=True, fastmath=_FASTMATH, error_model="numpy")
 def forward_tiles(
     means2d,  # [C, N, 2]
@@ -104,72 +117,66 @@ def forward_tiles(
     n_tiles = tiles_x * tiles_y
     n_all = tile_start.shape[0] - 1
     d = colors.shape[1]
+    npx = TILE * TILE
     for t in prange(n_all):
-        cam = t // n_tiles
-        tt = t - cam * n_tiles
-        ty, tx = tt // tiles_x, tt - (tt // tiles_x) * tiles_x
-        px0, py0 = tx * TILE, ty * TILE
-        pw, ph = min(TILE, width - px0), min(TILE, height - py0)
+        cam, px0, py0, pw, ph = _tile_origin(t, tiles_x, n_tiles, width, height)
         start, end = tile_start[t], tile_start[t + 1]
-        trans = np.ones((TILE, TILE))
-        acc = np.zeros((d, TILE, TILE))
-        last = np.full((TILE, TILE), start - 1, dtype=np.int64)
-        live = np.zeros((TILE, TILE))  # 1 while the pixel composites; 0 outside the image or once T is spent
-        row_live = np.zeros(TILE, dtype=np.int64)  # live pixels per row: a spent row is skipped
+        # flat per-tile state, pixel i = ly * TILE + lx: one long vectorisable loop per Gaussian
+        # T per pixel, negated once the pixel is spent (and -1 outside the image): no separate mask
+        trans = np.full(npx, -1.0)
         for ly in range(ph):
-            row_live[ly] = pw
             for lx in range(pw):
-                live[ly, lx] = 1.0
+                trans[ly * TILE + lx] = 1.0
+        acc = np.zeros(d * npx)
+        last = np.full(npx, start - 1, dtype=np.int64)
         n_active = pw * ph
-        wrow = np.zeros(TILE)
-        pxc = np.empty(TILE)
-        for lx in range(TILE):
-            pxc[lx] = px0 + lx + 0.5
+        wbuf = np.zeros(npx)
+        fx0, fy0 = px0 + 0.5, py0 + 0.5
         for k in range(start, end):
             if n_active == 0:
                 break
             g = gid[k]
-            mx, my = np.float64(means2d[cam, g, 0]), np.float64(means2d[cam, g, 1])
+            mx, my = np.float64(means2d[cam, g, 0]) - fx0, np.float64(means2d[cam, g, 1]) - fy0
             ca, cb, cc = np.float64(conics[cam, g, 0]), np.float64(conics[cam, g, 1]), np.float64(conics[cam, g, 2])
             op = np.float64(opacities[g])
-            ya = max(pix_box[cam, g, 2] - py0, 0)
-            yb = min(pix_box[cam, g, 3] - py0, ph - 1)
-            for ly in range(ya, yb + 1):
-                if row_live[ly] == 0:
-                    continue
-                dy = my - (py0 + ly + 0.5)
-                tr = trans[ly]
-                lv = live[ly]
-                la = last[ly]
-                nstop = 0.0
-                for lx in range(TILE):
-                    dx = mx - pxc[lx]
-                    sigma = 0.5 * (ca * dx * dx + cc * dy * dy) + cb * dx * dy
-                    alpha = min(ALPHA_MAX, op * _exp_neg(min(max(sigma, 0.0), _SIGMA_CLAMP)))
-                    tc = tr[lx]
-                    nt = tc * (1.0 - alpha)
-                    ok = (sigma >= 0.0) & (alpha >= ALPHA_MIN) & (lv[lx] > 0.0)
-                    stop = ok & (nt <= T_MIN)
-                    con = ok & (nt > T_MIN)
-                    wrow[lx] = alpha * tc if con else 0.0
-                    tr[lx] = nt if con else tc
-                    lv[lx] = 0.0 if stop else lv[lx]
-                    la[lx] = k if con else la[lx]
-                    nstop += 1.0 if stop else 0.0
-                n_active -= int(nstop)
-                row_live[ly] -= int(nstop)
-                for ch in range(d):
-                    cv = np.float64(colors[g, ch])
-                    ar = acc[ch, ly]
-                    for lx in range(TILE):
-                        ar[lx] += wrow[lx] * cv
+            c0 = np.float64(colors[g, 0])
+            i0 = max(pix_box[cam, g, 2] - py0, 0) * TILE
+            i1 = (min(pix_box[cam, g, 3] - py0, ph - 1) + 1) * TILE
+            my -= i0 >> _ROW_SHIFT
+            # slices, so that the loop index starts at 0: numba then knows it is not negative and
+            # LLVM vectorises the loop (a range(i0, i1) loop stays scalar)
+            tr, ac, la, wb = trans[i0:i1], acc[i0:i1], last[i0:i1], wbuf[i0:i1]
+            nstop = 0.0
+            for j in range(i1 - i0):
+                dx = mx - (j & _LANE_MASK)
+                dy = my - (j >> _ROW_SHIFT)
+                sigma = 0.5 * (ca * dx * dx + cc * dy * dy) + cb * dx * dy
+                alpha = min(ALPHA_MAX, op * _exp_neg(min(max(sigma, 0.0), _SIGMA_CLAMP)))
+                tc = tr[j]
+                nt = tc * (1.0 - alpha)
+                ok = (sigma >= 0.0) & (alpha >= ALPHA_MIN) & (tc > 0.0)
+                stop = ok & (nt <= T_MIN)
+                con = ok & (nt > T_MIN)
+                w = alpha * tc if con else 0.0
+                wb[j] = w
+                ac[j] += w * c0
+                tr[j] = nt if con else (-tc if stop else tc)
+                la[j] = k if con else la[j]
+                nstop += 1.0 if stop else 0.0
+            n_active -= int(nstop)
+            for ch in range(1, d):
+                cv = np.float64(colors[g, ch])
+                ach = acc[ch * npx + i0: ch * npx + i1]
+                for j in range(i1 - i0):
+                    ach[j] += wb[j] * cv
         for ly in range(ph):
             for lx in range(pw):
                 y, x = py0 + ly, px0 + lx
+                i = ly * TILE + lx
                 for ch in range(d):
-                    out_img[cam, y, x, ch] = acc[ch, ly, lx] + trans[ly, lx] * background[ch]
-                out_t[cam, y, x] = trans[ly, lx]
-                out_last[cam, y, x] = last[ly, lx]
+                    out_img[cam, y, x, ch] = acc[ch * npx + i] + abs(trans[i]) * background[ch]
+                out_t[cam, y, x] = abs(trans[i])
+                out_last[cam, y, x] = last[i]
 
 
 @njit(cache=True, parallel=True, fastmath=_FASTMATH, error_model="numpy")
@@ -196,97 +203,102 @@ def backward_tiles(
     n_tiles = tiles_x * tiles_y
     n_all = tile_start.shape[0] - 1
     d = colors.shape[1]
+    npx = TILE * TILE
     for t in prange(n_all):
         start, end = tile_start[t], tile_start[t + 1]
         if end == start:
             continue
-        cam = t // n_tiles
-        tt = t - cam * n_tiles
-        ty, tx = tt // tiles_x, tt - (tt // tiles_x) * tiles_x
-        px0, py0 = tx * TILE, ty * TILE
-        pw, ph = min(TILE, width - px0), min(TILE, height - py0)
-        trans = np.ones((TILE, TILE))
+        cam, px0, py0, pw, ph = _tile_origin(t, tiles_x, n_tiles, width, height)
+        trans = np.ones(npx)
         # rest: sum over later Gaussians of (c . v_C) alpha T, plus T_N (bg . v_C) - T_N v_alpha
-        rest = np.zeros((TILE, TILE))
-        vc = np.zeros((d, TILE, TILE))
-        last = np.full((TILE, TILE), start - 1, dtype=np.int64)  # pixels outside the image never match
+        rest = np.zeros(npx)
+        vc = np.zeros(d * npx)
+        last = np.full(npx, start - 1, dtype=np.int64)  # pixels outside the image never match
         kmax = start - 1
-        row_kmax = np.full(TILE, start - 1, dtype=np.int64)  # rows whose pixels all stopped before k are skipped
+        row_kmax = np.full(TILE, start - 1, dtype=np.int64)  # rows whose pixels all stopped before k
         for ly in range(ph):
             for lx in range(pw):
                 y, x = py0 + ly, px0 + lx
+                i = ly * TILE + lx
                 tf = np.float64(t_final[cam, y, x])
-                trans[ly, lx] = tf
+                trans[i] = tf
                 bgdot = 0.0
                 for ch in range(d):
-                    vc[ch, ly, lx] = v_img[cam, y, x, ch]
+                    vc[ch * npx + i] = v_img[cam, y, x, ch]
                     bgdot += background[ch] * v_img[cam, y, x, ch]
-                rest[ly, lx] = tf * bgdot - tf * v_alpha[cam, y, x]
-                last[ly, lx] = last_idx[cam, y, x]
-                row_kmax[ly] = max(row_kmax[ly], last[ly, lx])
+                rest[i] = tf * bgdot - tf * v_alpha[cam, y, x]
+                last[i] = last_idx[cam, y, x]
+                row_kmax[ly] = max(row_kmax[ly], last[i])
             kmax = max(kmax, row_kmax[ly])
-        pxc = np.empty(TILE)
-        for lx in range(TILE):
-            pxc[lx] = px0 + lx + 0.5
-        wrow = np.zeros(TILE)
-        cdot = np.zeros(TILE)
+        wbuf = np.zeros(npx)
+        cdot = np.zeros(npx)
+        fx0, fy0 = px0 + 0.5, py0 + 0.5
         for k in range(kmax, start - 1, -1):
             g = gid[k]
-            mx, my = np.float64(means2d[cam, g, 0]), np.float64(means2d[cam, g, 1])
-            ca, cb, cc = np.float64(conics[cam, g, 0]), np.float64(conics[cam, g, 1]), np.float64(conics[cam, g, 2])
-            op = np.float64(opacities[g])
             ya = max(pix_box[cam, g, 2] - py0, 0)
             yb = min(pix_box[cam, g, 3] - py0, ph - 1)
+            while ya <= yb and row_kmax[ya] < k:  # rows spent before k cost nothing
+                ya += 1
+            while yb >= ya and row_kmax[yb] < k:
+                yb -= 1
+            if ya > yb:
+                continue
+            i0, i1 = ya * TILE, (yb + 1) * TILE
+            mx = np.float64(means2d[cam, g, 0]) - fx0
+            my = np.float64(means2d[cam, g, 1]) - fy0 - ya
+            ca, cb, cc = np.float64(conics[cam, g, 0]), np.float64(conics[cam, g, 1]), np.float64(conics[cam, g, 2])
+            op = np.float64(opacities[g])
+            c0 = np.float64(colors[g, 0])
+            # slices from 0: see forward_tiles
+            tr, rs, la, wb, v0, cd = trans[i0:i1], rest[i0:i1], last[i0:i1], wbuf[i0:i1], vc[i0:i1], cdot[i0:i1]
+            for j in range(i1 - i0):
+                cd[j] = c0 * v0[j]
+            for ch in range(1, d):
+                cv = np.float64(colors[g, ch])
+                vch = vc[ch * npx + i0: ch * npx + i1]
+                for j in range(i1 - i0):
+                    cd[j] += cv * vch[j]
             g_mx = 0.0
             g_my = 0.0
             g_a = 0.0
             g_b = 0.0
             g_c = 0.0
             g_o = 0.0
+            g_c0 = 0.0
             n_hit = 0.0
-            for ly in range(ya, yb + 1):
-                if k > row_kmax[ly]:
-                    continue
-                dy = my - (py0 + ly + 0.5)
-                tr = trans[ly]
-                rs = rest[ly]
-                la = last[ly]
-                for lx in range(TILE):
-                    cdot[lx] = 0.0
-                for ch in range(d):
-                    cv = np.float64(colors[g, ch])
-                    vr = vc[ch, ly]
-                    for lx in range(TILE):
-                        cdot[lx] += cv * vr[lx]
-                for lx in range(TILE):
-                    dx = mx - pxc[lx]
-                    sigma = 0.5 * (ca * dx * dx + cc * dy * dy) + cb * dx * dy
-                    vis = _exp_neg(min(max(sigma, 0.0), _SIGMA_CLAMP))
-                    raw = op * vis
-                    alpha = min(ALPHA_MAX, raw)
-                    ok = (sigma >= 0.0) & (alpha >= ALPHA_MIN) & (k <= la[lx])
-                    ra = 1.0 / (1.0 - alpha)
-                    tb = tr[lx] * ra  # T before this Gaussian
-                    w = alpha * tb
-                    v_al = cdot[lx] * tb - rs[lx] * ra
-                    tr[lx] = tb if ok else tr[lx]
-                    rs[lx] = rs[lx] + cdot[lx] * w if ok else rs[lx]
-                    wrow[lx] = w if ok else 0.0
-                    gate = ok & (raw < ALPHA_MAX)  # the clamp at ALPHA_MAX passes no gradient
-                    v_sig = -raw * v_al if gate else 0.0
-                    g_o += vis * v_al if gate else 0.0
-                    g_a += 0.5 * dx * dx * v_sig
-                    g_b += dx * dy * v_sig
-                    g_c += 0.5 * dy * dy * v_sig
-                    g_mx += (ca * dx + cb * dy) * v_sig
-                    g_my += (cb * dx + cc * dy) * v_sig
-                    n_hit += 1.0 if ok else 0.0
-                for ch in range(d):
-                    vr = vc[ch, ly]
-                    sc = 0.0
-                    for lx in range(TILE):
-                        sc += wrow[lx] * vr[lx]
-                    out_col[k, ch] += sc
+            for j in range(i1 - i0):
+                dx = mx - (j & _LANE_MASK)
+                dy = my - (j >> _ROW_SHIFT)
+                sigma = 0.5 * (ca * dx * dx + cc * dy * dy) + cb * dx * dy
+                vis = _exp_neg(min(max(sigma, 0.0), _SIGMA_CLAMP))
+                raw = op * vis
+                alpha = min(ALPHA_MAX, raw)
+                ok = (sigma >= 0.0) & (alpha >= ALPHA_MIN) & (k <= la[j])
+                ra = 1.0 / (1.0 - alpha)
+                tb = tr[j] * ra  # T before this Gaussian
+                w = alpha * tb
+                v_al = cd[j] * tb - rs[j] * ra
+                tr[j] = tb if ok else tr[j]
+                rs[j] = rs[j] + cd[j] * w if ok else rs[j]
+                wv = w if ok else 0.0
+                wb[j] = wv
+                g_c0 += wv * v0[j]
+                gate = ok & (raw < ALPHA_MAX)  # the clamp at ALPHA_MAX passes no gradient
+                v_sig = -raw * v_al if gate else 0.0
+                g_o += vis * v_al if gate else 0.0
+                g_a += 0.5 * dx * dx * v_sig
+                g_b += dx * dy * v_sig
+                g_c += 0.5 * dy * dy * v_sig
+                g_mx += (ca * dx + cb * dy) * v_sig
+                g_my += (cb * dx + cc * dy) * v_sig
+                n_hit += 1.0 if ok else 0.0
+            out_col[k, 0] = g_c0
+            for ch in range(1, d):
+                vch = vc[ch * npx + i0: ch * npx + i1]
+                sc = 0.0
+                for j in range(i1 - i0):
+                    sc += wb[j] * vch[j]
+                out_col[k, ch] = sc
             if n_hit > 0.0:
                 out_geo[k, 0] = g_mx
                 out_geo[k, 1] = g_my
