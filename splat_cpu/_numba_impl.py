@@ -1,15 +1,19 @@
 """The fast CPU path: numba projection and numba tile compositing, each with a hand-written backward.
 
-torch only carries tensors in and out: every conversion is done by numpy, so that no torch
-kernel, hence no OpenMP parallel region, runs inside `rasterize` or its backward. torch's
-OpenMP threads spin-wait at and after each parallel region unless OMP_WAIT_POLICY=PASSIVE
-was set before torch started; on a machine with more busy threads than cores a region then
-costs milliseconds, which is what made the library depend on the caller's environment
-(measured by `python -m benchmarks.rasterize --omp-check`).
+Threads (issue 8). torch loads its libgomp into the process's global symbol scope, so numba's
+default "omp" threading layer runs on that same OpenMP runtime, whose threads spin-wait
+after every parallel region unless OMP_WAIT_POLICY=PASSIVE was set before torch started; on
+a machine with more busy threads than cores every spin steals a core (serial work between
+two kernels took 3-5x longer). So that the library does not depend on the caller's
+environment: numba's "workqueue" layer is selected here, before the first parallel kernel,
+unless the user chose a layer (NUMBA_THREADING_LAYER or numba.config.THREADING_LAYER); and
+torch only carries tensors in and out (conversions by numpy), so no torch parallel region
+runs inside `rasterize` or its backward. Measured by `python -m benchmarks.rasterize --omp-check`.
 """
 
 from __future__ import annotations
 
+import os
 import time
 
 import numba
@@ -21,7 +25,17 @@ from . import _numba_kernels as K
 from . import _numba_project as P
 from .constants import TILE
 
-_CHUNK = 2  # dynamic scheduling of tiles over threads: tiles cost very different amounts
+_CHUNK = 2  # tiles per scheduling chunk: tiles cost very different amounts, small chunks balance them
+_THREADING_LAYER = "workqueue"  XX
+
+
+def _choose_threading_layer() -> None:
+    """Select `_THREADING_LAYER` unless the user chose a numba threading layer (no effect once launched)."""
+    if "NUMBA_THREADING_LAYER" not in os.environ and numba.config.THREADING_LAYER == "default":
+        numba.config.THREADING_LAYER = _THREADING_LAYER
+
+
+_choose_threading_layer()
 
 
 class _Plan:
