@@ -26,7 +26,7 @@ from . import _numba_project as P
 from .constants import TILE
 
 _CHUNK = 2  # tiles per scheduling chunk: tiles cost very different amounts, small chunks balance them
-_THREADING_LAYER = "workqueue"  XX
+_THREADING_LAYER = "workqueue"  # numba's own pool: idle workers block on a condition variable, never spin
 
 
 def _choose_threading_layer() -> None:
