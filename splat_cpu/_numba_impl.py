@@ -178,7 +178,8 @@ def rasterize_numba(
     n_valid = valid.sum(axis=1)
     tiles_x, tiles_y = -(-width // TILE), -(-height // TILE)
     pix_box = pr["pix_box"]
-    tile_start, gid = K.bin_tiles(order, n_valid, pix_box, tiles_x, tiles_y)
+    tile_start, gid = K.bin_tiles(order, n_valid, pix_box, _np(means2d), _np(conics), _np(opacities), width, height,
+                                  tiles_x, tiles_y)
     plan = _Plan(pix_box, tile_start, gid, width, height, tiles_x, tiles_y)
     t2 = time.perf_counter()
     bg = background if background is not None else torch.zeros(colors.shape[1], dtype=colors.dtype)

