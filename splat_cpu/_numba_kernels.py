@@ -330,11 +330,12 @@ def backward_tiles(
                     vch = vc[ch * npx + i0: ch * npx + i1]
                     for j in range(i1 - i0):
                         cd[j] += cv * vch[j]
-            g_mx = 0.0
-            g_my = 0.0
-            g_a = 0.0
-            g_b = 0.0
-            g_c = 0.0
+            # sums of v_sigma times dx, dy, dx^2, dx dy, dy^2: d sigma / d (mx, my, a, b, c) are linear in them
+            g_x = 0.0
+            g_y = 0.0
+            g_xx = 0.0
+            g_xy = 0.0
+            g_yy = 0.0
             g_o = 0.0
             g_c0 = 0.0
             n_hit = 0.0
@@ -359,11 +360,13 @@ def backward_tiles(
                 gate = ok & (raw < ALPHA_MAX)  # the clamp at ALPHA_MAX passes no gradient
                 v_sig = -raw * v_al if gate else 0.0
                 g_o += vis * v_al if gate else 0.0
-                g_a += 0.5 * dx * dx * v_sig
-                g_b += dx * dy * v_sig
-                g_c += 0.5 * dy * dy * v_sig
-                g_mx += (ca * dx + cb * dy) * v_sig
-                g_my += (cb * dx + cc * dy) * v_sig
+                sx = v_sig * dx
+                sy = v_sig * dy
+                g_xx += sx * dx
+                g_xy += sx * dy
+                g_yy += sy * dy
+                g_x += sx
+                g_y += sy
                 n_hit += 1.0 if ok else 0.0
             out_col[k, 0] = g_c0
             for ch in range(1, d):
@@ -373,11 +376,11 @@ def backward_tiles(
                     sc += wb[j] * vch[j]
                 out_col[k, ch] = sc
             if n_hit > 0.0:
-                out_geo[k, 0] = g_mx
-                out_geo[k, 1] = g_my
-                out_geo[k, 2] = g_a
-                out_geo[k, 3] = g_b
-                out_geo[k, 4] = g_c
+                out_geo[k, 0] = ca * g_x + cb * g_y
+                out_geo[k, 1] = cb * g_x + cc * g_y
+                out_geo[k, 2] = 0.5 * g_xx
+                out_geo[k, 3] = g_xy
+                out_geo[k, 4] = 0.5 * g_yy
                 out_geo[k, 5] = g_o
 
 
