@@ -41,9 +41,9 @@ _choose_threading_layer()
 class _Plan:
     """Per-call binning: which Gaussians touch which tile, front to back (no gradients)."""
 
-    def __init__(self, pix_box: np.ndarray, tile_start: np.ndarray, gid: np.ndarray,
+    def __init__(self, rows: np.ndarray, tile_start: np.ndarray, gid: np.ndarray,
                  width: int, height: int, tiles_x: int, tiles_y: int):
-        self.pix_box, self.tile_start, self.gid = pix_box, tile_start, gid
+        self.rows, self.tile_start, self.gid = rows, tile_start, gid
         self.width, self.height, self.tiles_x, self.tiles_y = width, height, tiles_x, tiles_y
 
 
@@ -121,7 +121,7 @@ class _Composite(torch.autograd.Function):
         t_final = np.empty((c_n, p.height, p.width), dtype=np.float64)
         last = np.empty((c_n, p.height, p.width), dtype=np.int64)
         with numba.parallel_chunksize(_CHUNK):
-            K.forward_tiles(*arrs, p.pix_box, p.tile_start, p.gid, p.width, p.height, p.tiles_x, p.tiles_y,
+            K.forward_tiles(*arrs, p.rows, p.tile_start, p.gid, p.width, p.height, p.tiles_x, p.tiles_y,
                             img, t_final, last)
         ctx.plan, ctx.arrs, ctx.t_final, ctx.last = plan, arrs, t_final, last
         ctx.dtype = means2d.dtype
@@ -141,7 +141,7 @@ class _Composite(torch.autograd.Function):
         geo = np.zeros((n_isect, 6), dtype=np.float64)
         col = np.zeros((n_isect, d), dtype=np.float64)
         with numba.parallel_chunksize(_CHUNK):
-            K.backward_tiles(*arrs, p.pix_box, p.tile_start, p.gid, p.width, p.height, p.tiles_x, p.tiles_y,
+            K.backward_tiles(*arrs, p.rows, p.tile_start, p.gid, p.width, p.height, p.tiles_x, p.tiles_y,
                              ctx.t_final, ctx.last, v_img_np, v_al_np, geo, col)
         v_m = np.zeros((c_n, n, 2))
         v_c = np.zeros((c_n, n, 3))
@@ -178,9 +178,9 @@ def rasterize_numba(
     n_valid = valid.sum(axis=1)
     tiles_x, tiles_y = -(-width // TILE), -(-height // TILE)
     pix_box = pr["pix_box"]
-    tile_start, gid = K.bin_tiles(order, n_valid, pix_box, _np(means2d), _np(conics), _np(opacities), width, height,
-                                  tiles_x, tiles_y)
-    plan = _Plan(pix_box, tile_start, gid, width, height, tiles_x, tiles_y)
+    tile_start, gid, rows = K.bin_tiles(order, n_valid, pix_box, _np(means2d), _np(conics), _np(opacities), width,
+                                        height, tiles_x, tiles_y)
+    plan = _Plan(rows, tile_start, gid, width, height, tiles_x, tiles_y)
     t2 = time.perf_counter()
     bg = background if background is not None else torch.zeros(colors.shape[1], dtype=colors.dtype)
     images, alphas = _Composite.apply(means2d, conics, opacities, colors, bg, plan)
