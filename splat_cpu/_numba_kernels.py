@@ -1,14 +1,18 @@
 """Numba tile kernels: binning, forward compositing and its hand-written backward.
 
 Layout: the image of camera `cam` is cut into 16 x 16 tiles; tile id = cam * n_tiles + ty * tiles_x + tx.
-`tile_start[t]:tile_start[t + 1]` indexes `gid`, the tile's Gaussians front to back.
-Each tile walks its Gaussians in depth order and, for each, the tile rows of its exact
-alpha >= 1/255 box; a row is processed as 16 lanes without branches (selects only), which
-LLVM vectorises, with a polynomial exp (`_exp_neg`, relative error < 1e-11). The forward
-keeps, per pixel, the final transmittance and the list position of the last contributing
-Gaussian; the backward walks the list back from there, recovering T by division by
-(1 - alpha), and writes one gradient row per (tile, Gaussian) entry, summed per Gaussian
-afterwards. Arithmetic inside is float64 whatever the input dtype.
+`tile_start[t]:tile_start[t + 1]` indexes `gid`, the tile's Gaussians front to back, and
+`rows`, the image rows of the tile that each may touch. Binning (gsplat-style tile culling)
+keeps a tile only when the Gaussian's alpha >= 1/255 ellipse (o exp(-sigma) >= ALPHA_MIN,
+the opacity-aware extent) reaches its pixels, and only the rows it reaches there.
+Each tile keeps flat per-pixel buffers (pixel i at row i >> 4, column i & 15) and walks its
+Gaussians in depth order; a Gaussian's rows are one contiguous slice of those buffers,
+processed as one loop without branches (selects only) that LLVM vectorises, with a
+polynomial exp (`_exp_neg`, relative error < 1e-11). The forward keeps, per pixel, the final
+transmittance and the list position of the last contributing Gaussian; the backward walks
+the list back from there, recovering T by division by (1 - alpha), and writes one gradient
+row per (tile, Gaussian) entry, summed per Gaussian afterwards. Arithmetic inside is float64
+whatever the input dtype.
 """
 
 from __future__ import annotations
