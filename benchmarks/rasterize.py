@@ -1,21 +1,30 @@
-"""Benchmark splat_cpu: fast (numba) path vs the pure-torch reference.
+"""Benchmark splat_cpu: fast (numba) path vs the pure-torch reference, in "units".
 
 Forward and forward+backward milliseconds for N in {2k, 20k, 100k} Gaussians at 128x96 and
-346x260, C in {1, 5} cameras, grey (D=1) and colour (D=3); their ratio; peak memory. Each
-measurement runs in its own subprocess so that its peak resident memory is its own.
+346x260, C in {1, 5} cameras, grey (D=1) and colour (D=3); peak memory. Each measurement
+runs in its own subprocess so that its peak resident memory is its own.
 
-    python benchmarks/rasterize.py [--quick] [--out bench_out/rasterize.json]
+    python -m benchmarks.rasterize [--quick] [--baseline /work/main] [--omp-check]
+
+A "unit" (issue 10) is the time of `torch.exp` over 16M float32 values into a freshly
+allocated output, timed in the same subprocess between the repetitions; every time is also
+reported divided by it, since absolute times drift on a shared machine. The target for the
+fast path is forward+backward <= 1 unit at 20k Gaussians, 346x260, one grey camera.
+
+- `--baseline ROOT` also times the fast path of the splat_cpu found under ROOT (e.g. the
+  main checkout), so a before/after pair comes from one run.
+- `--omp-check` times the fast path in subprocesses started without OMP_WAIT_POLICY and
+  with OMP_WAIT_POLICY=PASSIVE, alternately, and reports their ratio: the library must not
+  depend on the caller setting it (issue 8).
+
+Backward is driven by fixed cotangents (`torch.autograd.backward((images, alphas), (1, 1))`,
+gradients reset to None before each call), so no torch kernel of a loss is timed: only the
+rasteriser's own work.
 
 Scene: N random Gaussians filling the view frustum at depth 2..6, scales log-uniform in
 0.01..0.1 (about 0.8..8 px at depth 4), opacity U(0.05, 1), random rotations; the C cameras
 are small translations of each other (the virtual views of one exposure). Timings are
-medians of repeated runs after one warm-up call, and noisy on a shared machine: compare the
-ratio column, taken in the same run.
-
-The measuring subprocesses run with OMP_WAIT_POLICY=PASSIVE unless --omp-wait-policy says
-otherwise: on a 2-core machine shared with other work, torch's spin-waiting OpenMP pool made
-the (pure torch) projection 30x slower (20k Gaussians: 6 ms -> 200 ms forward, 11 -> 370 ms
-backward), which swamps the compositing kernels.
+medians of repeated runs after one warm-up call.
 """
 
 from __future__ import annotations
@@ -34,6 +43,9 @@ FULL_SIZES = [(128, 96), (346, 260)]
 FULL_NS = [2_000, 20_000, 100_000]
 FULL_CS = [1, 5]
 FULL_DS = [1, 3]
+UNIT_NUMEL = 16 * 2**20  # torch.exp over 16M float32 values: the time unit of issue 10
+TARGET = (20_000, 346, 260, 1, 1)  # N, W, H, C, D of the <= 1 unit target
+RESULTS = Path(__file__).resolve().parent / "results"
 REF_LIMIT = 20_000 * 346 * 260 * 1  # skip the reference above this many Gaussian-pixel-cameras (minutes)
 
 
@@ -65,33 +77,48 @@ def _rss_mb() -> float:
 
 
 def measure_one(cfg: dict) -> dict:
-    """Run in a subprocess: time one configuration with one path."""
+    """Run in a subprocess: time one configuration with one path (and the unit between repetitions)."""
+    if cfg.get("root"):  # time another checkout's splat_cpu (the "before" of a before/after pair)
+        sys.path.insert(0, cfg["root"])
     import torch
 
     import splat_cpu
 
-    torch.set_num_threads(int(cfg.get("threads", torch.get_num_threads())))
     fn = splat_cpu.rasterize if cfg["path"] == "fast" else splat_cpu.rasterize_reference
     scene = make_scene(cfg["n"], cfg["width"], cfg["height"], cfg["d"], cfg["c"])
     leaves = [t.clone().requires_grad_() for t in scene[:6]]
     ks = scene[6]
     w, h = cfg["width"], cfg["height"]
+    x = torch.rand(UNIT_NUMEL)
+
+    def unit():
+        t = time.perf_counter()
+        y = torch.exp(x)  # freshly allocated output
+        dt = time.perf_counter() - t
+        del y
+        return dt
 
     def fwd():
         return fn(*leaves, ks, w, h)
 
+    cot_img = torch.ones(cfg["c"], h, w, cfg["d"])
+    cot_alpha = torch.ones(cfg["c"], h, w, 1)
+
     def fwd_bwd():
+        for leaf in leaves:
+            leaf.grad = None  # as optimizer.zero_grad() does: no accumulation kernel
         img, alpha, _ = fn(*leaves, ks, w, h)
-        (img.sum() + alpha.sum()).backward()
+        torch.autograd.backward((img, alpha), (cot_img, cot_alpha))
 
     t = time.perf_counter()
     fwd_bwd()  # warm-up: loads (or compiles) the numba kernels
     first_ms = 1e3 * (time.perf_counter() - t)
     base_rss = _rss_mb()
     reps = cfg["reps"]
-    tf, tfb = [], []
+    tf, tfb, tu = [], [], []
     meta = None
     for _ in range(reps):
+        tu.append(unit())
         t = time.perf_counter()
         out = fwd()
         tf.append(time.perf_counter() - t)
@@ -104,8 +131,12 @@ def measure_one(cfg: dict) -> dict:
     med = lambda xs: 1e3 * sorted(xs)[len(xs) // 2]  # noqa: E731
     return {
         **cfg,
+        "splat_cpu": splat_cpu.__file__,
+        "unit_ms": med(tu),
         "fwd_ms": med(tf),
         "fwd_bwd_ms": med(tfb),
+        "fwd_units": med(tf) / med(tu),
+        "fwd_bwd_units": med(tfb) / med(tu),
         "first_call_ms": first_ms,
         "peak_rss_mb": peak,
         "peak_over_baseline_mb": peak - base_rss,
@@ -115,9 +146,11 @@ def measure_one(cfg: dict) -> dict:
 
 
 def _run_sub(cfg: dict, timeout: float, wait_policy: str) -> dict:
-    cmd = [sys.executable, __file__, "--one", json.dumps(cfg)]
+    cmd = [sys.executable, "-m", "benchmarks.rasterize", "--one", json.dumps(cfg)]
     env = dict(os.environ)
-    if wait_policy != "default":
+    env["PYTHONPATH"] = os.pathsep.join([str(Path(__file__).resolve().parents[1]), env.get("PYTHONPATH", "")])
+    env.pop("OMP_WAIT_POLICY", None)
+    if wait_policy != "unset":
         env["OMP_WAIT_POLICY"] = wait_policy
     try:
         out = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env)
@@ -128,15 +161,50 @@ def _run_sub(cfg: dict, timeout: float, wait_policy: str) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
+def _cell(r: dict, k: str, fmt: str = "{:8.1f}") -> str:
+    width = len(fmt.format(0.0))
+    return fmt.format(r[k]) if k in r else f"{'skip' if 'skipped' in r else 'ERR':>{width}}"
+
+
+def _git_head(root: str) -> str | None:
+    try:
+        out = subprocess.run(["git", "-C", root, "rev-parse", "HEAD"], capture_output=True, text=True, timeout=10)
+    except OSError:
+        return None
+    return out.stdout.strip() or None
+
+
+def omp_check(reps: int, rounds: int, timeout: float) -> dict:
+    """The TARGET configuration's fast path, without and with OMP_WAIT_POLICY=PASSIVE, alternately."""
+    n, w, h, c, d = TARGET
+    cfg = {"width": w, "height": h, "n": n, "c": c, "d": d, "reps": reps, "path": "fast"}
+    runs: dict[str, list[dict]] = {"unset": [], "PASSIVE": []}
+    for _ in range(rounds):
+        for policy in runs:
+            runs[policy].append(_run_sub(cfg, timeout, policy))
+    med = lambda xs: sorted(xs)[len(xs) // 2] if xs else float("nan")  # noqa: E731
+    summary = {}
+    for policy, rs in runs.items():
+        ok = [r for r in rs if "fwd_bwd_ms" in r]
+        summary[policy] = {"fwd_bwd_ms": med([r["fwd_bwd_ms"] for r in ok]),
+                           "fwd_bwd_units": med([r["fwd_bwd_units"] for r in ok]), "runs": rs}
+    summary["ratio_unset_over_passive_ms"] = summary["unset"]["fwd_bwd_ms"] / summary["PASSIVE"]["fwd_bwd_ms"]
+    return summary
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", default="bench_out/rasterize.json", help="JSON output path")
+    ap.add_argument("--out", default=None, help="JSON output path (default benchmarks/results/rasterize[_quick].json)")
     ap.add_argument("--quick", action="store_true", help="a small subset (128x96 and 346x260, N=2k/20k, C=1, grey)")
     ap.add_argument("--no-reference", action="store_true", help="time only the fast path")
-    ap.add_argument("--reps", type=int, default=5, help="timed repetitions per configuration (median reported)")
+    ap.add_argument("--baseline", metavar="ROOT", help="also time the fast path of the splat_cpu under ROOT")
+    ap.add_argument("--omp-check", action="store_true",
+                    help="time the target configuration without and with OMP_WAIT_POLICY=PASSIVE (issue 8)")
+    ap.add_argument("--omp-rounds", type=int, default=3, help="subprocess pairs for --omp-check")
+    ap.add_argument("--reps", type=int, default=7, help="timed repetitions per configuration (median reported)")
     ap.add_argument("--timeout", type=float, default=300.0, help="seconds before a configuration is skipped")
-    ap.add_argument("--omp-wait-policy", default="PASSIVE", choices=["PASSIVE", "ACTIVE", "default"],
-                    help="OMP_WAIT_POLICY of the measuring subprocesses ('default': inherit)")
+    ap.add_argument("--omp-wait-policy", default="unset", choices=["unset", "PASSIVE", "ACTIVE"],
+                    help="OMP_WAIT_POLICY of the measuring subprocesses of the table ('unset': removed)")
     ap.add_argument("--one", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.one:
@@ -148,13 +216,15 @@ def main(argv: list[str] | None = None) -> int:
     else:
         configs = [(w, h, n, c, d) for (w, h) in FULL_SIZES for n in FULL_NS for c in FULL_CS for d in FULL_DS]
     rows = []
-    hdr = (f"{'W x H':>9} {'N':>7} {'C':>2} {'D':>2} | {'fast fwd':>9} {'fast f+b':>9} {'MB':>6} | "
-           f"{'ref fwd':>9} {'ref f+b':>9} {'MB':>6} | {'ratio f+b':>9}")
+    hdr = (f"{'W x H':>9} {'N':>7} {'C':>2} {'D':>2} | {'unit':>6} | {'fast fwd':>8} {'fast f+b':>8} {'units':>6} "
+           f"{'MB':>5} | {'base f+b':>8} {'units':>6} | {'ref f+b':>8} {'units':>6} | {'ref/fast':>8}")
     print(hdr)
     print("-" * len(hdr))
     for w, h, n, c, d in configs:
         cfg = {"width": w, "height": h, "n": n, "c": c, "d": d, "reps": args.reps}
         fast = _run_sub({**cfg, "path": "fast"}, args.timeout, args.omp_wait_policy)
+        base = (_run_sub({**cfg, "path": "fast", "root": args.baseline}, args.timeout, args.omp_wait_policy)
+                if args.baseline else {"skipped": "no --baseline"})
         if args.no_reference:
             ref = {"skipped": "--no-reference"}
         elif n * w * h * c > REF_LIMIT:
@@ -163,27 +233,37 @@ def main(argv: list[str] | None = None) -> int:
             ref = _run_sub({**cfg, "path": "reference", "reps": max(1, min(args.reps, 2))}, args.timeout,
                            args.omp_wait_policy)
         ratio = ref["fwd_bwd_ms"] / fast["fwd_bwd_ms"] if "fwd_bwd_ms" in ref and "fwd_bwd_ms" in fast else None
-        rows.append({"config": cfg, "fast": fast, "reference": ref, "ratio_fwd_bwd": ratio})
-
-        def cell(r, k, fmt="{:9.1f}"):
-            return fmt.format(r[k]) if k in r else f"{'skip' if 'skipped' in r else 'ERR':>{len(fmt.format(0.0))}}"
-
-        print(f"{w:>4}x{h:<4} {n:>7} {c:>2} {d:>2} | {cell(fast, 'fwd_ms')} {cell(fast, 'fwd_bwd_ms')} "
-              f"{cell(fast, 'peak_rss_mb', '{:6.0f}')} | {cell(ref, 'fwd_ms')} {cell(ref, 'fwd_bwd_ms')} "
-              f"{cell(ref, 'peak_rss_mb', '{:6.0f}')} | {('%9.1f' % ratio) if ratio else '        -'}", flush=True)
+        rows.append({"config": cfg, "fast": fast, "baseline": base, "reference": ref, "ratio_fwd_bwd": ratio})
+        print(f"{w:>4}x{h:<4} {n:>7} {c:>2} {d:>2} | {_cell(fast, 'unit_ms', '{:6.1f}')} | "
+              f"{_cell(fast, 'fwd_ms')} {_cell(fast, 'fwd_bwd_ms')} {_cell(fast, 'fwd_bwd_units', '{:6.2f}')} "
+              f"{_cell(fast, 'peak_rss_mb', '{:5.0f}')} | {_cell(base, 'fwd_bwd_ms')} "
+              f"{_cell(base, 'fwd_bwd_units', '{:6.2f}')} | {_cell(ref, 'fwd_bwd_ms')} "
+              f"{_cell(ref, 'fwd_bwd_units', '{:6.2f}')} | {('%8.1f' % ratio) if ratio else '       -'}", flush=True)
     notes = sorted({r["reference"]["skipped"] for r in rows if "skipped" in r["reference"]})
     for note in notes:
         print(f"reference skipped: {note}")
-    print("times in ms (median), MB = peak resident memory of the measuring process (torch + numba included); "
-          f"OMP_WAIT_POLICY={args.omp_wait_policy}")
-    out = Path(args.out)
+    print("times in ms (median); units = time / unit, unit = torch.exp over 16M float32 values in the same process; "
+          f"MB = peak resident memory of the measuring process; OMP_WAIT_POLICY={args.omp_wait_policy}"
+          + (f"; base = {args.baseline}" if args.baseline else ""))
+    result = {"rows": rows, "cpu_count": os.cpu_count(), "quick": args.quick, "omp_wait_policy": args.omp_wait_policy,
+              "baseline": {"root": args.baseline, "commit": _git_head(args.baseline)} if args.baseline else None,
+              "commit": _git_head(str(Path(__file__).resolve().parents[1]))}
+    if args.omp_check:
+        chk = omp_check(args.reps, args.omp_rounds, args.timeout)
+        result["omp_check"] = chk
+        n, w, h, c, d = TARGET
+        print(f"\nOMP_WAIT_POLICY check ({n} Gaussians, {w}x{h}, C={c}, D={d}; median of {args.omp_rounds} "
+              f"alternating subprocesses each):")
+        for policy in ("unset", "PASSIVE"):
+            print(f"  {policy:>8}: f+b {chk[policy]['fwd_bwd_ms']:7.1f} ms  {chk[policy]['fwd_bwd_units']:5.2f} units")
+        print(f"  unset / PASSIVE = {chk['ratio_unset_over_passive_ms']:.2f}")
+    result["load_avg"] = os.getloadavg()
+    out = Path(args.out) if args.out else RESULTS / ("rasterize_quick.json" if args.quick else "rasterize.json")
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"rows": rows, "cpu_count": os.cpu_count(), "quick": args.quick,
-                                "omp_wait_policy": args.omp_wait_policy, "load_avg": os.getloadavg()}, indent=1))
+    out.write_text(json.dumps(result, indent=1))
     print(f"wrote {out}")
     return 0
 
 
 if __name__ == "__main__":
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
     raise SystemExit(main())

@@ -1,8 +1,19 @@
-"""The fast CPU path: torch projection (autograd) + numba tile compositing (hand-written backward)."""
+"""The fast CPU path: numba projection and numba tile compositing, each with a hand-written backward.
+
+Threads (issue 8). torch loads its libgomp into the process's global symbol scope, so numba's
+default "omp" threading layer runs on that same OpenMP runtime, whose threads spin-wait
+after every parallel region unless OMP_WAIT_POLICY=PASSIVE was set before torch started; on
+a machine with more busy threads than cores every spin steals a core (serial work between
+two kernels took 3-5x longer). So that the library does not depend on the caller's
+environment: numba's "workqueue" layer is selected here, before the first parallel kernel,
+unless the user chose a layer (NUMBA_THREADING_LAYER or numba.config.THREADING_LAYER); and
+torch only carries tensors in and out (conversions by numpy), so no torch parallel region
+runs inside `rasterize` or its backward. Measured by `python -m benchmarks.rasterize --omp-check`.
+"""
 
 from __future__ import annotations
 
-import math
+import os
 import time
 
 import numba
@@ -11,23 +22,86 @@ import torch
 from torch import Tensor
 
 from . import _numba_kernels as K
-from ._project import project
+from . import _numba_project as P
 from .constants import TILE
 
-_CHUNK = 2  # dynamic scheduling of tiles over threads: tiles cost very different amounts
+_CHUNK = 2  # tiles per scheduling chunk: tiles cost very different amounts, small chunks balance them
+_THREADING_LAYER = "workqueue"  # numba's own pool: idle workers block on a condition variable, never spin
+
+
+def _choose_threading_layer() -> None:
+    """Select `_THREADING_LAYER` unless the user chose a numba threading layer (no effect once launched)."""
+    if "NUMBA_THREADING_LAYER" not in os.environ and numba.config.THREADING_LAYER == "default":
+        numba.config.THREADING_LAYER = _THREADING_LAYER
+
+
+_choose_threading_layer()
 
 
 class _Plan:
     """Per-call binning: which Gaussians touch which tile, front to back (no gradients)."""
 
-    def __init__(self, pix_box: np.ndarray, tile_start: np.ndarray, gid: np.ndarray,
+    def __init__(self, rows: np.ndarray, tile_start: np.ndarray, gid: np.ndarray,
                  width: int, height: int, tiles_x: int, tiles_y: int):
-        self.pix_box, self.tile_start, self.gid = pix_box, tile_start, gid
+        self.rows, self.tile_start, self.gid = rows, tile_start, gid
         self.width, self.height, self.tiles_x, self.tiles_y = width, height, tiles_x, tiles_y
 
 
 def _np(x: Tensor) -> np.ndarray:
     return np.ascontiguousarray(x.detach().cpu().numpy())
+
+
+_NP_DTYPE = {torch.float32: np.float32, torch.float64: np.float64}
+
+
+def _tensor(a: np.ndarray, dtype: torch.dtype) -> Tensor:
+    """numpy -> torch in `dtype`, converted by numpy: no torch kernel (and no OpenMP region) runs."""
+    return torch.from_numpy(np.ascontiguousarray(a, dtype=_NP_DTYPE[dtype]))
+
+
+class _Project(torch.autograd.Function):
+    """(means, quats, scales, viewmats) -> means2d [C, N, 2], conics [C, N, 3]; hand-written backward.
+
+    The outputs without gradient go into the dict `out`: depths [C, N] and radii [C, N, 2]
+    int32 as tensors, the inclusive pixel boxes [C, N, 4] int64 and the validity mask [C, N]
+    as numpy arrays. Opacities only decide validity here (no gradient through this step).
+    """
+
+    @staticmethod
+    def forward(ctx, means, quats, scales, opacities, viewmats, ks, width: int, height: int, out: dict):
+        n, n_cam = means.shape[0], viewmats.shape[0]
+        arrs = [_np(x) for x in (means, quats, scales, opacities, viewmats, ks)]
+        means2d = np.empty((n_cam, n, 2))
+        conics = np.empty((n_cam, n, 3))
+        depths = np.empty((n_cam, n))
+        radii = np.empty((n_cam, n, 2), dtype=np.int32)
+        box = np.empty((n_cam, n, 4), dtype=np.int64)
+        valid = np.empty((n_cam, n), dtype=np.bool_)
+        P.project_forward(*arrs, width, height, means2d, conics, depths, radii, box, valid)
+        ctx.arrs, ctx.conics, ctx.valid = arrs, conics, valid
+        dt = means.dtype
+        out.update(depths=_tensor(depths, dt), radii=torch.from_numpy(radii), pix_box=box, valid=valid)
+        return _tensor(means2d, dt), _tensor(conics, dt)
+
+    @staticmethod
+    def backward(ctx, v_means2d, v_conics):
+        means, quats, scales, _, viewmats, ks = ctx.arrs
+        n, n_cam = means.shape[0], viewmats.shape[0]
+        zeros = lambda *shape: np.zeros(shape)  # noqa: E731
+        v_m2 = _np(v_means2d).astype(np.float64) if v_means2d is not None else zeros(n_cam, n, 2)
+        v_co = _np(v_conics).astype(np.float64) if v_conics is not None else zeros(n_cam, n, 3)
+        v_means, v_quats, v_scales = np.empty((n, 3)), np.empty((n, 4)), np.empty((n, 3))
+        v_view = np.empty((_PROJECT_CHUNKS, n_cam, 3, 4))
+        P.project_backward(means, quats, scales, viewmats, ks, ctx.valid, ctx.conics, v_m2, v_co,
+                           v_means, v_quats, v_scales, v_view)
+        v_vm = np.zeros((n_cam, 4, 4))
+        v_vm[:, :3, :] = v_view.sum(axis=0)
+        dt = v_means2d.dtype if v_means2d is not None else v_conics.dtype
+        out = [_tensor(a, dt) for a in (v_means, v_quats, v_scales, v_vm)]
+        return out[0], out[1], out[2], None, out[3], None, None, None, None
+
+
+_PROJECT_CHUNKS = 16  # per-chunk partial sums of the pose gradient (deterministic, no atomics)
 
 
 class _Composite(torch.autograd.Function):
@@ -47,11 +121,11 @@ class _Composite(torch.autograd.Function):
         t_final = np.empty((c_n, p.height, p.width), dtype=np.float64)
         last = np.empty((c_n, p.height, p.width), dtype=np.int64)
         with numba.parallel_chunksize(_CHUNK):
-            K.forward_tiles(*arrs, p.pix_box, p.tile_start, p.gid, p.width, p.height, p.tiles_x, p.tiles_y,
+            K.forward_tiles(*arrs, p.rows, p.tile_start, p.gid, p.width, p.height, p.tiles_x, p.tiles_y,
                             img, t_final, last)
         ctx.plan, ctx.arrs, ctx.t_final, ctx.last = plan, arrs, t_final, last
         ctx.dtype = means2d.dtype
-        alphas = torch.from_numpy((1.0 - t_final)[..., None]).to(means2d.dtype)
+        alphas = torch.from_numpy((1.0 - t_final)[..., None].astype(arrs[0].dtype))
         return torch.from_numpy(img), alphas
 
     @staticmethod
@@ -67,7 +141,7 @@ class _Composite(torch.autograd.Function):
         geo = np.zeros((n_isect, 6), dtype=np.float64)
         col = np.zeros((n_isect, d), dtype=np.float64)
         with numba.parallel_chunksize(_CHUNK):
-            K.backward_tiles(*arrs, p.pix_box, p.tile_start, p.gid, p.width, p.height, p.tiles_x, p.tiles_y,
+            K.backward_tiles(*arrs, p.rows, p.tile_start, p.gid, p.width, p.height, p.tiles_x, p.tiles_y,
                              ctx.t_final, ctx.last, v_img_np, v_al_np, geo, col)
         v_m = np.zeros((c_n, n, 2))
         v_c = np.zeros((c_n, n, 3))
@@ -77,7 +151,7 @@ class _Composite(torch.autograd.Function):
         # background: image += T_final * bg
         v_bg = np.einsum("chw,chwd->d", ctx.t_final, v_img_np)
         dt = ctx.dtype
-        out = [torch.from_numpy(a).to(dt) for a in (v_m, v_c, v_o, v_col, v_bg)]
+        out = [_tensor(a, dt) for a in (v_m, v_c, v_o, v_col, v_bg)]
         return (*out, None)
 
 
@@ -95,26 +169,28 @@ def rasterize_numba(
 ) -> tuple[Tensor, Tensor, dict]:
     """Inputs already validated, CPU tensors. See `splat_cpu.rasterize` for the contract."""
     t0 = time.perf_counter()
-    proj = project(means, quats, scales, opacities, viewmats, Ks, width, height)
+    pr: dict = {}
+    means2d, conics = _Project.apply(means, quats, scales, opacities, viewmats, Ks, width, height, pr)
     t1 = time.perf_counter()
-    n_cam, n = proj.valid.shape
-    key = torch.where(proj.valid, proj.depths, torch.full_like(proj.depths, math.inf))
-    order = torch.sort(key, dim=1, stable=True).indices
-    n_valid = proj.valid.sum(dim=1)
+    valid = pr["valid"]
+    key = np.where(valid, pr["depths"].numpy(), np.inf)
+    order = np.argsort(key, axis=1, kind="stable")
+    n_valid = valid.sum(axis=1)
     tiles_x, tiles_y = -(-width // TILE), -(-height // TILE)
-    pix_box = _np(proj.pix_box)
-    tile_start, gid = K.bin_tiles(_np(order), _np(n_valid), pix_box, tiles_x, tiles_y)
-    plan = _Plan(pix_box, tile_start, gid, width, height, tiles_x, tiles_y)
+    pix_box = pr["pix_box"]
+    tile_start, gid, rows = K.bin_tiles(order, n_valid, pix_box, _np(means2d), _np(conics), _np(opacities), width,
+                                        height, tiles_x, tiles_y)
+    plan = _Plan(rows, tile_start, gid, width, height, tiles_x, tiles_y)
     t2 = time.perf_counter()
     bg = background if background is not None else torch.zeros(colors.shape[1], dtype=colors.dtype)
-    images, alphas = _Composite.apply(proj.means2d, proj.conics, opacities, colors, bg, plan)
+    images, alphas = _Composite.apply(means2d, conics, opacities, colors, bg, plan)
     t3 = time.perf_counter()
     meta = {
         "path": "numba",
-        "radii": proj.radii,
-        "means2d": proj.means2d,
-        "depths": proj.depths,
-        "n_visible": n_valid,
+        "radii": pr["radii"],
+        "means2d": means2d,
+        "depths": pr["depths"],
+        "n_visible": torch.from_numpy(n_valid),
         "n_isect": int(gid.shape[0]),
         "timings": {"project_ms": 1e3 * (t1 - t0), "bin_ms": 1e3 * (t2 - t1), "composite_ms": 1e3 * (t3 - t2)},
     }

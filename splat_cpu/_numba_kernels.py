@@ -1,17 +1,23 @@
 """Numba tile kernels: binning, forward compositing and its hand-written backward.
 
 Layout: the image of camera `cam` is cut into 16 x 16 tiles; tile id = cam * n_tiles + ty * tiles_x + tx.
-`tile_start[t]:tile_start[t + 1]` indexes `gid`, the tile's Gaussians front to back.
-Each tile walks its Gaussians in depth order and, for each, the tile rows of its exact
-alpha >= 1/255 box; a row is processed as 16 lanes without branches (selects only), which
-LLVM vectorises, with a polynomial exp (`_exp_neg`, relative error < 1e-11). The forward
-keeps, per pixel, the final transmittance and the list position of the last contributing
-Gaussian; the backward walks the list back from there, recovering T by division by
-(1 - alpha), and writes one gradient row per (tile, Gaussian) entry, summed per Gaussian
-afterwards. Arithmetic inside is float64 whatever the input dtype.
+`tile_start[t]:tile_start[t + 1]` indexes `gid`, the tile's Gaussians front to back, and
+`rows`, the image rows of the tile that each may touch. Binning (gsplat-style tile culling)
+keeps a tile only when the Gaussian's alpha >= 1/255 ellipse (o exp(-sigma) >= ALPHA_MIN,
+the opacity-aware extent) reaches its pixels, and only the rows it reaches there.
+Each tile keeps flat per-pixel buffers (pixel i at row i >> 4, column i & 15) and walks its
+Gaussians in depth order; a Gaussian's rows are one contiguous slice of those buffers,
+processed as one loop without branches (selects only) that LLVM vectorises, with a
+polynomial exp (`_exp_neg`, relative error < 1e-11). The forward keeps, per pixel, the final
+transmittance and the list position of the last contributing Gaussian; the backward walks
+the list back from there, recovering T by division by (1 - alpha), and writes one gradient
+row per (tile, Gaussian) entry, summed per Gaussian afterwards. Arithmetic inside is float64
+whatever the input dtype.
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 from numba import njit, prange
@@ -19,18 +25,24 @@ from numba import njit, prange
 from .constants import ALPHA_MAX, ALPHA_MIN, T_MIN, TILE
 
 _FASTMATH = {"contract", "arcp", "nsz", "reassoc"}  # FMA and reassociation; no nan/inf assumptions
-_SIGMA_CLAMP = 8.0  # exp(-8) < ALPHA_MIN: beyond it alpha is skipped whatever the opacity
+_SIGMA_CLAMP = 5.6  # exp(-5.6) = 0.0037 < ALPHA_MIN: beyond it alpha is skipped whatever the opacity
+assert math.exp(-_SIGMA_CLAMP) < ALPHA_MIN
+_CULL_MARGIN = 1e-6  # binning widens each ellipse to sigma <= smax + this (>> exp's 1e-11 relative error)
+_ROW_MARGIN = 1e-3  # and each row range by this many pixels (>> the rounding of the ellipse geometry)
+_ILL_CONDITIONED = 1e-9  # det(conic) below this times a c: the geometry is not trusted, the box's rows are kept
+_TILE_SHIFT = 4  # TILE = 1 << 4; pixel i of a tile's flat buffers sits at row i >> 4, column i & 15
+_LANE_MASK = 15
+assert TILE == 1 << _TILE_SHIFT == _LANE_MASK + 1
 
 
 @njit(cache=True, inline="always", fastmath=_FASTMATH, error_model="numpy")
 def _exp_neg(s):
-    """exp(-s) for s in [0, 8] as (exp(-s / 8))^8, Taylor to degree 14 on [-1, 0]; vectorisable."""
-    x = -0.125 * s
-    p = 1.0 / 87178291200.0
-    p = p * x + 1.0 / 6227020800.0
-    p = p * x + 1.0 / 479001600.0
-    p = p * x + 1.0 / 39916800.0
-    p = p * x + 1.0 / 3628800.0
+    """exp(-s) for s in [0, _SIGMA_CLAMP] as (exp(-s / 16))^16, Taylor to degree 10 on [-0.35, 0]; vectorisable.
+
+    Relative error < 1e-11 (the Taylor remainder 0.35^11 / 11! = 2.4e-13, times 16 by the squarings).
+    """
+    x = -0.0625 * s
+    p = 1.0 / 3628800.0
     p = p * x + 1.0 / 362880.0
     p = p * x + 1.0 / 40320.0
     p = p * x + 1.0 / 5040.0
@@ -43,44 +55,142 @@ def _exp_neg(s):
     p = p * x + 1.0
     p = p * p
     p = p * p
+    p = p * p
     return p * p
+
+
+@njit(cache=True, inline="always")
+def _band_extent(mx, my, ca, cb, cc, smax, xa, xb):  # -> (ylo, yhi), (inf, -inf) when empty
+    """The y-extent of the ellipse sigma <= smax, sigma = 0.5 (a dx^2 + c dy^2) + b dx dy with
+    (dx, dy) = (mx - x, my - y), inside the vertical band xa <= x <= xb: the ellipse's top and
+    bottom points when they lie in the band, and the chords on the band's two edges."""
+    ylo, yhi = np.inf, -np.inf
+    det = ca * cc - cb * cb
+    ey = math.sqrt(2.0 * smax * ca / det)  # |dy| at the top and bottom, where dx = -b dy / a
+    for sgn in range(2):
+        dy = ey if sgn == 0 else -ey
+        x = mx + cb * dy / ca
+        if xa <= x <= xb:
+            ylo = min(ylo, my - dy)
+            yhi = max(yhi, my - dy)
+    for edge in range(2):
+        dx = mx - (xa if edge == 0 else xb)
+        disc = dx * dx * (cb * cb - ca * cc) + 2.0 * cc * smax
+        if disc >= 0.0:
+            r = math.sqrt(disc)
+            ylo = min(ylo, my - (-cb * dx + r) / cc)
+            yhi = max(yhi, my - (-cb * dx - r) / cc)
+    return ylo, yhi
+
+
+@njit(cache=True, inline="always")
+def _tile_rows(means2d, conics, smax, pix_box, c, g, tx, ty, width, height):  # -> (row0, row1), row0 > row1: miss
+    """The image rows of tile (tx, ty) where the Gaussian's alpha >= ALPHA_MIN ellipse may have
+    pixels (a superset: widened by _CULL_MARGIN in sigma and _ROW_MARGIN in pixels), within its box."""
+    row0 = max(pix_box[c, g, 2], ty * TILE)
+    row1 = min(pix_box[c, g, 3], ty * TILE + TILE - 1)
+    ca, cb, cc = np.float64(conics[c, g, 0]), np.float64(conics[c, g, 1]), np.float64(conics[c, g, 2])
+    det = ca * cc - cb * cb
+    if not (ca > 0.0 and cc > 0.0 and det > _ILL_CONDITIONED * ca * cc):
+        return row0, row1  # underflowed or needle-thin conic: keep the box's rows
+    ylo, yhi = _band_extent(np.float64(means2d[c, g, 0]), np.float64(means2d[c, g, 1]), ca, cb, cc,
+                            smax[g] + _CULL_MARGIN, tx * TILE + 0.5, min(tx * TILE + TILE, width) - 0.5)
+    if not ylo <= yhi:
+        return row0, row0 - 1
+    # row j (pixel centre j + 0.5) is kept when ylo <= j + 0.5 <= yhi, widened by _ROW_MARGIN
+    row0 = max(row0, int(math.ceil(max(ylo - _ROW_MARGIN - 0.5, -1.0))))
+    row1 = min(row1, int(math.floor(min(yhi + _ROW_MARGIN - 0.5, float(height)))))
+    return row0, row1
+
+
+@njit(cache=True, parallel=True)
+def _tile_hits(order, n_valid, tile_box, means2d, conics, smax, pix_box, width, height, box_start, out_rows):
+    """out_rows[box_start[c, j] + r] = rows of the r-th tile of the j-th Gaussian's box (camera c) it may touch."""
+    for c in range(order.shape[0]):
+        for j in prange(n_valid[c]):
+            g = order[c, j]
+            r = box_start[c, j]
+            for ty in range(tile_box[c, j, 2], tile_box[c, j, 3] + 1):
+                for tx in range(tile_box[c, j, 0], tile_box[c, j, 1] + 1):
+                    row0, row1 = _tile_rows(means2d, conics, smax, pix_box, c, g, tx, ty, width, height)
+                    out_rows[r, 0] = row0
+                    out_rows[r, 1] = row1
+                    r += 1
 
 
 @njit(cache=True)
 def bin_tiles(
     order,  # [C, N] int64: per camera, Gaussian indices front to back (first n_valid[c] are valid)
     n_valid,  # [C] int64
-    pix_box,  # [C, N, 4] int64 inclusive pixel box (x0, x1, y0, y1)
+    pix_box,  # [C, N, 4] int64 inclusive pixel box (x0, x1, y0, y1), inside the image
+    means2d,  # [C, N, 2]
+    conics,  # [C, N, 3]
+    opacities,  # [N]
+    width,
+    height,
     tiles_x,
     tiles_y,
-):  # -> tile_start [C * n_tiles + 1] int64, gid [n_isect] int32
-    n_cam = order.shape[0]
+):  # -> tile_start [C * n_tiles + 1] int64, gid [n_isect] int32, rows [n_isect, 2] int64
+    """Lists of the Gaussians meeting each tile, front to back, with the rows of the tile each
+    may touch: the tiles of each pixel box, less those its alpha >= ALPHA_MIN ellipse misses
+    (gsplat's tile culling), and per kept entry the ellipse's row range inside the tile (on the
+    random 20k-Gaussian benchmark scene: 17% fewer entries, 26% fewer rows). The geometry runs
+    in parallel, the counting sort by tile after it."""
+    n_cam, n = order.shape
     n_tiles = tiles_x * tiles_y
+    smax = np.log(np.maximum(opacities.astype(np.float64), ALPHA_MIN) / ALPHA_MIN)  # alpha >= ALPHA_MIN iff sigma <= smax
+    tile_box = np.empty((n_cam, n, 4), dtype=np.int64)  # per list position: tile range (tx0, tx1, ty0, ty1)
+    box_start = np.zeros((n_cam, n + 1), dtype=np.int64)
+    total = 0
+    for c in range(n_cam):
+        for j in range(n_valid[c]):
+            g = order[c, j]
+            for q in range(4):
+                tile_box[c, j, q] = pix_box[c, g, q] >> _TILE_SHIFT  # boxes are inside the image: >= 0
+            box_start[c, j] = total
+            total += (tile_box[c, j, 1] - tile_box[c, j, 0] + 1) * (tile_box[c, j, 3] - tile_box[c, j, 2] + 1)
+    cand = np.empty((total, 2), dtype=np.int64)
+    _tile_hits(order, n_valid, tile_box, means2d, conics, smax, pix_box, width, height, box_start, cand)
     counts = np.zeros(n_cam * n_tiles + 1, dtype=np.int64)
     for c in range(n_cam):
         base = c * n_tiles
         for j in range(n_valid[c]):
-            g = order[c, j]
-            tx0, tx1 = pix_box[c, g, 0] // TILE, pix_box[c, g, 1] // TILE
-            ty0, ty1 = pix_box[c, g, 2] // TILE, pix_box[c, g, 3] // TILE
-            for ty in range(ty0, ty1 + 1):
-                for tx in range(tx0, tx1 + 1):
-                    counts[base + ty * tiles_x + tx + 1] += 1
+            r = box_start[c, j]
+            for ty in range(tile_box[c, j, 2], tile_box[c, j, 3] + 1):
+                for tx in range(tile_box[c, j, 0], tile_box[c, j, 1] + 1):
+                    if cand[r, 0] <= cand[r, 1]:
+                        counts[base + ty * tiles_x + tx + 1] += 1
+                    r += 1
     tile_start = np.cumsum(counts)
     fill = tile_start[:-1].copy()
     gid = np.empty(tile_start[-1], dtype=np.int32)
+    rows = np.empty((tile_start[-1], 2), dtype=np.int64)
     for c in range(n_cam):
         base = c * n_tiles
         for j in range(n_valid[c]):
             g = order[c, j]
-            tx0, tx1 = pix_box[c, g, 0] // TILE, pix_box[c, g, 1] // TILE
-            ty0, ty1 = pix_box[c, g, 2] // TILE, pix_box[c, g, 3] // TILE
-            for ty in range(ty0, ty1 + 1):
-                for tx in range(tx0, tx1 + 1):
-                    t = base + ty * tiles_x + tx
-                    gid[fill[t]] = g
-                    fill[t] += 1
-    return tile_start, gid
+            r = box_start[c, j]
+            for ty in range(tile_box[c, j, 2], tile_box[c, j, 3] + 1):
+                for tx in range(tile_box[c, j, 0], tile_box[c, j, 1] + 1):
+                    if cand[r, 0] <= cand[r, 1]:
+                        t = base + ty * tiles_x + tx
+                        f = fill[t]
+                        gid[f] = g
+                        rows[f, 0] = cand[r, 0]
+                        rows[f, 1] = cand[r, 1]
+                        fill[t] = f + 1
+                    r += 1
+    return tile_start, gid, rows
+
+
+@njit(cache=True, inline="always")
+def _tile_origin(t, tiles_x, n_tiles, width, height):  # -> cam, px0, py0, pw, ph
+    cam = t // n_tiles
+    tt = t - cam * n_tiles
+    ty = tt // tiles_x
+    tx = tt - ty * tiles_x
+    px0, py0 = tx * TILE, ty * TILE
+    return cam, px0, py0, min(TILE, width - px0), min(TILE, height - py0)
 
 
 @njit(cache=True, parallel=True, fastmath=_FASTMATH, error_model="numpy")
@@ -90,7 +200,7 @@ def forward_tiles(
     opacities,  # [N]
     colors,  # [N, D]
     background,  # [D]
-    pix_box,  # [C, N, 4] int64
+    rows,  # [n_isect, 2] int64: image rows of the tile each entry may touch (from bin_tiles)
     tile_start,  # [C * n_tiles + 1] int64
     gid,  # [n_isect] int32
     width,
@@ -104,72 +214,66 @@ def forward_tiles(
     n_tiles = tiles_x * tiles_y
     n_all = tile_start.shape[0] - 1
     d = colors.shape[1]
+    npx = TILE * TILE
     for t in prange(n_all):
-        cam = t // n_tiles
-        tt = t - cam * n_tiles
-        ty, tx = tt // tiles_x, tt - (tt // tiles_x) * tiles_x
-        px0, py0 = tx * TILE, ty * TILE
-        pw, ph = min(TILE, width - px0), min(TILE, height - py0)
+        cam, px0, py0, pw, ph = _tile_origin(t, tiles_x, n_tiles, width, height)
         start, end = tile_start[t], tile_start[t + 1]
-        trans = np.ones((TILE, TILE))
-        acc = np.zeros((d, TILE, TILE))
-        last = np.full((TILE, TILE), start - 1, dtype=np.int64)
-        live = np.zeros((TILE, TILE))  # 1 while the pixel composites; 0 outside the image or once T is spent
-        row_live = np.zeros(TILE, dtype=np.int64)  # live pixels per row: a spent row is skipped
+        # flat per-tile state, pixel i = ly * TILE + lx: one long vectorisable loop per Gaussian
+        # T per pixel, negated once the pixel is spent (and -1 outside the image): no separate mask
+        trans = np.full(npx, -1.0)
         for ly in range(ph):
-            row_live[ly] = pw
             for lx in range(pw):
-                live[ly, lx] = 1.0
+                trans[ly * TILE + lx] = 1.0
+        acc = np.zeros(d * npx)
+        last = np.full(npx, start - 1, dtype=np.int64)
         n_active = pw * ph
-        wrow = np.zeros(TILE)
-        pxc = np.empty(TILE)
-        for lx in range(TILE):
-            pxc[lx] = px0 + lx + 0.5
+        wbuf = np.zeros(npx)
+        fx0, fy0 = px0 + 0.5, py0 + 0.5
         for k in range(start, end):
             if n_active == 0:
                 break
             g = gid[k]
-            mx, my = np.float64(means2d[cam, g, 0]), np.float64(means2d[cam, g, 1])
+            mx, my = np.float64(means2d[cam, g, 0]) - fx0, np.float64(means2d[cam, g, 1]) - fy0
             ca, cb, cc = np.float64(conics[cam, g, 0]), np.float64(conics[cam, g, 1]), np.float64(conics[cam, g, 2])
             op = np.float64(opacities[g])
-            ya = max(pix_box[cam, g, 2] - py0, 0)
-            yb = min(pix_box[cam, g, 3] - py0, ph - 1)
-            for ly in range(ya, yb + 1):
-                if row_live[ly] == 0:
-                    continue
-                dy = my - (py0 + ly + 0.5)
-                tr = trans[ly]
-                lv = live[ly]
-                la = last[ly]
-                nstop = 0.0
-                for lx in range(TILE):
-                    dx = mx - pxc[lx]
-                    sigma = 0.5 * (ca * dx * dx + cc * dy * dy) + cb * dx * dy
-                    alpha = min(ALPHA_MAX, op * _exp_neg(min(max(sigma, 0.0), _SIGMA_CLAMP)))
-                    tc = tr[lx]
-                    nt = tc * (1.0 - alpha)
-                    ok = (sigma >= 0.0) & (alpha >= ALPHA_MIN) & (lv[lx] > 0.0)
-                    stop = ok & (nt <= T_MIN)
-                    con = ok & (nt > T_MIN)
-                    wrow[lx] = alpha * tc if con else 0.0
-                    tr[lx] = nt if con else tc
-                    lv[lx] = 0.0 if stop else lv[lx]
-                    la[lx] = k if con else la[lx]
-                    nstop += 1.0 if stop else 0.0
-                n_active -= int(nstop)
-                row_live[ly] -= int(nstop)
-                for ch in range(d):
-                    cv = np.float64(colors[g, ch])
-                    ar = acc[ch, ly]
-                    for lx in range(TILE):
-                        ar[lx] += wrow[lx] * cv
+            c0 = np.float64(colors[g, 0])
+            i0 = (rows[k, 0] - py0) * TILE
+            i1 = (rows[k, 1] - py0 + 1) * TILE
+            my -= i0 >> _TILE_SHIFT
+            # slices, so that the loop index starts at 0: numba then knows it is not negative and
+            # LLVM vectorises the loop (a range(i0, i1) loop stays scalar)
+            tr, ac, la, wb = trans[i0:i1], acc[i0:i1], last[i0:i1], wbuf[i0:i1]
+            nstop = 0.0
+            for j in range(i1 - i0):
+                dx = mx - (j & _LANE_MASK)
+                dy = my - (j >> _TILE_SHIFT)
+                sigma = 0.5 * (ca * dx * dx + cc * dy * dy) + cb * dx * dy
+                alpha = min(ALPHA_MAX, op * _exp_neg(min(max(sigma, 0.0), _SIGMA_CLAMP)))
+                tc = tr[j]
+                nt = tc * (1.0 - alpha)
+                ok = (sigma >= 0.0) & (alpha >= ALPHA_MIN) & (tc > 0.0)
+                stop = ok & (nt <= T_MIN)
+                con = ok & (nt > T_MIN)
+                w = alpha * tc if con else 0.0
+                wb[j] = w
+                ac[j] += w * c0
+                tr[j] = nt if con else (-tc if stop else tc)
+                la[j] = k if con else la[j]
+                nstop += 1.0 if stop else 0.0
+            n_active -= int(nstop)
+            for ch in range(1, d):
+                cv = np.float64(colors[g, ch])
+                ach = acc[ch * npx + i0: ch * npx + i1]
+                for j in range(i1 - i0):
+                    ach[j] += wb[j] * cv
         for ly in range(ph):
             for lx in range(pw):
                 y, x = py0 + ly, px0 + lx
+                i = ly * TILE + lx
                 for ch in range(d):
-                    out_img[cam, y, x, ch] = acc[ch, ly, lx] + trans[ly, lx] * background[ch]
-                out_t[cam, y, x] = trans[ly, lx]
-                out_last[cam, y, x] = last[ly, lx]
+                    out_img[cam, y, x, ch] = acc[ch * npx + i] + abs(trans[i]) * background[ch]
+                out_t[cam, y, x] = abs(trans[i])
+                out_last[cam, y, x] = last[i]
 
 
 @njit(cache=True, parallel=True, fastmath=_FASTMATH, error_model="numpy")
@@ -179,7 +283,7 @@ def backward_tiles(
     opacities,  # [N]
     colors,  # [N, D]
     background,  # [D]
-    pix_box,  # [C, N, 4] int64
+    rows,  # [n_isect, 2] int64: image rows of the tile each entry may touch (from bin_tiles)
     tile_start,  # [C * n_tiles + 1] int64
     gid,  # [n_isect] int32
     width,
@@ -196,103 +300,113 @@ def backward_tiles(
     n_tiles = tiles_x * tiles_y
     n_all = tile_start.shape[0] - 1
     d = colors.shape[1]
+    npx = TILE * TILE
     for t in prange(n_all):
         start, end = tile_start[t], tile_start[t + 1]
         if end == start:
             continue
-        cam = t // n_tiles
-        tt = t - cam * n_tiles
-        ty, tx = tt // tiles_x, tt - (tt // tiles_x) * tiles_x
-        px0, py0 = tx * TILE, ty * TILE
-        pw, ph = min(TILE, width - px0), min(TILE, height - py0)
-        trans = np.ones((TILE, TILE))
+        cam, px0, py0, pw, ph = _tile_origin(t, tiles_x, n_tiles, width, height)
+        trans = np.ones(npx)
         # rest: sum over later Gaussians of (c . v_C) alpha T, plus T_N (bg . v_C) - T_N v_alpha
-        rest = np.zeros((TILE, TILE))
-        vc = np.zeros((d, TILE, TILE))
-        last = np.full((TILE, TILE), start - 1, dtype=np.int64)  # pixels outside the image never match
+        rest = np.zeros(npx)
+        vc = np.zeros(d * npx)
+        last = np.full(npx, start - 1, dtype=np.int64)  # pixels outside the image never match
         kmax = start - 1
-        row_kmax = np.full(TILE, start - 1, dtype=np.int64)  # rows whose pixels all stopped before k are skipped
+        row_kmax = np.full(TILE, start - 1, dtype=np.int64)  # rows whose pixels all stopped before k
         for ly in range(ph):
             for lx in range(pw):
                 y, x = py0 + ly, px0 + lx
+                i = ly * TILE + lx
                 tf = np.float64(t_final[cam, y, x])
-                trans[ly, lx] = tf
+                trans[i] = tf
                 bgdot = 0.0
                 for ch in range(d):
-                    vc[ch, ly, lx] = v_img[cam, y, x, ch]
+                    vc[ch * npx + i] = v_img[cam, y, x, ch]
                     bgdot += background[ch] * v_img[cam, y, x, ch]
-                rest[ly, lx] = tf * bgdot - tf * v_alpha[cam, y, x]
-                last[ly, lx] = last_idx[cam, y, x]
-                row_kmax[ly] = max(row_kmax[ly], last[ly, lx])
+                rest[i] = tf * bgdot - tf * v_alpha[cam, y, x]
+                last[i] = last_idx[cam, y, x]
+                row_kmax[ly] = max(row_kmax[ly], last[i])
             kmax = max(kmax, row_kmax[ly])
-        pxc = np.empty(TILE)
-        for lx in range(TILE):
-            pxc[lx] = px0 + lx + 0.5
-        wrow = np.zeros(TILE)
-        cdot = np.zeros(TILE)
+        wbuf = np.zeros(npx)
+        cdot = np.zeros(npx)
+        fx0, fy0 = px0 + 0.5, py0 + 0.5
         for k in range(kmax, start - 1, -1):
             g = gid[k]
-            mx, my = np.float64(means2d[cam, g, 0]), np.float64(means2d[cam, g, 1])
+            ya = rows[k, 0] - py0
+            yb = rows[k, 1] - py0
+            while ya <= yb and row_kmax[ya] < k:  # rows spent before k cost nothing
+                ya += 1
+            while yb >= ya and row_kmax[yb] < k:
+                yb -= 1
+            if ya > yb:
+                continue
+            i0, i1 = ya * TILE, (yb + 1) * TILE
+            mx = np.float64(means2d[cam, g, 0]) - fx0
+            my = np.float64(means2d[cam, g, 1]) - fy0 - ya
             ca, cb, cc = np.float64(conics[cam, g, 0]), np.float64(conics[cam, g, 1]), np.float64(conics[cam, g, 2])
             op = np.float64(opacities[g])
-            ya = max(pix_box[cam, g, 2] - py0, 0)
-            yb = min(pix_box[cam, g, 3] - py0, ph - 1)
-            g_mx = 0.0
-            g_my = 0.0
-            g_a = 0.0
-            g_b = 0.0
-            g_c = 0.0
-            g_o = 0.0
-            n_hit = 0.0
-            for ly in range(ya, yb + 1):
-                if k > row_kmax[ly]:
-                    continue
-                dy = my - (py0 + ly + 0.5)
-                tr = trans[ly]
-                rs = rest[ly]
-                la = last[ly]
-                for lx in range(TILE):
-                    cdot[lx] = 0.0
-                for ch in range(d):
+            c0 = np.float64(colors[g, 0])
+            # slices from 0: see forward_tiles
+            tr, rs, la, wb, v0, cd = trans[i0:i1], rest[i0:i1], last[i0:i1], wbuf[i0:i1], vc[i0:i1], cdot[i0:i1]
+            if d > 1:  # c . v_C per pixel (inline below when d == 1)
+                for j in range(i1 - i0):
+                    cd[j] = c0 * v0[j]
+                for ch in range(1, d):
                     cv = np.float64(colors[g, ch])
-                    vr = vc[ch, ly]
-                    for lx in range(TILE):
-                        cdot[lx] += cv * vr[lx]
-                for lx in range(TILE):
-                    dx = mx - pxc[lx]
-                    sigma = 0.5 * (ca * dx * dx + cc * dy * dy) + cb * dx * dy
-                    vis = _exp_neg(min(max(sigma, 0.0), _SIGMA_CLAMP))
-                    raw = op * vis
-                    alpha = min(ALPHA_MAX, raw)
-                    ok = (sigma >= 0.0) & (alpha >= ALPHA_MIN) & (k <= la[lx])
-                    ra = 1.0 / (1.0 - alpha)
-                    tb = tr[lx] * ra  # T before this Gaussian
-                    w = alpha * tb
-                    v_al = cdot[lx] * tb - rs[lx] * ra
-                    tr[lx] = tb if ok else tr[lx]
-                    rs[lx] = rs[lx] + cdot[lx] * w if ok else rs[lx]
-                    wrow[lx] = w if ok else 0.0
-                    gate = ok & (raw < ALPHA_MAX)  # the clamp at ALPHA_MAX passes no gradient
-                    v_sig = -raw * v_al if gate else 0.0
-                    g_o += vis * v_al if gate else 0.0
-                    g_a += 0.5 * dx * dx * v_sig
-                    g_b += dx * dy * v_sig
-                    g_c += 0.5 * dy * dy * v_sig
-                    g_mx += (ca * dx + cb * dy) * v_sig
-                    g_my += (cb * dx + cc * dy) * v_sig
-                    n_hit += 1.0 if ok else 0.0
-                for ch in range(d):
-                    vr = vc[ch, ly]
-                    sc = 0.0
-                    for lx in range(TILE):
-                        sc += wrow[lx] * vr[lx]
-                    out_col[k, ch] += sc
+                    vch = vc[ch * npx + i0: ch * npx + i1]
+                    for j in range(i1 - i0):
+                        cd[j] += cv * vch[j]
+            # sums of v_sigma times dx, dy, dx^2, dx dy, dy^2: d sigma / d (mx, my, a, b, c) are linear in them
+            g_x = 0.0
+            g_y = 0.0
+            g_xx = 0.0
+            g_xy = 0.0
+            g_yy = 0.0
+            g_o = 0.0
+            g_c0 = 0.0
+            n_hit = 0.0
+            for j in range(i1 - i0):
+                dx = mx - (j & _LANE_MASK)
+                dy = my - (j >> _TILE_SHIFT)
+                sigma = 0.5 * (ca * dx * dx + cc * dy * dy) + cb * dx * dy
+                vis = _exp_neg(min(max(sigma, 0.0), _SIGMA_CLAMP))
+                raw = op * vis
+                alpha = min(ALPHA_MAX, raw)
+                ok = (sigma >= 0.0) & (alpha >= ALPHA_MIN) & (k <= la[j])
+                ra = 1.0 / (1.0 - alpha)
+                tb = tr[j] * ra  # T before this Gaussian
+                w = alpha * tb
+                cdj = cd[j] if d > 1 else c0 * v0[j]
+                v_al = cdj * tb - rs[j] * ra
+                tr[j] = tb if ok else tr[j]
+                rs[j] = rs[j] + cdj * w if ok else rs[j]
+                wv = w if ok else 0.0
+                wb[j] = wv
+                g_c0 += wv * v0[j]
+                gate = ok & (raw < ALPHA_MAX)  # the clamp at ALPHA_MAX passes no gradient
+                v_sig = -raw * v_al if gate else 0.0
+                g_o += vis * v_al if gate else 0.0
+                sx = v_sig * dx
+                sy = v_sig * dy
+                g_xx += sx * dx
+                g_xy += sx * dy
+                g_yy += sy * dy
+                g_x += sx
+                g_y += sy
+                n_hit += 1.0 if ok else 0.0
+            out_col[k, 0] = g_c0
+            for ch in range(1, d):
+                vch = vc[ch * npx + i0: ch * npx + i1]
+                sc = 0.0
+                for j in range(i1 - i0):
+                    sc += wb[j] * vch[j]
+                out_col[k, ch] = sc
             if n_hit > 0.0:
-                out_geo[k, 0] = g_mx
-                out_geo[k, 1] = g_my
-                out_geo[k, 2] = g_a
-                out_geo[k, 3] = g_b
-                out_geo[k, 4] = g_c
+                out_geo[k, 0] = ca * g_x + cb * g_y
+                out_geo[k, 1] = cb * g_x + cc * g_y
+                out_geo[k, 2] = 0.5 * g_xx
+                out_geo[k, 3] = g_xy
+                out_geo[k, 4] = 0.5 * g_yy
                 out_geo[k, 5] = g_o
 
 

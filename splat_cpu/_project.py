@@ -58,11 +58,18 @@ def project(
 ) -> Projected:
     """EWA splatting with the Jacobian at the mean, + COV2D_BLUR on the 2D diagonal.
 
+    Computed in float64 (except on MPS, which has none) and returned in the input dtype, as
+    the numba twin does: in float32 the 2D covariance of a Gaussian a few thousand pixels
+    wide overflows its determinant.
+
     Convention: OpenCV camera axes, pixel centres at (i + 0.5, j + 0.5). A Gaussian is
     kept in camera c when z > NEAR, its 2D covariance is positive definite, its opacity is
     at least ALPHA_MIN, and the exact box of pixels where o exp(-sigma) >= ALPHA_MIN
     (half-extent sqrt(2 ln(o / ALPHA_MIN) Sigma_xx), rounded up) meets the image.
     """
+    out_dtype = means.dtype
+    if means.device.type != "mps":
+        means, quats, scales, viewmats, Ks = (x.double() for x in (means, quats, scales, viewmats, Ks))
     rot = viewmats[:, :3, :3]  # [C, 3, 3]
     trans = viewmats[:, :3, 3]  # [C, 3]
     p = torch.einsum("cij,nj->cni", rot, means) + trans[:, None, :]  # [C, N, 3]
@@ -110,8 +117,8 @@ def project(
         radii = torch.clamp(torch.stack([rx, ry], dim=-1), max=2**31 - 1).to(torch.int32) * valid[..., None]
         pix_box = torch.stack([x0, x1, y0, y1], dim=-1).to(torch.int64)
         pix_box = torch.where(valid[..., None], pix_box, torch.tensor([0, -1, 0, -1], device=pix_box.device))
-        depths = torch.where(valid, z.detach(), torch.zeros_like(z))
-    return Projected(means2d, conics, depths, radii, pix_box, valid)
+        depths = torch.where(valid, z.detach(), torch.zeros_like(z)).to(out_dtype)
+    return Projected(means2d.to(out_dtype), conics.to(out_dtype), depths, radii, pix_box, valid)
 
 
 def depth_order(proj: Projected, cam: int) -> Tensor:  # -> [n_valid] int64

@@ -1,9 +1,27 @@
-"""Typed, early validation of the public inputs; every error names the argument."""
+"""Typed, early validation of the public inputs; every error names the argument.
+
+Value checks on CPU tensors run in numpy: a torch reduction over a few thousand values is an
+OpenMP parallel region, and without OMP_WAIT_POLICY=PASSIVE each region can cost
+milliseconds on a busy machine (see `_numba_impl`).
+"""
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 from torch import Tensor
+
+from .constants import SCALE_MAX
+
+
+def _values(x: Tensor) -> np.ndarray | Tensor:
+    """The values to check: a numpy view on the CPU, the tensor itself elsewhere."""
+    return x.detach().numpy() if x.device.type == "cpu" else x.detach()
+
+
+def _all_finite(x: Tensor) -> bool:
+    v = _values(x)
+    return bool(np.isfinite(v).all()) if isinstance(v, np.ndarray) else bool(torch.isfinite(v).all())
 
 
 def _check_tensor(name: str, x: object, ndim: int, tail: tuple[int | None, ...], like: Tensor | None = None) -> Tensor:
@@ -25,7 +43,7 @@ def _check_tensor(name: str, x: object, ndim: int, tail: tuple[int | None, ...],
             raise ValueError(f"{name}: dtype {x.dtype} differs from means' dtype {like.dtype}")
         if x.device != like.device:
             raise ValueError(f"{name}: device {x.device} differs from means' device {like.device}")
-    if not bool(torch.isfinite(x).all()):
+    if not _all_finite(x):
         raise ValueError(f"{name}: contains non-finite values (nan or inf)")
     return x
 
@@ -72,16 +90,21 @@ def validate_inputs(
             raise ValueError(
                 f"background: expected {colors.shape[1]} channels (as colors), got shape {tuple(background.shape)}")
     if n > 0:
-        if bool((scales <= 0).any()):
+        sv, ov, qv = _values(scales), _values(opacities), _values(quats)
+        if bool((sv <= 0).any()):
             raise ValueError("scales: must be > 0 (activated scales, not logs)")
-        if bool(((opacities < 0) | (opacities > 1)).any()):
+        if bool((sv > SCALE_MAX).any()):
+            raise ValueError(f"scales: must be <= SCALE_MAX = {SCALE_MAX:g} (activated scales, not logs), "
+                             f"got {float(sv.max()):.3g}; beyond it the projected covariance overflows")
+        if bool(((ov < 0) | (ov > 1)).any()):
             raise ValueError("opacities: must lie in [0, 1] (activated opacities, not logits)")
-        if bool((quats.norm(dim=-1) == 0).any()):
+        if bool(((qv * qv).sum(-1) == 0).any()):
             raise ValueError("quats: a quaternion has zero norm")
-    if bool((viewmats[:, 3, :3] != 0).any()) or bool((viewmats[:, 3, 3] != 1).any()):
+    vv, kv = _values(viewmats), _values(Ks)
+    if bool((vv[:, 3, :3] != 0).any()) or bool((vv[:, 3, 3] != 1).any()):
         raise ValueError("viewmats: the last row of every 4x4 must be [0, 0, 0, 1]")
-    if bool((Ks[:, 0, 0] <= 0).any()) or bool((Ks[:, 1, 1] <= 0).any()):
+    if bool((kv[:, 0, 0] <= 0).any()) or bool((kv[:, 1, 1] <= 0).any()):
         raise ValueError("Ks: focal lengths fx = K[0, 0] and fy = K[1, 1] must be > 0")
-    if bool((Ks[:, 0, 1] != 0).any()) or bool((Ks[:, 1, 0] != 0).any()) or bool((Ks[:, 2, :2] != 0).any()) \
-            or bool((Ks[:, 2, 2] != 1).any()):
+    if bool((kv[:, 0, 1] != 0).any()) or bool((kv[:, 1, 0] != 0).any()) or bool((kv[:, 2, :2] != 0).any()) \
+            or bool((kv[:, 2, 2] != 1).any()):
         raise ValueError("Ks: expected [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] (no skew)")

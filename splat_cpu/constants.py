@@ -21,3 +21,9 @@ NEAR = 0.01
 
 TILE = 16
 """Tile edge in pixels for the tiled paths (16 x 16 tiles)."""
+
+SCALE_MAX = 1e15
+"""Largest accepted scale (scene units): `rasterize` refuses larger ones. In float64 the
+projected covariance of such a Gaussian seen at the near plane with a 1e6-pixel focal length
+stays far from overflow (its determinant ~ (1e15 * 1e6 / NEAR)^4 = 1e92); with 1e20 in float32
+the covariance overflowed and every geometric gradient became NaN without an error."""

@@ -229,6 +229,7 @@ BAD = [
     ("scales", lambda a: -a["scales"]),
     ("scales", lambda a: a["scales"].log().clamp(max=-0.1) * 0 - 1),
     ("scales", lambda a: a["scales"][None]),
+    ("scales", lambda a: a["scales"] * 0 + 1e20),  # issue 13: silent NaN gradients before
     ("opacities", lambda a: a["opacities"] + 1.5),
     ("opacities", lambda a: a["opacities"][:, None]),
     ("opacities", lambda a: torch.full_like(a["opacities"], float("inf"))),

@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 import splat_cpu
 from splat_cpu._numba_impl import rasterize_numba
 from splat_cpu._torch_impl import rasterize_reference
-from splat_cpu.constants import NEAR
+from splat_cpu.constants import NEAR, SCALE_MAX
 
 from .brute import brute_render
 from .conftest import make_scene
@@ -66,6 +66,37 @@ def test_far_outside_the_image_and_extreme_scales():
     _, _, meta = _check_finite_and_agree(inputs, 23, 17, bg=torch.tensor([0.3, 0.2, 0.1]))
     assert bool((meta["radii"][:, :8] == 0).all())
     assert bool((meta["radii"][:, 14:17] > 0).all())  # covers the whole image
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+@pytest.mark.parametrize("big", [1e8, 1e12, SCALE_MAX])
+def test_huge_scales_up_to_the_limit_stay_finite(dtype, big):
+    """Issue 13: scales of 1e20 gave NaN gradients; up to SCALE_MAX every output and gradient is finite.
+
+    In float64 both paths also match the brute-force compositor. (A huge Gaussian's conic is
+    too ill-conditioned for float32 compositing to agree pixel by pixel with float64, so
+    float32 is held to finiteness and to rendering the huge Gaussians.)
+    """
+    inputs = make_scene(30, d=1, n_cams=2, dtype=dtype, dense=False)
+    inputs[2][0] = big  # a huge sphere: covers every image
+    inputs[2][1, :2] = big  # a huge disc
+    for fn in (rasterize_numba, rasterize_reference):
+        leaves = [t.clone().requires_grad_() for t in inputs]
+        img, alpha, meta = fn(*leaves, 37, 29)
+        assert bool(torch.isfinite(img).all()) and bool(torch.isfinite(alpha).all())
+        assert bool((meta["radii"][:, :2] > 0).all())  # rendered, not culled
+        for g in torch.autograd.grad(img.sum() + alpha.sum(), leaves[:6]):
+            assert bool(torch.isfinite(g).all())
+    if dtype == torch.float64:
+        _check_finite_and_agree(inputs, 37, 29, tol=1e-9, brute=True)
+
+
+def test_scales_above_the_limit_are_refused():
+    inputs = make_scene(10, d=1, n_cams=1, dtype=torch.float32, dense=False)
+    inputs[2][3, 1] = 1e20
+    for fn in (splat_cpu.rasterize, splat_cpu.rasterize_reference):
+        with pytest.raises(ValueError, match=r"^scales: must be <= SCALE_MAX"):
+            fn(*inputs, 37, 29)
 
 
 def test_identical_depths_keep_index_order():
