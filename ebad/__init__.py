@@ -8,7 +8,7 @@ The heavy parts (torch, the trainer) are imported on first use, so ``ebad --help
 from .errors import ConfigError, EbadError, UserError
 
 __all__ = ["EbadError", "UserError", "ConfigError", "reconstruct", "Run", "Config", "preset", "PRESETS", "load_run",
-           "evaluate", "prepare", "TrainState"]
+           "prepare", "TrainState"]
 __version__ = "0.1.0"
 
 _LAZY = {
@@ -20,7 +20,6 @@ _LAZY = {
     "preset": ("config", "preset"),
     "PRESETS": ("config", "PRESETS"),
     "load_run": ("runfolder", "load_run"),
-    "evaluate": ("evaluate", "evaluate"),
 }
 
 
