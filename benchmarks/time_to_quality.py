@@ -10,7 +10,7 @@ parameters costs milliseconds and is inside the measured time), and every snapsh
 afterwards with the evaluation protocol (``ebad.evaluate``: test poses refined against their
 images where the capture's poses are not exact; deblurred frames against the truth). Prints a
 table, writes JSON and a plot (PSNR against seconds and against steps). Also records the start-up
-(prepare) time and the mean step time. Timings are noisy on a shared machine: compare within one
+(prepare) time, the mean step time, the Gaussian count and the process's peak resident memory. Timings are noisy on a shared machine: compare within one
 run.
 """
 from __future__ import annotations
@@ -73,7 +73,10 @@ def run_one(scene, name: str, seconds: float, marks: int, exact: bool, refine_it
         points.append({"seconds": snap["seconds"], "step": snap["step"], "gaussians": snap["gaussians"],
                        "test_psnr": test.psnr, "test_ssim": test.ssim, "deblur_psnr": ev["deblurred"].psnr})
     m = run.metrics
-    return {"preset": name, "steps": m.steps, "train_seconds": m.train_seconds, "prepare_seconds": m.prepare_seconds,
+    import resource
+
+    peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # Linux: kB; the process's peak so far
+    return {"preset": name, "peak_rss_mb_so_far": peak_mb, "gaussians": m.gaussians, "steps": m.steps, "train_seconds": m.train_seconds, "prepare_seconds": m.prepare_seconds,
             "wall_seconds": wall, "step_ms": 1000 * m.train_seconds / max(m.steps, 1), "points": points,
             "final_psnr": points[-1]["test_psnr"], "poses_refined": not exact}
 
@@ -128,7 +131,8 @@ def main(argv=None) -> int:
             results[mode].append(r)
             pts = "  ".join(f"{p['seconds']:.0f}s/{p['step']}:{p['test_psnr']:.2f}" for p in r["points"])
             print(f"{mode:9s} {name:5s} prepare {r['prepare_seconds']:.1f} s, {r['step_ms']:.0f} ms/step, "
-                  f"{r['steps']} steps -> {r['final_psnr']:.2f} dB   [{pts}]", flush=True)
+                  f"{r['steps']} steps, {r['gaussians']} Gaussians, peak RSS so far {r['peak_rss_mb_so_far']:.0f} MB "
+                  f"-> {r['final_psnr']:.2f} dB   [{pts}]", flush=True)
     path = write_json(args.name, {"size": size, "seconds": seconds, "seed": args.seed, "modes": MODES,
                                   "results": results, "argv": sys.argv[1:]})
     plot(results, RESULTS / f"{args.name}.png")
