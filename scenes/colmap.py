@@ -24,11 +24,12 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
+from scipy.spatial.transform import Rotation
 
 from edi.errors import EbadError
 
 from .capture import Capture
+from .poses import interpolate_poses
 from .errors import CaptureError
 
 __all__ = ["ColmapConfig", "PoseEstimate", "SfMError", "estimate_poses", "align_similarity", "apply_similarity",
@@ -136,15 +137,12 @@ def _interp_missing(c2w: np.ndarray, registered: np.ndarray, t: np.ndarray) -> n
     if len(idx) == len(registered):
         return c2w
     out = c2w.copy()
-    rots = Rotation.from_matrix(c2w[idx, :3, :3])
-    tq = np.clip(t, t[idx].min(), t[idx].max())
     tk, uniq = np.unique(t[idx], return_index=True)
     if len(tk) >= 2:
-        sl = Slerp(tk, rots[uniq])
+        known = c2w[idx[uniq]]
         miss = ~registered
-        out[miss, :3, :3] = sl(tq[miss]).as_matrix()
-        for k in range(3):
-            out[miss, k, 3] = np.interp(tq[miss], tk, c2w[idx[uniq], k, 3])
+        out[miss], _ = interpolate_poses(t[miss], tk, known[:, :3, 3], Rotation.from_matrix(known[:, :3, :3]).as_quat(),
+                                         clamp_s=np.inf)  # beyond the ends: the end pose
     else:
         out[~registered] = c2w[idx[0]]
     return out

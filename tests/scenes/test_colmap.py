@@ -219,3 +219,17 @@ def test_sfm_failure_says_what_to_try(unposed):
     assert "try:" in msg and "contrast threshold" in msg and "more frames" in msg and "intrinsics" in msg
     with pytest.raises(SfMError, match="deblur=True"):
         estimate_poses(unposed[0].capture, ColmapConfig(num_threads=1, deblur=False, init_min_num_inliers=100000))
+
+
+def test_unregistered_frames_get_poses_interpolated_in_time():
+    from scenes.colmap import _interp_missing
+
+    c2w = np.tile(np.eye(4), (4, 1, 1))
+    c2w[:, 0, 3] = [0.0, 9.0, 2.0, 9.0]  # rows 1 and 3 were not registered (garbage)
+    c2w[2, :3, :3] = Rotation.from_rotvec([0.0, 0.0, 0.4]).as_matrix()
+    reg = np.array([True, False, True, False])
+    out = _interp_missing(c2w, reg, np.array([0.0, 0.5, 1.0, 2.0]))
+    assert np.allclose(out[[0, 2]], c2w[[0, 2]])  # registered rows untouched
+    assert out[1, 0, 3] == pytest.approx(1.0)
+    assert np.allclose(Rotation.from_matrix(out[1, :3, :3]).as_rotvec(), [0, 0, 0.2], atol=1e-9)
+    assert np.allclose(out[3], c2w[2])  # after the last registered frame: its pose
