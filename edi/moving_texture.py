@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .model import LOG_EPS
-from .events import EventStream
+from .events import EventStream, seconds_to_us
 
 __all__ = ["SyntheticSequence", "moving_texture"]
 
@@ -91,7 +91,7 @@ def moving_texture(
         c_pos_px = np.maximum(c_pos + sigma_c * rng.standard_normal((height, width)), c_pos / 4)
         c_neg_px = np.maximum(c_neg + sigma_c * rng.standard_normal((height, width)), c_neg / 4)
 
-    t_end_us = int(round(((num_frames - 1) * period + exposure) * 1e6))
+    t_end_us = seconds_to_us((num_frames - 1) * period + exposure)
     steps = np.arange(0, t_end_us + step_us, step_us, dtype=np.int64)
     ref = np.log(tex.render(0.0).mean(axis=-1) + LOG_EPS)  # events see the grey level
     ts, xs, ys, ps = [], [], [], []
@@ -121,7 +121,7 @@ def moving_texture(
     exposures = np.array([[i * period, i * period + exposure] for i in range(num_frames)])
     frames = []
     for t0, t1 in exposures:
-        a, b = int(round(t0 * 1e6)), int(round(t1 * 1e6))
+        a, b = seconds_to_us(t0), seconds_to_us(t1)
         sel = [images[int(tj)] for tj in steps if a <= tj < b]
         frames.append(np.mean(sel, axis=0))
     return SyntheticSequence(np.stack(frames), exposures, ev, (c_pos, c_neg), tuple(velocity), tex)

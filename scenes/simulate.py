@@ -24,7 +24,7 @@ import math
 import numba
 import numpy as np
 
-from edi import EventStream
+from edi import EventStream, seconds_to_us
 
 __all__ = ["simulate_events", "default_eps", "MIN_C_FRACTION", "HOT_PIXEL_HZ"]
 
@@ -215,7 +215,7 @@ def simulate_events(images: np.ndarray,  # [S, H, W] or [S, H, W, D] linear inte
     te = np.concatenate(parts_t)
     pix = np.concatenate(parts_pix)
     pol = np.concatenate(parts_p)
-    t_us = np.round(te * 1e6).astype(np.int64)
+    t_us = seconds_to_us(te)
     order = np.argsort(t_us, kind="stable")
     ev = EventStream(t_us[order], (pix[order] % w).astype(np.int32), (pix[order] // w).astype(np.int32),
                      pol[order], w, h)
