@@ -92,6 +92,15 @@ def test_bad_c(tmp_path, frame_and_events, capsys):
         assert "--c must be" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("flag,value", [("--max-frames", "-3"), ("--times", "-1")])
+def test_negative_counts_are_refused_naming_the_option(tmp_path, frame_and_events, capsys, flag, value):
+    png, npz, s = frame_and_events
+    assert main(["deblur", str(png), "--events", str(npz), flag, value, "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert f"{flag} must be >= 0" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "o").exists()
+
+
 @needs_street
 def test_truncated_aedat4_is_one_line(tmp_path, capsys):
     pytest.importorskip("aedat")
