@@ -19,10 +19,10 @@ from __future__ import annotations
 
 import os
 
-# torch's OpenMP pool spin-waits between parallel regions and steals the cores from the
-# numba kernels (measured: 20k-Gaussian render forward+backward 127 ms with PASSIVE, about
-# 745 ms without, on 2 cores). Only effective before torch is imported, hence here, at the
-# program's entry point; a user's own setting wins.
+# splat_cpu does not need this (its kernels run on numba's workqueue layer with no torch
+# kernel inside, see benchmarks.rasterize --omp-check); the command sets it for torch's own
+# work on a shared machine, where spinning OpenMP threads waste the cores between parallel
+# regions. Only effective before torch is imported; a user's own setting wins.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 import argparse  # noqa: E402
