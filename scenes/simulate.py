@@ -24,21 +24,12 @@ import math
 import numba
 import numpy as np
 
-from edi import EventStream, seconds_to_us
+from edi import LOG_EPS, EventStream, seconds_to_us
 
-__all__ = ["simulate_events", "default_eps", "MIN_C_FRACTION", "HOT_PIXEL_HZ"]
+__all__ = ["simulate_events", "MIN_C_FRACTION", "HOT_PIXEL_HZ"]
 
 MIN_C_FRACTION = 0.25  # per-pixel thresholds are clipped to >= this fraction of c
 HOT_PIXEL_HZ = 500.0  # default firing rate of a hot pixel
-
-
-def default_eps() -> float:
-    """The project's log offset, ``edi.LOG_EPS`` (1e-3 when edi does not define it)."""
-    try:
-        from edi.deblur import LOG_EPS
-    except ImportError:  # pragma: no cover - edi without deblur
-        return 1e-3
-    return float(LOG_EPS)
 
 
 @numba.njit(cache=True)
@@ -172,7 +163,7 @@ def simulate_events(images: np.ndarray,  # [S, H, W] or [S, H, W, D] linear inte
         EventStream (t in integer microseconds of ``times``' clock, sorted, inside the sensor),
         or (EventStream, c_pos [H, W], c_neg [H, W]) with ``return_thresholds``.
     """
-    eps = default_eps() if eps is None else float(eps)
+    eps = LOG_EPS if eps is None else float(eps)
     try:
         cp, cn = (float(c), float(c)) if np.ndim(c) == 0 else (float(c[0]), float(c[1]))
         if np.ndim(c) == 1 and len(c) != 2:

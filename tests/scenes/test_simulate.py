@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from scenes import simulate_events
-from scenes.simulate import HOT_PIXEL_HZ, default_eps
+from edi import LOG_EPS
+from scenes.simulate import HOT_PIXEL_HZ
 
 
 def _ramp(slopes, t, l0=math.log(0.1), eps=1e-3):
@@ -151,7 +152,7 @@ def test_kernels_agree_property(seed, s, sigma, refractory):
     # the reference starts at the first render, so c * net count is within one threshold of
     # the total log change
     if sigma == 0 and refractory == 0:
-        eps = default_eps()
+        eps = LOG_EPS
         dl = np.log(imgs[-1] + eps) - np.log(imgs[0] + eps)
         assert np.all(np.abs(dl - 0.15 * a.count_image()) < 0.15 + 1e-9)
 
