@@ -57,17 +57,21 @@ def test_atomic_text_write_leaves_no_temporary(tmp_path):
     assert [p.name for p in (tmp_path / "a").iterdir()] == ["x.json"]
 
 
-def test_out_that_is_a_file_or_not_writable_is_refused(tmp_path, capsys):
+def test_out_that_is_a_file_or_not_writable_is_refused(tmp_path, capsys, monkeypatch):
     f = tmp_path / "file"
     f.write_text("x")
     assert main(["reconstruct", str(tmp_path / "cap"), "--out", str(f)]) == 2
     assert "exists and is not a folder" in capsys.readouterr().err
-    if os.geteuid() != 0:  # root writes anywhere
-        ro = tmp_path / "ro"
-        ro.mkdir()
-        ro.chmod(0o500)
-        assert main(["reconstruct", str(tmp_path / "cap"), "--out", str(ro / "run")]) == 2
-        assert "not writable" in capsys.readouterr().err
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o500)
+    if os.geteuid() == 0:  # root writes anywhere: make the permission check see what a user would
+        real = os.access
+        monkeypatch.setattr(os, "access", lambda p, mode: False if Path(p) == ro else real(p, mode))
+    assert main(["reconstruct", str(tmp_path / "cap"), "--out", str(ro / "run")]) == 2
+    err = capsys.readouterr().err
+    assert "not writable" in err and str(ro) in err
+    assert not (ro / "run").exists()
 
 
 def test_an_unfinished_run_is_refused_with_the_resume_command(tmp_path):
@@ -142,3 +146,17 @@ def test_a_full_disk_is_one_line_and_leaves_no_complete_looking_run(tmp_path, ca
     assert (run / "checkpoints" / "last.pt").stat().st_size > 1000  # the first checkpoint, whole
     with pytest.raises(UserError, match="unfinished run"):
         load_run(run)
+
+
+@pytest.mark.slow
+def test_a_run_that_learns_nothing_is_flagged(tmp_path, capsys):
+    """Every learning rate at 0: the test PSNR ends where it began, and the command says so."""
+    scene = scenes.make_scene("boxes", size="tiny", seed=0, n_frames=3, n_test=1, sensor="ideal")
+    scenes.write_scene(scene, tmp_path / "scene")
+    zero = [f"--train.{k}" for k in ("lr_means", "lr_scales", "lr_quats", "lr_opacities", "lr_colors")]
+    args = ["reconstruct", str(tmp_path / "scene" / "capture"), "--out", str(tmp_path / "run"), "--preset", "3dgs",
+            "--train.iters", "3", "--no-progress", "--trajectory.anchor_mid", "yes"]
+    for z in zero:
+        args += [z, "0"]
+    assert main(args) == 0
+    assert "test PSNR did not change" in capsys.readouterr().err
