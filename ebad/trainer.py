@@ -48,7 +48,7 @@ class FrameLosses:
     ev: Tensor | None
     edi: Tensor | None
     info: RenderInfo
-    mean_render: Tensor  # [H, W, D] detached mean of the V renders
+    mean_render: Tensor  # [H, W, D] detached: what the camera would record of the exposure (response of the mean)
 
 
 def frame_losses(data: TrainingData, state: TrainState, f: int, cfg: Config) -> FrameLosses:
