@@ -29,6 +29,7 @@ from .response import Response
 from .trajectory import ExposureTrajectories
 
 __all__ = ["StepStats", "TrainState", "init_gaussians", "make_optimizers", "max_gaussians", "capture_fingerprint",
+           "read_checkpoint",
            "fingerprint_diff",
            "AUTO_CAP_PER_PIXEL", "AUTO_CAP_RANGE", "CHECKPOINT_FORMAT"]
 
@@ -223,19 +224,7 @@ class TrainState:
 
         Raises ``UserError`` naming the file when it is not a readable checkpoint, and naming
         the difference when it was made from another capture (``fingerprint``)."""
-        path = Path(path)
-        try:
-            doc = torch.load(path, weights_only=True)
-        except Exception as exc:  # torch raises many types for a damaged file; all mean the same here
-            raise UserError(f"{path}: not a readable checkpoint ({type(exc).__name__}: {exc}); "
-                            "delete it to start the run over") from exc
-        if not isinstance(doc, dict) or doc.get("format") != CHECKPOINT_FORMAT:
-            raise UserError(f"{path}: not an {CHECKPOINT_FORMAT} checkpoint; delete it to start the run over")
-        if fingerprint is not None and doc.get("fingerprint") is not None:
-            diff = fingerprint_diff(doc["fingerprint"], fingerprint)
-            if diff:
-                raise UserError(f"{path} was made from another capture ({diff}); resume with the capture it "
-                                "was made from, or choose another --out")
+        doc = read_checkpoint(path, fingerprint)
         params = {k: nn.Parameter(doc["params"][k].clone()) for k in PARAM_NAMES}
         generator = torch.Generator()
         traj = _trajectories(data, cfg, None, 0.0)
@@ -258,6 +247,26 @@ class TrainState:
                    strategy_state=StrategyState.from_dict(doc["strategy_state"]), order_rng=order_rng,
                    generator=generator, step=int(doc["step"]), order=[int(i) for i in doc["order"]],
                    history=[StepStats.from_dict(h) for h in doc["history"]], elapsed=float(doc["elapsed"]))
+
+
+def read_checkpoint(path: str | Path, fingerprint: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The checkpoint's contents, or ``UserError`` naming the file when it is not a readable
+    checkpoint, and naming the difference when it was made from another capture than the one
+    ``fingerprint`` describes."""
+    path = Path(path)
+    try:
+        doc = torch.load(path, weights_only=True)
+    except Exception as exc:  # torch raises many types for a damaged file; all mean the same here
+        raise UserError(f"{path}: not a readable checkpoint ({type(exc).__name__}: {exc}); "
+                        "delete it to start the run over") from exc
+    if not isinstance(doc, dict) or doc.get("format") != CHECKPOINT_FORMAT:
+        raise UserError(f"{path}: not an {CHECKPOINT_FORMAT} checkpoint; delete it to start the run over")
+    if fingerprint is not None and doc.get("fingerprint") is not None:
+        diff = fingerprint_diff(doc["fingerprint"], fingerprint)
+        if diff:
+            raise UserError(f"{path} was made from another capture ({diff}); resume with the capture it "
+                            "was made from, or choose another --out")
+    return doc
 
 
 def capture_fingerprint(capture) -> dict[str, Any]:

@@ -81,6 +81,7 @@ def main(argv: list[str]) -> int:
     from ..config import save_config
     from ..errors import UserError
     from ..runfolder import RunLock, check_out_dir, write_run
+    from ..state import capture_fingerprint, read_checkpoint
     from ..trainer import reconstruct
 
     args, cfg, applied = parse(argv)
@@ -93,6 +94,8 @@ def main(argv: list[str]) -> int:
         print(f"ebad reconstruct: {out} has no checkpoint; starting a new run", file=sys.stderr)
     capture = scenes.load(args.capture)
     with RunLock(out, say=lambda m: print(m, file=sys.stderr)):
+        if args.resume and ckpt.exists():  # refuse another capture before anything of the run is touched
+            read_checkpoint(ckpt, capture_fingerprint(capture))
         for key, (old, new) in sorted(applied.items()):
             print(f"ebad reconstruct: --resume applies {key} = {new!r} (was {old!r})", file=sys.stderr)
         (out / "metrics.json").unlink(missing_ok=True)  # the run is unfinished until write_run ends

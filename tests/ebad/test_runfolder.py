@@ -160,3 +160,23 @@ def test_a_run_that_learns_nothing_is_flagged(tmp_path, capsys):
         args += [z, "0"]
     assert main(args) == 0
     assert "test PSNR did not change" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_resume_with_another_capture_is_refused_and_the_run_kept(tmp_path, capsys):
+    a = scenes.make_scene("boxes", size="tiny", seed=0, n_frames=4, n_test=1, sensor="ideal")
+    b = scenes.make_scene("boxes", size="tiny", seed=1, n_frames=3, n_test=1, sensor="ideal")
+    scenes.write_scene(a, tmp_path / "a")
+    scenes.write_scene(b, tmp_path / "b")
+    run = tmp_path / "run"
+    common = ["--out", str(run), "--preset", "3dgs", "--no-progress", "--train.checkpoint_every", "2"]
+    assert main(["reconstruct", str(tmp_path / "a" / "capture"), *common, "--train.iters", "4"]) == 0
+    before = {p.name: p.read_bytes() for p in run.rglob("*") if p.is_file()}
+    capsys.readouterr()
+    assert main(["reconstruct", str(tmp_path / "b" / "capture"), *common, "--train.iters", "8", "--resume"]) == 2
+    err = capsys.readouterr().err
+    assert "made from another capture" in err and "4 frames then, 3 now" in err
+    # the finished run of capture a is as it was, and still loads as complete
+    after = {p.name: p.read_bytes() for p in run.rglob("*") if p.is_file()}
+    assert set(after) - set(before) <= {"config.json"} and after["last.pt"] == before["last.pt"]
+    assert load_run(run).step == 4
