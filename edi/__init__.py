@@ -17,7 +17,7 @@ Public API::
 """
 from .contrast import ContrastReport, estimate_c
 from .deblur import DeblurReport, deblur
-from .errors import EbadError, EventError, InputError
+from .errors import CorruptFileError, EbadError, EventError, InputError
 from .events import EventStream, events_in_window, seconds_to_us
 from .io import AedatRecording, infer_time_unit, read_aedat4, read_events
 from .medi import medi
@@ -28,6 +28,7 @@ __all__ = [
     "EventStream",
     "EbadError",
     "EventError",
+    "CorruptFileError",
     "InputError",
     "Contrast",
     "parse_c",

@@ -29,3 +29,7 @@ class EventError(EbadError, ValueError):
 class InputError(EbadError, ValueError):
     """An argument of a public edi function that cannot work (shape, range, unit, exposure);
     the message names the argument and what was found."""
+
+
+class CorruptFileError(EventError):
+    """An event file or recording that cannot be decoded (truncated, corrupt, not that format)."""

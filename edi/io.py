@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .errors import CorruptFileError
 from .events import EventError, EventStream
 
 __all__ = ["read_events", "read_aedat4", "AedatRecording", "infer_time_unit"]
@@ -153,7 +154,7 @@ def _load_arrays(path: Path) -> dict[str, np.ndarray]:
     except (OSError, EOFError, zipfile.BadZipFile, zlib.error, MatReadError, ValueError, KeyError) as exc:
         if isinstance(exc, EventError):
             raise
-        raise EventError(f"{path}: not a readable {kind[ext]} file ({type(exc).__name__}: {exc})") from exc
+        raise CorruptFileError(f"{path}: not a readable {kind[ext]} file ({type(exc).__name__}: {exc})") from exc
 
 
 def _parse_arrays(path: Path, ext: str) -> dict[str, np.ndarray]:
@@ -182,7 +183,7 @@ def _parse_arrays(path: Path, ext: str) -> dict[str, np.ndarray]:
         try:
             raw = loadmat(path)
         except IndexError as exc:  # scipy's parser indexes past the end of a garbage header
-            raise EventError(f"{path}: not a readable MATLAB .mat file (IndexError: {exc})") from exc
+            raise CorruptFileError(f"{path}: not a readable MATLAB .mat file (IndexError: {exc})") from exc
         m = {k: v for k, v in raw.items() if not k.startswith("__")}
         if "events" in m and m["events"].ndim == 2 and m["events"].shape[1] == 4:
             a = m["events"]
@@ -324,7 +325,7 @@ def read_aedat4(path: str | Path) -> AedatRecording:
     try:
         dec = aedat.Decoder(str(path))
     except (OSError, RuntimeError, ValueError) as exc:
-        raise EventError(f"{path}: not a readable AEDAT4 file ({type(exc).__name__}: {exc})") from exc
+        raise CorruptFileError(f"{path}: not a readable AEDAT4 file ({type(exc).__name__}: {exc})") from exc
     streams = dec.id_to_stream()
     size = next(((s["width"], s["height"]) for s in streams.values() if s.get("type") == "events"), None)
     if size is None:
@@ -341,7 +342,7 @@ def read_aedat4(path: str | Path) -> AedatRecording:
                 frames.append(_frame_pixels(fr["pixels"], fr.get("format", "L")))
                 exps.append((int(fr["exposure_begin_t"]), int(fr["exposure_end_t"])))
     except (OSError, RuntimeError) as exc:  # the decoder's "failed to fill whole buffer" on a truncated file
-        raise EventError(f"{path}: truncated or corrupt AEDAT4 file after {len(ev_chunks)} event and "
+        raise CorruptFileError(f"{path}: truncated or corrupt AEDAT4 file after {len(ev_chunks)} event and "
                          f"{len(frames)} frame packets ({type(exc).__name__}: {exc})") from exc
     evs = np.concatenate(ev_chunks) if ev_chunks else None
     t_raw = evs["t"].astype(np.int64) if evs is not None else np.zeros(0, np.int64)

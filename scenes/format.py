@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from edi import EbadError, EventStream, read_events
+from edi import CorruptFileError, EbadError, EventStream, read_events
 
 from .capture import Capture, TestView, check_rigid
 from .errors import CaptureError
@@ -71,6 +71,8 @@ def read_event_file(path: Path, t_unit: str, width: int, height: int, t0_us: int
         raise CaptureError(str(path), "events.t_unit", f"must be one of {', '.join(T_UNITS)}; got {t_unit!r}")
     try:
         events = read_events(path, t_unit=t_unit, width=width, height=height)
+    except CorruptFileError as exc:
+        raise CaptureError(str(path), "events.file", f"unreadable: {str(exc).replace(f'{path}: ', '')}") from None
     except EbadError as exc:
         raise CaptureError(str(path), "events", str(exc).replace(f"{path}: ", "")) from None
     except CORRUPT_FILE_ERRORS as exc:

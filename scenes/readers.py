@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from edi import EbadError, EventStream, read_aedat4, read_events
+from edi import CorruptFileError, EbadError, EventStream, read_aedat4, read_events
 
 from .capture import Capture
 from .e2nerf import LLFF_HOLD, detect_e2nerf, load_e2nerf, load_ebad_nerf
@@ -226,6 +226,8 @@ def _read_events(path: Path, t_unit: str | None, width: int, height: int) -> Eve
     """``edi.read_events`` (the one event-file reader) with its failures as CaptureError."""
     try:
         return read_events(path, t_unit=t_unit, width=width, height=height)
+    except CorruptFileError as exc:
+        raise CaptureError(str(path), "events", f"unreadable: {str(exc).replace(f'{path}: ', '')}") from None
     except EbadError as exc:
         raise CaptureError(str(path), "events", str(exc).replace(f"{path}: ", "")) from None
     except CORRUPT_RECORDING_ERRORS as exc:
@@ -252,6 +254,8 @@ def load_aedat4(path: Path, K: np.ndarray | None = None) -> Capture:
         rec = read_aedat4(path)
     except ImportError:
         raise CaptureError(str(path), None, f"reading .aedat4 needs the 'aedat' package: {AEDAT_INSTALL}") from None
+    except CorruptFileError as exc:
+        raise CaptureError(str(path), None, f"unreadable AEDAT4 recording: {str(exc).replace(f'{path}: ', '')}") from None
     except EbadError as exc:
         raise CaptureError(str(path), getattr(exc, "field", None), str(exc)) from None
     except CORRUPT_RECORDING_ERRORS as exc:

@@ -192,13 +192,15 @@ def test_estimate_c_bad_input():
 
 @pytest.mark.slow
 def test_ray_cast_scenes_single_and_consistency():
-    """scenes.make_scene, 64x48, 3 frames, c 0.2, mismatch 0.03: measured single-frame
-    0.97-1.06x and consistency 0.999-1.03x (boxes grey, spheres colour, seeds 0-2)."""
+    """scenes.make_scene with the idealised (linear) sensor, 64x48, 3 frames, c 0.2, mismatch
+    0.03: measured single-frame 0.97-1.06x and consistency 0.999-1.03x (boxes grey, spheres
+    colour, seeds 0-2). (The realistic sensor's gamma makes any estimate from its frames read
+    about gamma x c: benchmarks.calibration.)"""
     from scenes import make_scene
 
     for name, rgb in (("boxes", False), ("spheres", True)):
         for seed in range(3):
-            sc = make_scene(name, "tiny", seed=seed, rgb=rgb, n_frames=3, n_test=0)
+            sc = make_scene(name, "tiny", seed=seed, rgb=rgb, n_frames=3, n_test=0, sensor="ideal")
             cap = sc.capture
             c_true = 0.5 * (sc.c_pos.mean() + sc.c_neg.mean())  # truth: read here only
             single, rep = estimate_c(cap.frames[0], cap.exposures[0], cap.events, return_report=True)

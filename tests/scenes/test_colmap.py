@@ -138,11 +138,15 @@ def test_sfm_on_slider_depth_agrees_with_ground_truth():
                                          init_min_num_inliers=100000), frames=[0, 40, 80, 86, 20])
 
 
-def test_sfm_on_a_tiny_blurry_scene_is_better_on_edi_deblurred_frames():
+@pytest.mark.slow
+def test_sfm_on_a_blurry_scene_is_better_on_edi_deblurred_frames():
+    """On 160x120 frames, where benchmarks.colmap_poses measured 1.22 +- 0.27 % ATE on the blurry
+    frames against 0.34 +- 0.05 % on EDI frames (ideal sensor, 6 runs); on 64x48 the two are
+    closer (1.68 against 1.06 %) and a single run does not separate them reliably."""
     import scenes
     from scenes.colmap import estimate_poses
 
-    sc = scenes.make_scene("boxes", "tiny", n_frames=12, sigma_c=0.0, sensor="ideal")
+    sc = scenes.make_scene("boxes", "small", n_frames=12, sigma_c=0.0, sensor="ideal")
     cap = sc.capture
     # one thread and a fixed seed: COLMAP's multi-threaded matching and bundle adjustment are
     # not deterministic, and on 64x48 frames an unlucky run can lose the track
