@@ -58,6 +58,19 @@ def _num(v: Any, file: str, field: str) -> float:
     return x
 
 
+def decode_events(path: Path, t_unit: str | None, width: int, height: int, field: str) -> EventStream:
+    """``edi.read_events`` (the one event-file reader) with its failures as a CaptureError naming
+    the file and ``field``: an undecodable file is "unreadable", any other problem says what."""
+    try:
+        return read_events(path, t_unit=t_unit, width=width, height=height)
+    except CorruptFileError as exc:
+        raise CaptureError(str(path), field, f"unreadable: {str(exc).replace(f'{path}: ', '')}") from None
+    except EbadError as exc:
+        raise CaptureError(str(path), field, str(exc).replace(f"{path}: ", "")) from None
+    except CORRUPT_FILE_ERRORS as exc:
+        raise CaptureError(str(path), field, f"unreadable ({type(exc).__name__}: {exc})") from None
+
+
 def read_event_file(path: Path, t_unit: str, width: int, height: int, t0_us: int = 0) -> EventStream:
     """Read events from a .npz or .h5 file with arrays x, y, t, p (an h5 may keep them under an
     ``events/`` group) through ``edi.read_events``, the project's one event-file reader and
@@ -69,14 +82,7 @@ def read_event_file(path: Path, t_unit: str, width: int, height: int, t0_us: int
         raise CaptureError(str(path), "events.file", f"events must be a {' or '.join(EVENT_SUFFIXES)} file")
     if t_unit not in T_UNITS:
         raise CaptureError(str(path), "events.t_unit", f"must be one of {', '.join(T_UNITS)}; got {t_unit!r}")
-    try:
-        events = read_events(path, t_unit=t_unit, width=width, height=height)
-    except CorruptFileError as exc:
-        raise CaptureError(str(path), "events.file", f"unreadable: {str(exc).replace(f'{path}: ', '')}") from None
-    except EbadError as exc:
-        raise CaptureError(str(path), "events", str(exc).replace(f"{path}: ", "")) from None
-    except CORRUPT_FILE_ERRORS as exc:
-        raise CaptureError(str(path), "events.file", f"unreadable ({type(exc).__name__}: {exc})") from None
+    events = decode_events(path, t_unit, width, height, "events.file")
     if t0_us:
         object.__setattr__(events, "t0", int(t0_us))
     return events

@@ -20,12 +20,12 @@ from pathlib import Path
 
 import numpy as np
 
-from edi import CorruptFileError, EbadError, EventStream, read_aedat4, read_events
+from edi import CorruptFileError, EbadError, EventStream, read_aedat4
 
 from .capture import Capture
 from .e2nerf import LLFF_HOLD, detect_e2nerf, load_e2nerf, load_ebad_nerf
 from .errors import CaptureError
-from .format import FORMAT, load_capture_folder, nearest_rigid
+from .format import FORMAT, decode_events, load_capture_folder, nearest_rigid
 from .images import read_image
 from .poses import interpolate_poses, read_poses_bounds
 from .undistort import undistort_events, undistort_frames
@@ -223,15 +223,7 @@ CORRUPT_RECORDING_ERRORS = (RuntimeError, OSError, EOFError, ValueError, zipfile
 
 
 def _read_events(path: Path, t_unit: str | None, width: int, height: int) -> EventStream:
-    """``edi.read_events`` (the one event-file reader) with its failures as CaptureError."""
-    try:
-        return read_events(path, t_unit=t_unit, width=width, height=height)
-    except CorruptFileError as exc:
-        raise CaptureError(str(path), "events", f"unreadable: {str(exc).replace(f'{path}: ', '')}") from None
-    except EbadError as exc:
-        raise CaptureError(str(path), "events", str(exc).replace(f"{path}: ", "")) from None
-    except CORRUPT_RECORDING_ERRORS as exc:
-        raise CaptureError(str(path), "events", f"unreadable ({type(exc).__name__}: {exc})") from None
+    return decode_events(path, t_unit, width, height, "events")
 
 
 DAVIS_DEFAULT_HFOV_DEG = 70.0  # used only when a recording comes with no K
