@@ -81,8 +81,15 @@ def test_a_capture_without_poses_runs_and_evaluates_end_to_end(tmp_path, capsys)
     assert main(["reconstruct", str(cap), "--out", str(run), "--preset", "3dgs", "--train.iters", "30",
                  "--no-progress"]) == 0
     r = load_run(run)
-    assert r.pose_source == "colmap" and sorted(r.test_c2w) == sorted(v.name for v in sc.capture.test_views)
+    names = sorted(v.name for v in sc.capture.test_views)
+    # multi-threaded COLMAP is not deterministic: on 64x48 frames a test image can stay out
+    # (tests/scenes/test_colmap.py checks registration itself, single-threaded)
+    assert r.pose_source == "colmap" and set(r.test_c2w) <= set(names) and len(r.test_c2w) >= 2
     assert main(["eval", str(run), str(cap), "--refine-poses", "--refine-iters", "20",
                  "--out", str(tmp_path / "e.json")]) == 0
     res = json.loads((tmp_path / "e.json").read_text())
-    assert set(res["poses"].values()) == {"run"} and res["test"]["n"] == 3
+    assert sorted(res["poses"]) == names  # every test view is accounted for ...
+    assert {n for n, how in res["poses"].items() if how == "run"} == set(r.test_c2w)  # ... at the run's poses
+    assert res["test"]["n"] == len(r.test_c2w)
+    if len(r.test_c2w) < len(names):
+        assert "have no pose in the run's frame and are not scored" in capsys.readouterr().out

@@ -19,7 +19,8 @@ WINDOW = (1024, 768)  # width, height of the headless browser window
 CANVAS_ONLY = (slice(160, 700), slice(70, 680))
 MIN_CANVAS_STD = 8.0  # grey levels: a blank (uniform) canvas has 0
 MIN_SPLAT_EFFECT = 2.0  # mean |difference| in grey levels between the scene with and without Gaussians
-VIRTUAL_TIME_MS = 6000  # page time for the client to connect and draw
+VIRTUAL_TIME_MS = 6000  # page time for the client to connect and draw (doubled on each retry)
+ATTEMPTS = 4  # a loaded machine can take longer to send the scene over the websocket: wait longer
 BROWSER_TIMEOUT_S = 120
 CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
                   "--disable-background-networking", "--disable-component-update", "--disable-sync",
@@ -40,11 +41,20 @@ def _free_loopback_port() -> int:
         return s.getsockname()[1]
 
 
-def _screenshot(browser: str, url: str, out, profile) -> np.ndarray:  # -> [H, W] grey float
+def _drawn(browser: str, url: str, out, profile) -> np.ndarray:  # -> [H, W] grey float
+    """A screenshot once the canvas shows something (retried with a longer page time), else the last one."""
+    for attempt in range(ATTEMPTS):
+        img = _screenshot(browser, url, out, profile, VIRTUAL_TIME_MS * 2 ** attempt)
+        if img[CANVAS_ONLY].std() > MIN_CANVAS_STD:
+            break
+    return img
+
+
+def _screenshot(browser: str, url: str, out, profile, budget_ms: int = VIRTUAL_TIME_MS) -> np.ndarray:
     from PIL import Image
 
     cmd = [browser, *CHROMIUM_FLAGS, f"--user-data-dir={profile}", f"--screenshot={out}",
-           f"--window-size={WINDOW[0]},{WINDOW[1]}", f"--virtual-time-budget={VIRTUAL_TIME_MS}", url]
+           f"--window-size={WINDOW[0]},{WINDOW[1]}", f"--virtual-time-budget={budget_ms}", url]
     res = subprocess.run(cmd, capture_output=True, text=True, timeout=BROWSER_TIMEOUT_S)
     assert res.returncode == 0 and out.exists(), res.stderr[-2000:]
     print(f"browser screenshot: {out}")
@@ -97,7 +107,7 @@ def test_view_draws_the_scene_in_a_real_browser(tiny_run, tmp_path):
         assert server.get_host() == "127.0.0.1"  # loopback only
         assert len(handles["train"]) == len(run.names) and len(handles["test"]) == len(views)
         url = f"http://127.0.0.1:{server.get_port()}/"
-        full = _screenshot(browser, url, tmp_path / "view_scene.png", tmp_path / "profile1")
+        full = _drawn(browser, url, tmp_path / "view_scene.png", tmp_path / "profile1")
         region = full[CANVAS_ONLY]
         assert region.std() > MIN_CANVAS_STD, f"blank canvas (std {region.std():.2f}); see {tmp_path / 'view_scene.png'}"
         handles["splats"].visible = False
