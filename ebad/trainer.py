@@ -185,6 +185,7 @@ class Evaluator:
         self.data, self.cfg, self.every, self.last = data, cfg, every, last
         self.views = _scorable(with_poses(views, data.test_c2w))
         self.latest: ViewScores | None = None
+        self.latest_step = -1  # the step ``latest`` was scored at
 
     def scores(self, state: TrainState) -> ViewScores | None:
         d = self.data
@@ -194,8 +195,12 @@ class Evaluator:
 
     def on_step(self, state: TrainState, stats: StepStats) -> None:
         if self.views and self.every and (state.step % self.every == 0 or state.step == self.last):
-            self.latest = self.scores(state)
+            self.latest, self.latest_step = self.scores(state), state.step
             stats.test_psnr = self.latest.psnr
+
+    def final(self, state: TrainState) -> ViewScores | None:
+        """The scores at the state's step: the last evaluation's when it was made there."""
+        return self.latest if self.latest_step == state.step else self.scores(state)
 
     def on_end(self, state: TrainState, reason: str) -> None:
         return None
@@ -484,7 +489,7 @@ def reconstruct(capture, config: Config | str | None = None, out_dir: str | Path
     run.metrics = RunMetrics(
         preset=cfg.name, steps=state.step, stop_reason=stop_reason, complete=not stop_reason.startswith("interrupted"),
         train_seconds=state.elapsed, prepare_seconds=prep_s, gaussians=run.num_gaussians,
-        final_loss=state.history[-1].loss if state.history else None, test=evaluator.scores(state),
+        final_loss=state.history[-1].loss if state.history else None, test=evaluator.final(state),
         test_initial=init_eval, prepare=data.report, anchored_mid_poses=state.trajectories.anchored,
         c_final=None if state.log_c is None else torch.exp(state.log_c.detach()).tolist(), resumed_from=resumed_from,
         response=state.response.values() if state.response.learnable else None,
