@@ -15,7 +15,9 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["RESULTS", "environment", "seed_all", "write_json"]
+import ebad  # noqa: F401  (before torch: OMP_WAIT_POLICY=PASSIVE for torch's threads, see ebad's docstring)
+
+__all__ = ["RESULTS", "environment", "seed_all", "write_json", "config_spec"]
 
 #: Where every benchmark writes its JSON.
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -68,3 +70,24 @@ def write_json(name: str, obj: dict[str, Any]) -> Path:
     tmp.write_text(json.dumps(payload, indent=2, default=_default) + "\n")
     tmp.replace(path)
     return path
+
+
+def config_spec(spec: str):
+    """A preset with overrides: ``"ebad"``, ``"ebad+train.coarse_scale=1+trajectory.num_views=3"``
+    (values as JSON, else strings); the config's name is the spec."""
+    from ebad.config import config_from_dict, config_to_dict, preset
+
+    name, *overrides = spec.split("+")
+    d = config_to_dict(preset(name))
+    for item in overrides:
+        key, _, value = item.partition("=")
+        section, _, fld = key.partition(".")
+        if section not in d or not isinstance(d[section], dict) or fld not in d[section]:
+            raise SystemExit(f"config spec {spec!r}: unknown option {key!r}")
+        try:
+            d[section][fld] = json.loads(value)
+        except json.JSONDecodeError:
+            d[section][fld] = value
+    cfg = config_from_dict(d)
+    cfg.name = spec
+    return cfg

@@ -2,6 +2,8 @@
 
     python -m benchmarks.time_to_quality [--quick] [--size davis] [--modes ideal,realistic]
                                          [--presets ebad,bad,3dgs] [--seconds 300] [--marks 8]
+                                         [--baseline CHECKOUT [--baseline-steps 1500]]
+                                         [--baseline-file FILE]
 
 For each sensor mode (``ideal``: linear sensor, exact poses, held; ``realistic``: the realistic
 sensor with SfM-like noisy given poses, optimised) and preset, one run with a wall-time budget;
@@ -12,17 +14,62 @@ images where the capture's poses are not exact; deblurred frames against the tru
 table, writes JSON and a plot (PSNR against seconds and against steps). Also records the start-up
 (prepare) time, the mean step time, the Gaussian count and the process's peak resident memory. Timings are noisy on a shared machine: compare within one
 run.
+
+``--baseline CHECKOUT`` also trains the ``ebad`` preset of another checkout of the project (the
+code before the speed work, e.g. a ``git worktree`` at an older commit) for ``--baseline-steps``
+steps on the same capture, in a subprocess whose ``PYTHONPATH`` is that checkout, its
+snapshots taken every ``--baseline-steps / marks`` steps; each snapshot's Gaussians are scored
+here by the same protocol as the current code's (test poses refined where the capture's poses
+are not exact). Its wall and CPU seconds are recorded with the machine's load. The baseline
+results are written to ``NAME_baseline.pt``; ``--baseline-file`` reuses such a file instead of
+training again (its rows then come from another run of the benchmark, which the table says).
 """
 from __future__ import annotations
 
 import argparse
 import copy
+import os
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
-from ._common import RESULTS, seed_all, write_json
+from ._common import RESULTS, config_spec, seed_all, write_json
+
+OLD_DRIVER = r"""
+import os, sys, time, resource
+import torch
+import scenes, ebad.trainer as T
+from ebad.config import preset
+
+capture_dir, out, steps, every = sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4])
+holder = {}
+_init = T.init_gaussians
+def init_gaussians(*a, **k):
+    holder["params"] = _init(*a, **k)
+    return holder["params"]
+T.init_gaussians = init_gaussians
+snaps, t0, c0 = [], None, None
+def on_step(step, stats):
+    if step % every == 0 or step == steps:
+        snaps.append({"step": step, "seconds": stats["time"], "cpu_seconds": time.process_time() - c0,
+                      "gaussians": stats["n"], "load1": os.getloadavg()[0],
+                      "params": {k: v.detach().clone() for k, v in holder["params"].items()}})
+cfg = preset("ebad")
+cfg.train.iters, cfg.train.progress, cfg.train.eval_every = steps, False, 0
+capture = scenes.load(capture_dir)
+c0 = time.process_time()
+t0 = time.perf_counter()
+run = T.reconstruct(capture, cfg, on_step=on_step)
+wall = time.perf_counter() - t0
+m = run.metrics
+torch.save({"snaps": snaps, "wall_seconds": wall, "steps": m["steps"], "stop_reason": m["stop_reason"],
+            "train_seconds": m["train_seconds"], "prepare_seconds": m["prepare_seconds"],
+            "own_test_psnr": (m.get("test") or {}).get("psnr"),
+            "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}, out)
+"""
+
 
 MODES = {"ideal": {"sensor": "ideal", "poses": "exact"}, "realistic": {"sensor": "realistic", "poses": "noisy"}}
 
@@ -33,6 +80,7 @@ class Snapshots:
     def __init__(self, marks: list[float]):
         self.marks = list(marks)
         self.taken: list[dict] = []
+        self.cpu0 = time.process_time()  # CPU seconds are counted from here (prepare included)
 
     def on_step(self, state, stats) -> None:
         if self.marks and state.elapsed >= self.marks[0]:
@@ -41,6 +89,7 @@ class Snapshots:
 
     def take(self, state) -> None:
         self.taken.append({"seconds": state.elapsed, "step": state.step,
+                           "cpu_seconds": time.process_time() - self.cpu0, "load1": os.getloadavg()[0],
                            "params": {k: v.detach().clone() for k, v in state.params.items()},
                            "trajectories": copy.deepcopy(state.trajectories),
                            "response": copy.deepcopy(state.response), "gaussians": state.num_gaussians})
@@ -51,11 +100,10 @@ class Snapshots:
 
 
 def run_one(scene, name: str, seconds: float, marks: int, exact: bool, refine_iters: int) -> dict:
-    from ebad.config import preset
     from ebad.evaluate import evaluate
     from ebad.trainer import reconstruct
 
-    cfg = preset(name)
+    cfg = config_spec(name)
     cfg.train.iters = 1_000_000
     cfg.train.max_seconds = seconds
     cfg.train.progress = False
@@ -71,6 +119,7 @@ def run_one(scene, name: str, seconds: float, marks: int, exact: bool, refine_it
         ev = evaluate(r, scene.capture, refine=not exact, gt_frames=scene.gt_frames, refine_iters=refine_iters)
         test = ev["test" if exact else "test_refined"]
         points.append({"seconds": snap["seconds"], "step": snap["step"], "gaussians": snap["gaussians"],
+                       "cpu_seconds": snap["cpu_seconds"], "load1": snap["load1"],
                        "test_psnr": test.psnr, "test_ssim": test.ssim, "deblur_psnr": ev["deblurred"].psnr})
     m = run.metrics
     import resource
@@ -78,6 +127,53 @@ def run_one(scene, name: str, seconds: float, marks: int, exact: bool, refine_it
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # Linux: kB; the process's peak so far
     return {"preset": name, "peak_rss_mb_so_far": peak_mb, "gaussians": m.gaussians, "steps": m.steps, "train_seconds": m.train_seconds, "prepare_seconds": m.prepare_seconds,
             "wall_seconds": wall, "step_ms": 1000 * m.train_seconds / max(m.steps, 1), "points": points,
+            "cpu_seconds": points[-1]["cpu_seconds"], "final_psnr": points[-1]["test_psnr"],
+            "poses_refined": not exact}, run
+
+
+def run_baseline(scene, checkout: str, steps: int, marks: int) -> dict:
+    """Train the ``ebad`` preset of ``checkout`` on ``scene.capture`` in a subprocess; its snapshots."""
+    import subprocess
+    import tempfile
+
+    import scenes
+    import torch
+
+    with tempfile.TemporaryDirectory() as tmp:
+        scenes.save(scene.capture, f"{tmp}/capture")
+        (driver := Path(tmp) / "driver.py").write_text(OLD_DRIVER)
+        env = dict(os.environ, PYTHONPATH=str(Path(checkout).resolve()), OMP_WAIT_POLICY="PASSIVE")
+        commit = subprocess.run(["git", "-C", checkout, "rev-parse", "--short", "HEAD"], capture_output=True,
+                                text=True).stdout.strip()
+        subprocess.run([sys.executable, str(driver), f"{tmp}/capture", f"{tmp}/out.pt", str(steps),
+                        str(max(steps // marks, 1))], check=True, env=env, cwd=tmp)
+        out = torch.load(f"{tmp}/out.pt", weights_only=False)
+    out["checkout"], out["commit"] = str(checkout), commit
+    return out
+
+
+def score_baseline(run, base: dict, scene, exact: bool, refine_iters: int) -> dict:
+    """Score the baseline's snapshots with this code's protocol, on this run's test poses.
+
+    Only the Gaussians are taken from the baseline: the baseline held the capture's poses, so its
+    test views are rendered at the capture's test poses (refined when they are not exact), like
+    this code's runs. Its deblurred frames are not scored (they need its trajectories)."""
+    from ebad.evaluate import evaluate
+    from ebad.response import Response
+
+    points = []
+    for snap in base["snaps"]:
+        r = copy.copy(run)
+        r.params, r.response = snap.pop("params"), Response()
+        ev = evaluate(r, scene.capture, refine=not exact, refine_iters=refine_iters)
+        test = ev["test" if exact else "test_refined"]
+        points.append({**snap, "test_psnr": test.psnr, "test_ssim": test.ssim})
+    return {"preset": f"ebad@{base['commit']}", "baseline": True, "checkout": base["checkout"], "commit": base["commit"],
+            "steps": base["steps"], "stop_reason": base["stop_reason"], "train_seconds": base["train_seconds"],
+            "prepare_seconds": base["prepare_seconds"], "wall_seconds": base["wall_seconds"],
+            "cpu_seconds": points[-1]["cpu_seconds"] if points else None,
+            "step_ms": 1000 * base["train_seconds"] / max(base["steps"], 1), "gaussians": points[-1]["gaussians"],
+            "peak_rss_mb": base["peak_rss_mb"], "own_test_psnr": base["own_test_psnr"], "points": points,
             "final_psnr": points[-1]["test_psnr"], "poses_refined": not exact}
 
 
@@ -110,29 +206,64 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="tiny scene, 20 s per run")
     ap.add_argument("--size", default=None, help="scene size (default davis; quick tiny)")
     ap.add_argument("--modes", default="ideal,realistic")
-    ap.add_argument("--presets", default="ebad,bad,3dgs")
+    ap.add_argument("--presets", default="ebad,bad,3dgs",
+                    help="presets, each with optional overrides: ebad+train.coarse_scale=1 (benchmarks._common.config_spec)")
     ap.add_argument("--seconds", type=float, default=None, help="training budget per run (default 300; quick 20)")
     ap.add_argument("--marks", type=int, default=8, help="snapshots per run")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--refine-iters", type=int, default=200)
     ap.add_argument("--name", default="time_to_quality", help="results file benchmarks/results/NAME.json (+ .png)")
+    ap.add_argument("--baseline", default=None, help="another checkout of the project whose ebad preset to train too")
+    ap.add_argument("--baseline-steps", type=int, default=1500)
+    ap.add_argument("--baseline-only", action="store_true", help="train the baseline, save NAME_baseline.pt, stop")
+    ap.add_argument("--baseline-file", default=None, help="reuse the baseline of an earlier run (NAME_baseline.pt)")
     args = ap.parse_args(argv)
     import scenes
 
     size = args.size or ("tiny" if args.quick else "davis")
     seconds = args.seconds if args.seconds is not None else (20.0 if args.quick else 300.0)
     seed_all(args.seed)
+    presets = [p for p in args.presets.split(",") if p]
+    if (args.baseline or args.baseline_file) and not any(p.split("+")[0] == "ebad" for p in presets):
+        ap.error("--baseline needs the ebad preset in --presets (its run supplies the evaluation)")
+    baselines = {}
+    if args.baseline_file:
+        import torch
+
+        baselines = torch.load(args.baseline_file, weights_only=False)
     results: dict[str, list[dict]] = {}
     for mode in [m for m in args.modes.split(",") if m]:
         scene = scenes.make_scene("boxes", size, seed=args.seed, **MODES[mode])
+        exact = MODES[mode]["poses"] == "exact"
         results[mode] = []
-        for name in [p for p in args.presets.split(",") if p]:
-            r = run_one(scene, name, seconds, args.marks, MODES[mode]["poses"] == "exact", args.refine_iters)
+        if args.baseline:
+            t0 = time.perf_counter()
+            baselines[mode] = run_baseline(scene, args.baseline, args.baseline_steps, args.marks)
+            import torch
+
+            torch.save(baselines, RESULTS / f"{args.name}_baseline.pt")
+            print(f"{mode:9s} baseline {baselines[mode]['commit']}: {baselines[mode]['steps']} steps in "
+                  f"{time.perf_counter() - t0:.0f} s", flush=True)
+        if args.baseline_only:
+            continue
+        for name in presets:
+            r, run = run_one(scene, name, seconds, args.marks, exact, args.refine_iters)
+            if name.split("+")[0] == "ebad" and mode in baselines and not any(x.get("baseline") for x in results[mode]):
+                b = score_baseline(run, copy.deepcopy(baselines[mode]), scene, exact, args.refine_iters)
+                b["from_earlier_run"] = not args.baseline
+                results[mode].append(b)
+                pts = "  ".join(f"{p['seconds']:.0f}s/{p['step']}:{p['test_psnr']:.2f}" for p in b["points"])
+                print(f"{mode:9s} {b['preset']}: {b['step_ms']:.0f} ms/step, {b['steps']} steps, "
+                      f"{b['train_seconds']:.0f} s ({b['cpu_seconds']:.0f} CPU s) -> {b['final_psnr']:.2f} dB   [{pts}]",
+                      flush=True)
             results[mode].append(r)
             pts = "  ".join(f"{p['seconds']:.0f}s/{p['step']}:{p['test_psnr']:.2f}" for p in r["points"])
             print(f"{mode:9s} {name:5s} prepare {r['prepare_seconds']:.1f} s, {r['step_ms']:.0f} ms/step, "
                   f"{r['steps']} steps, {r['gaussians']} Gaussians, peak RSS so far {r['peak_rss_mb_so_far']:.0f} MB "
                   f"-> {r['final_psnr']:.2f} dB   [{pts}]", flush=True)
+    if args.baseline_only:
+        print(f"wrote {RESULTS / (args.name + '_baseline.pt')}")
+        return 0
     path = write_json(args.name, {"size": size, "seconds": seconds, "seed": args.seed, "modes": MODES,
                                   "results": results, "argv": sys.argv[1:]})
     plot(results, RESULTS / f"{args.name}.png")

@@ -177,6 +177,8 @@ class TrainConfig:
     lr_opacities: float = 5e-2  # Adam lr of opacity logits
     lr_colors: float = 1e-2  # Adam lr of colours (SH DC coefficients)
     pose_warmup: int = 0  # steps before the trajectories start moving
+    coarse_scale: int = 2  # the first ``coarse_until`` of the run trains at 1/coarse_scale of the resolution (ebad.data.downscale); 1: never
+    coarse_until: float = 0.3  # fraction of the run (steps over iters, or time over max_seconds when further) at the coarse resolution
     eval_every: int = 100  # steps between test-view PSNR evaluations (when test images exist; 0: never)
     checkpoint_every: int = 200  # steps between checkpoints of a run folder (0: only at the end)
     seed: int = 0  # torch / numpy seed of the run
@@ -194,6 +196,8 @@ class TrainConfig:
             _require(getattr(self, name) >= 0, f"train.{name}", f"must be >= 0, got {getattr(self, name)}")
         _require(0 < self.lr_means_final <= 1, "train.lr_means_final", f"must be in (0, 1], got {self.lr_means_final}")
         _require(self.pose_warmup >= 0, "train.pose_warmup", f"must be >= 0, got {self.pose_warmup}")
+        _require(self.coarse_scale >= 1, "train.coarse_scale", f"must be >= 1 (1: no coarse phase), got {self.coarse_scale}")
+        _require(0 <= self.coarse_until <= 1, "train.coarse_until", f"must be in [0, 1], got {self.coarse_until}")
         _require(self.eval_every >= 0, "train.eval_every", f"must be >= 0 (0: never), got {self.eval_every}")
         _require(self.checkpoint_every >= 0, "train.checkpoint_every",
                  f"must be >= 0 (0: only at the end), got {self.checkpoint_every}")

@@ -7,6 +7,7 @@ What it decided is the typed ``PrepareReport`` (written to ``metrics.json``).
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -18,7 +19,7 @@ from .errors import UserError
 from .gaussians import scene_scale
 from .virtual_views import choose_num_views, event_counts, events_per_pixel
 
-__all__ = ["TrainingData", "PrepareReport", "prepare", "focus_depth", "depth_range", "align_poses", "test_poses",
+__all__ = ["TrainingData", "PrepareReport", "prepare", "downscale", "focus_depth", "depth_range", "align_poses", "test_poses",
            "FOCUS_DEPTH_RANGE", "SPREAD_DEPTH_RANGE"]
 
 # Intrinsics outside this horizontal/vertical field of view (degrees) are taken for a mistake
@@ -83,6 +84,34 @@ class TrainingData:
     @property
     def num_frames(self) -> int:
         return int(self.frames.shape[0])
+
+
+def _pool(x: Tensor, factor: int) -> Tensor:  # [..., H, W] -> [..., H // factor, W // factor]
+    lead = x.shape[:-2]
+    y = torch.nn.functional.avg_pool2d(x.reshape(-1, 1, *x.shape[-2:]), factor)
+    return y.reshape(*lead, *y.shape[-2:])
+
+
+def _pool_hwd(x: Tensor, factor: int) -> Tensor:  # [F, H, W, D] -> [F, H // factor, W // factor, D]
+    return _pool(x.permute(0, 3, 1, 2), factor).permute(0, 2, 3, 1).contiguous()
+
+
+def downscale(data: TrainingData, factor: int) -> TrainingData:
+    """The same training problem at 1/``factor`` of the resolution (the coarse phase of
+    ``train.coarse_scale``): frames, targets and latents area-averaged over ``factor`` x
+    ``factor`` blocks (the top-left H // factor x W // factor of them), event counts as the mean
+    count per pixel of a block, intrinsics scaled (pixel centres at +0.5, so u' = u / factor).
+    Poses, V, c and the test views are shared with ``data`` (test views are scored at full size)."""
+    if factor == 1:
+        return data
+    if factor < 1 or data.height < 8 * factor or data.width < 8 * factor:
+        raise ValueError(f"cannot downscale {data.width} x {data.height} frames by {factor}")
+    K = data.K.clone()
+    K[:2] /= factor
+    return dataclasses.replace(
+        data, frames=_pool_hwd(data.frames, factor), targets=_pool_hwd(data.targets, factor),
+        latents=None if data.latents is None else _pool_hwd(data.latents, factor), K=K,
+        ev_counts=[None if e is None else _pool(e, factor) for e in data.ev_counts])
 
 
 def _train_indices(capture) -> list[int]:

@@ -55,6 +55,7 @@ class StepStats:
     edi: float | None = None  # L_EDI, when on
     c: list[float] | None = None  # (c_pos, c_neg), when learnt
     test_psnr: float | None = None  # mean test-view PSNR, on evaluation steps
+    width: int | None = None  # width of the frames the step trained on (smaller in the coarse phase)
     refine: RefineReport = field(default_factory=RefineReport)  # what densification did
 
     def to_dict(self) -> dict[str, Any]:

@@ -13,6 +13,7 @@ import dataclasses
 import signal
 import threading
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Protocol, Sequence
@@ -22,7 +23,7 @@ import torch
 from torch import Tensor
 
 from .config import Config, preset
-from .data import PrepareReport, TrainingData, prepare
+from .data import PrepareReport, TrainingData, downscale, prepare
 from .errors import ConfigError
 from .gaussians import num_gaussians, render
 from .losses import blur_loss, edi_loss, event_loss
@@ -33,7 +34,7 @@ from .strategy import RenderInfo, Strategy, make_strategy
 from .trajectory import ExposureTrajectories, virtual_instants
 
 __all__ = ["Run", "RunMetrics", "ViewScores", "with_poses", "frame_losses", "train_step", "train", "should_stop",
-           "reconstruct", "evaluate_views", "render_images", "Callback", "Evaluator", "ProgressBar",
+           "reconstruct", "evaluate_views", "coarse_data", "render_images", "Callback", "Evaluator", "ProgressBar",
            "Checkpointer", "StepHook"]
 
 
@@ -113,7 +114,7 @@ def train_step(data: TrainingData, state: TrainState, strategy: Strategy, f: int
         train_psnr=psnr(out.mean_render, data.targets[f]), gaussians=num_gaussians(state.params), time=elapsed,
         ev=None if out.ev is None else float(out.ev.detach()), edi=None if out.edi is None else float(out.edi.detach()),
         c=None if state.log_c is None or not state.log_c.requires_grad else torch.exp(state.log_c.detach()).tolist(),
-        refine=refine,
+        refine=refine, width=data.width,
     )
 
 
@@ -302,17 +303,45 @@ class _Interrupts:
         return False
 
 
+@contextmanager
+def _torch_threads_that_sleep():
+    """torch single-threaded for the duration when its OpenMP threads would spin between
+    parallel regions (``ebad.OMP_PASSIVE`` is False: torch was imported before ebad without
+    ``OMP_WAIT_POLICY=PASSIVE``); see the ``ebad`` package docstring for the measurement."""
+    from . import OMP_PASSIVE
+
+    n = torch.get_num_threads()
+    if not OMP_PASSIVE:
+        torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(n)
+
+
+def coarse_data(data: TrainingData, cfg: Config) -> TrainingData | None:
+    """The coarse phase's problem (``train.coarse_scale``), or None when there is none: no coarse
+    phase configured, or frames too small to halve (fewer than 8 pixels a side after it)."""
+    s = cfg.train.coarse_scale
+    if s <= 1 or cfg.train.coarse_until <= 0 or min(data.height, data.width) < 8 * s:
+        return None
+    return downscale(data, s)
+
+
 def train(data: TrainingData, state: TrainState, strategy: Strategy, cfg: Config,
           callbacks: Sequence[Callback] = ()) -> str:
     """Steps until ``train.iters``, a stop rule or a signal; returns why it stopped:
     'iters', 'time', 'plateau' or 'interrupted (SIGINT)' / 'interrupted (SIGTERM)'."""
     started = time.perf_counter() - state.elapsed
     reason = "iters"
-    with _Interrupts() as interrupts:
+    coarse = coarse_data(data, cfg)
+    with _Interrupts() as interrupts, _torch_threads_that_sleep():
         try:
             while state.step < cfg.train.iters:
                 f = state.next_frame()
-                stats = train_step(data, state, strategy, f, cfg, time.perf_counter() - started)
+                elapsed = time.perf_counter() - started
+                level = coarse if coarse is not None and _budget_fraction(state, cfg, elapsed) < cfg.train.coarse_until else data
+                stats = train_step(level, state, strategy, f, cfg, elapsed)
                 state.elapsed = stats.time = time.perf_counter() - started
                 state.history.append(stats)
                 for cb in callbacks:

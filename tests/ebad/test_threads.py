@@ -1,0 +1,36 @@
+"""torch's OpenMP threads and the rasteriser's: ``ebad.OMP_PASSIVE`` and the trainer's fallback."""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+PROBE = """
+import sys, {first}, {second}
+import ebad, torch
+import scenes
+from ebad.config import preset
+from ebad.trainer import StepHook, reconstruct
+seen = []
+cfg = preset("3dgs"); cfg.train.iters, cfg.train.progress, cfg.train.eval_every = 2, False, 0
+torch.set_num_threads(2)
+reconstruct(scenes.make_scene("boxes", "tiny", n_frames=3, n_test=1).capture, cfg,
+            callbacks=[StepHook(lambda step, stats: seen.append(torch.get_num_threads()))])
+print(ebad.OMP_PASSIVE, os.environ.get("OMP_WAIT_POLICY"), seen, torch.get_num_threads())
+"""
+
+
+def _probe(first: str, second: str) -> str:
+    env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
+    out = subprocess.run([sys.executable, "-c", "import os\n" + PROBE.format(first=first, second=second)],
+                         env=env, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    return out.stdout.strip().splitlines()[-1]
+
+
+def test_importing_ebad_first_makes_torch_threads_sleep_and_training_keeps_them():
+    assert _probe("ebad", "torch") == "True PASSIVE [2, 2] 2"
+
+
+def test_torch_imported_first_without_the_policy_trains_single_threaded_and_restores():
+    assert _probe("torch", "ebad") == "False None [1, 1] 2"
