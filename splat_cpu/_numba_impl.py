@@ -118,14 +118,14 @@ class _Composite(torch.autograd.Function):
         d = colors.shape[1]
         arrs = (_np(means2d), _np(conics), _np(opacities), _np(colors), _np(background))
         img = np.empty((c_n, p.height, p.width, d), dtype=arrs[0].dtype)
-        t_final = np.empty((c_n, p.height, p.width), dtype=np.float64)
-        last = np.empty((c_n, p.height, p.width), dtype=np.int64)
+        t_final = np.empty((c_n, p.height, p.width), dtype=arrs[0].dtype)
+        last = np.empty((c_n, p.height, p.width), dtype=np.int32)
         with numba.parallel_chunksize(_CHUNK):
             K.forward_tiles(*arrs, p.rows, p.tile_start, p.gid, p.width, p.height, p.tiles_x, p.tiles_y,
                             img, t_final, last)
         ctx.plan, ctx.arrs, ctx.t_final, ctx.last = plan, arrs, t_final, last
         ctx.dtype = means2d.dtype
-        alphas = torch.from_numpy((1.0 - t_final)[..., None].astype(arrs[0].dtype))
+        alphas = torch.from_numpy((1.0 - t_final)[..., None])
         return torch.from_numpy(img), alphas
 
     @staticmethod
@@ -138,16 +138,17 @@ class _Composite(torch.autograd.Function):
         v_al_np = (_np(v_alphas[..., 0]) if v_alphas is not None
                    else np.zeros((c_n, p.height, p.width), dtype=means2d.dtype))
         n_isect = p.gid.shape[0]
-        geo = np.zeros((n_isect, 6), dtype=np.float64)
-        col = np.zeros((n_isect, d), dtype=np.float64)
+        geo = np.empty((n_isect, 6), dtype=np.float64)  # every row written by backward_tiles
+        col = np.empty((n_isect, d), dtype=np.float64)
         with numba.parallel_chunksize(_CHUNK):
             K.backward_tiles(*arrs, p.rows, p.tile_start, p.gid, p.width, p.height, p.tiles_x, p.tiles_y,
                              ctx.t_final, ctx.last, v_img_np, v_al_np, geo, col)
         v_m = np.zeros((c_n, n, 2))
         v_c = np.zeros((c_n, n, 3))
-        v_o = np.zeros(n)
-        v_col = np.zeros((n, d))
+        v_o = np.zeros((c_n, n))
+        v_col = np.zeros((c_n, n, d))
         K.reduce_grads(p.tile_start, p.gid, p.tiles_x * p.tiles_y, geo, col, v_m, v_c, v_o, v_col)
+        v_o, v_col = v_o.sum(axis=0), v_col.sum(axis=0)
         # background: image += T_final * bg
         v_bg = np.einsum("chw,chwd->d", ctx.t_final, v_img_np)
         dt = ctx.dtype

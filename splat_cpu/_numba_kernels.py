@@ -20,7 +20,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, prange
+from llvmlite import ir
+from numba import njit, prange, types
+from numba.extending import intrinsic, overload
+from numpy.polynomial import Chebyshev, Polynomial
 
 from .constants import ALPHA_MAX, ALPHA_MIN, T_MIN, TILE
 
@@ -35,28 +38,63 @@ _LANE_MASK = 15
 assert TILE == 1 << _TILE_SHIFT == _LANE_MASK + 1
 
 
-@njit(cache=True, inline="always", fastmath=_FASTMATH, error_model="numpy")
-def _exp_neg(s):
-    """exp(-s) for s in [0, _SIGMA_CLAMP] as (exp(-s / 16))^16, Taylor to degree 10 on [-0.35, 0]; vectorisable.
+_LN2 = math.log(2.0)
+_LN2_HI = 0.693145751953125  # ln 2 in few bits (n * _LN2_HI is exact) + the rest: Cody-Waite reduction
+_LN2_LO = _LN2 - _LN2_HI
+# exp(-r) on |r| <= ln2 / 2 by its Chebyshev interpolant in the power basis, lowest degree first; the
+# degree per float width is the lowest reaching the width's rounding (tested in tests/splat_cpu/test_kernels.py)
+_EXP_DEGREE = {32: 6, 64: 12}
+_EXP_COEFS = {bits: tuple(Chebyshev.interpolate(lambda r: np.exp(-r), deg, domain=[-_LN2 / 2, _LN2 / 2])
+                          .convert(kind=Polynomial).coef.tolist()) for bits, deg in _EXP_DEGREE.items()}
+_FLOAT_BITS = {32: (23, 127), 64: (52, 1023)}  # mantissa bits and exponent bias of IEEE floats
 
-    Relative error < 1e-11 (the Taylor remainder 0.35^11 / 11! = 2.4e-13, times 16 by the squarings).
+
+@intrinsic
+def _float_from_bits(typingctx, bits, like):
+    """The float of `like`'s type whose IEEE bit pattern is the integer `bits` (LLVM bitcast, vectorisable)."""
+    if not isinstance(bits, types.Integer) or not isinstance(like, types.Float):
+        return None
+    int_ty = ir.IntType(like.bitwidth)
+    float_ty = ir.FloatType() if like.bitwidth == 32 else ir.DoubleType()
+
+    def codegen(context, builder, signature, args):
+        value = args[0]
+        if bits.bitwidth > like.bitwidth:
+            value = builder.trunc(value, int_ty)
+        elif bits.bitwidth < like.bitwidth:
+            value = builder.sext(value, int_ty)
+        return builder.bitcast(value, float_ty)
+
+    return like(bits, like), codegen
+
+
+def exp_neg(s):
+    """exp(-s) for s in [0, _SIGMA_CLAMP], in the float type of s (float32 or float64); numba only."""
+    raise NotImplementedError("exp_neg is compiled inside numba kernels only")
+
+
+@overload(exp_neg, inline="always")
+def _exp_neg_impl(s):
+    """exp(-s) = 2^-n exp(-r), n = round(s / ln 2), |r| <= ln2 / 2: a polynomial and an exponent, no branch.
+
+    Relative error about 2 roundings of the type (measured by tests/splat_cpu/test_kernels.py).
     """
-    x = -0.0625 * s
-    p = 1.0 / 3628800.0
-    p = p * x + 1.0 / 362880.0
-    p = p * x + 1.0 / 40320.0
-    p = p * x + 1.0 / 5040.0
-    p = p * x + 1.0 / 720.0
-    p = p * x + 1.0 / 120.0
-    p = p * x + 1.0 / 24.0
-    p = p * x + 1.0 / 6.0
-    p = p * x + 0.5
-    p = p * x + 1.0
-    p = p * x + 1.0
-    p = p * p
-    p = p * p
-    p = p * p
-    return p * p
+    if not isinstance(s, types.Float):
+        return None
+    f = np.float32 if s.bitwidth == 32 else np.float64
+    coefs = tuple(f(c) for c in _EXP_COEFS[s.bitwidth][::-1])  # highest degree first, for Horner
+    mant, bias = _FLOAT_BITS[s.bitwidth]
+    log2e, ln2_hi, ln2_lo, half = f(1.0 / _LN2), f(_LN2_HI), f(_LN2_LO), f(0.5)
+
+    def impl(s):
+        n = np.floor(s * log2e + half)
+        r = (s - n * ln2_hi) - n * ln2_lo
+        p = coefs[0]
+        for c in coefs[1:]:
+            p = p * r + c
+        return p * _float_from_bits((bias - np.int64(n)) << mant, s)
+
+    return impl
 
 
 @njit(cache=True, inline="always")
@@ -193,6 +231,12 @@ def _tile_origin(t, tiles_x, n_tiles, width, height):  # -> cam, px0, py0, pw, p
     return cam, px0, py0, min(TILE, width - px0), min(TILE, height - py0)
 
 
+@njit(cache=True)
+def _pixel_offsets(fdt):  # -> x [TILE * TILE], y [TILE * TILE]: pixel i's column and row in its tile, as floats
+    i = np.arange(TILE * TILE)
+    return (i & _LANE_MASK).astype(fdt), (i >> _TILE_SHIFT).astype(fdt)
+
+
 @njit(cache=True, parallel=True, fastmath=_FASTMATH, error_model="numpy")
 def forward_tiles(
     means2d,  # [C, N, 2]
@@ -209,60 +253,69 @@ def forward_tiles(
     tiles_y,
     out_img,  # [C, H, W, D] written
     out_t,  # [C, H, W] written: final transmittance
-    out_last,  # [C, H, W] int64 written: list position of the last contributing Gaussian, start - 1 if none
+    out_last,  # [C, H, W] int32 written: position in the tile's list of the last contributing Gaussian, -1 if none
 ):
+    """Composite every tile front to back, in the float type of the inputs (all of one dtype)."""
     n_tiles = tiles_x * tiles_y
     n_all = tile_start.shape[0] - 1
     d = colors.shape[1]
     npx = TILE * TILE
+    fdt = means2d.dtype
+    f = fdt.type
+    zero, one, half = f(0.0), f(1.0), f(0.5)
+    a_max, a_min, t_min, s_clamp = f(ALPHA_MAX), f(ALPHA_MIN), f(T_MIN), f(_SIGMA_CLAMP)
+    pix_x, pix_y = _pixel_offsets(fdt)
     for t in prange(n_all):
         cam, px0, py0, pw, ph = _tile_origin(t, tiles_x, n_tiles, width, height)
         start, end = tile_start[t], tile_start[t + 1]
         # flat per-tile state, pixel i = ly * TILE + lx: one long vectorisable loop per Gaussian
         # T per pixel, negated once the pixel is spent (and -1 outside the image): no separate mask
-        trans = np.full(npx, -1.0)
+        trans = np.full(npx, -one)
         for ly in range(ph):
             for lx in range(pw):
-                trans[ly * TILE + lx] = 1.0
-        acc = np.zeros(d * npx)
-        last = np.full(npx, start - 1, dtype=np.int64)
+                trans[ly * TILE + lx] = one
+        acc = np.zeros(d * npx, fdt)
+        last = np.full(npx, -1, np.int32)
         n_active = pw * ph
-        wbuf = np.zeros(npx)
-        fx0, fy0 = px0 + 0.5, py0 + 0.5
+        wbuf = np.zeros(npx, fdt)
         for k in range(start, end):
             if n_active == 0:
                 break
             g = gid[k]
-            mx, my = np.float64(means2d[cam, g, 0]) - fx0, np.float64(means2d[cam, g, 1]) - fy0
-            ca, cb, cc = np.float64(conics[cam, g, 0]), np.float64(conics[cam, g, 1]), np.float64(conics[cam, g, 2])
-            op = np.float64(opacities[g])
-            c0 = np.float64(colors[g, 0])
+            kk = np.int32(k - start)
             i0 = (rows[k, 0] - py0) * TILE
             i1 = (rows[k, 1] - py0 + 1) * TILE
-            my -= i0 >> _TILE_SHIFT
+            # the centre relative to the first pixel of the entry's first row
+            mx = f(means2d[cam, g, 0]) - f(px0) - half
+            my = f(means2d[cam, g, 1]) - f(rows[k, 0]) - half
+            ca, cb, cc = f(conics[cam, g, 0]), f(conics[cam, g, 1]), f(conics[cam, g, 2])
+            ha, hc = half * ca, half * cc
+            op = f(opacities[g])
+            c0 = f(colors[g, 0])
             # slices, so that the loop index starts at 0: numba then knows it is not negative and
             # LLVM vectorises the loop (a range(i0, i1) loop stays scalar)
             tr, ac, la, wb = trans[i0:i1], acc[i0:i1], last[i0:i1], wbuf[i0:i1]
-            nstop = 0.0
+            ox, oy = pix_x[i0:i1], pix_y[:i1 - i0]
+            n_stop = zero
             for j in range(i1 - i0):
-                dx = mx - (j & _LANE_MASK)
-                dy = my - (j >> _TILE_SHIFT)
-                sigma = 0.5 * (ca * dx * dx + cc * dy * dy) + cb * dx * dy
-                alpha = min(ALPHA_MAX, op * _exp_neg(min(max(sigma, 0.0), _SIGMA_CLAMP)))
+                dx = mx - ox[j]
+                dy = my - oy[j]
+                sigma = (ha * dx + cb * dy) * dx + hc * dy * dy  # 0.5 (a dx^2 + c dy^2) + b dx dy
+                alpha = min(a_max, op * exp_neg(min(max(sigma, zero), s_clamp)))
                 tc = tr[j]
-                nt = tc * (1.0 - alpha)
-                ok = (sigma >= 0.0) & (alpha >= ALPHA_MIN) & (tc > 0.0)
-                stop = ok & (nt <= T_MIN)
-                con = ok & (nt > T_MIN)
-                w = alpha * tc if con else 0.0
+                nt = tc * (one - alpha)
+                ok = (sigma >= zero) & (alpha >= a_min) & (tc > zero)
+                stop = ok & (nt <= t_min)
+                con = ok & (nt > t_min)
+                w = alpha * tc if con else zero
                 wb[j] = w
                 ac[j] += w * c0
                 tr[j] = nt if con else (-tc if stop else tc)
-                la[j] = k if con else la[j]
-                nstop += 1.0 if stop else 0.0
-            n_active -= int(nstop)
+                la[j] = kk if con else la[j]
+                n_stop += one if stop else zero
+            n_active -= np.int64(n_stop)
             for ch in range(1, d):
-                cv = np.float64(colors[g, ch])
+                cv = f(colors[g, ch])
                 ach = acc[ch * npx + i0: ch * npx + i1]
                 for j in range(i1 - i0):
                     ach[j] += wb[j] * cv
@@ -270,9 +323,10 @@ def forward_tiles(
             for lx in range(pw):
                 y, x = py0 + ly, px0 + lx
                 i = ly * TILE + lx
+                tf = abs(trans[i])
                 for ch in range(d):
-                    out_img[cam, y, x, ch] = acc[ch * npx + i] + abs(trans[i]) * background[ch]
-                out_t[cam, y, x] = abs(trans[i])
+                    out_img[cam, y, x, ch] = acc[ch * npx + i] + tf * f(background[ch])
+                out_t[cam, y, x] = tf
                 out_last[cam, y, x] = last[i]
 
 
@@ -290,102 +344,114 @@ def backward_tiles(
     height,
     tiles_x,
     tiles_y,
-    t_final,  # [C, H, W]
-    last_idx,  # [C, H, W] int64
+    t_final,  # [C, H, W] from forward_tiles
+    last_idx,  # [C, H, W] int32 from forward_tiles
     v_img,  # [C, H, W, D] cotangent of the images
     v_alpha,  # [C, H, W] cotangent of the alphas
     out_geo,  # [n_isect, 6] written: d/d (mx, my, conic a, b, c, opacity) per list entry
     out_col,  # [n_isect, D] written: d/d colour per list entry
 ):
+    """Walk each tile's list back from its last contributing Gaussian; every entry's row is written."""
     n_tiles = tiles_x * tiles_y
     n_all = tile_start.shape[0] - 1
     d = colors.shape[1]
     npx = TILE * TILE
+    fdt = means2d.dtype
+    f = fdt.type
+    zero, one, half = f(0.0), f(1.0), f(0.5)
+    a_max, a_min, s_clamp = f(ALPHA_MAX), f(ALPHA_MIN), f(_SIGMA_CLAMP)
+    pix_x, pix_y = _pixel_offsets(fdt)
     for t in prange(n_all):
         start, end = tile_start[t], tile_start[t + 1]
         if end == start:
             continue
         cam, px0, py0, pw, ph = _tile_origin(t, tiles_x, n_tiles, width, height)
-        trans = np.ones(npx)
+        trans = np.ones(npx, fdt)
         # rest: sum over later Gaussians of (c . v_C) alpha T, plus T_N (bg . v_C) - T_N v_alpha
-        rest = np.zeros(npx)
-        vc = np.zeros(d * npx)
-        last = np.full(npx, start - 1, dtype=np.int64)  # pixels outside the image never match
-        kmax = start - 1
-        row_kmax = np.full(TILE, start - 1, dtype=np.int64)  # rows whose pixels all stopped before k
+        rest = np.zeros(npx, fdt)
+        vc = np.zeros(d * npx, fdt)
+        last = np.full(npx, -1, np.int32)  # pixels outside the image never match
+        row_kmax = np.full(TILE, -1, np.int64)  # per row, the last list position any of its pixels uses
         for ly in range(ph):
             for lx in range(pw):
                 y, x = py0 + ly, px0 + lx
                 i = ly * TILE + lx
-                tf = np.float64(t_final[cam, y, x])
+                tf = f(t_final[cam, y, x])
                 trans[i] = tf
-                bgdot = 0.0
+                bgdot = zero
                 for ch in range(d):
-                    vc[ch * npx + i] = v_img[cam, y, x, ch]
-                    bgdot += background[ch] * v_img[cam, y, x, ch]
-                rest[i] = tf * bgdot - tf * v_alpha[cam, y, x]
+                    vc[ch * npx + i] = f(v_img[cam, y, x, ch])
+                    bgdot += f(background[ch]) * f(v_img[cam, y, x, ch])
+                rest[i] = tf * bgdot - tf * f(v_alpha[cam, y, x])
                 last[i] = last_idx[cam, y, x]
-                row_kmax[ly] = max(row_kmax[ly], last[i])
-            kmax = max(kmax, row_kmax[ly])
-        wbuf = np.zeros(npx)
-        cdot = np.zeros(npx)
-        fx0, fy0 = px0 + 0.5, py0 + 0.5
-        for k in range(kmax, start - 1, -1):
+                row_kmax[ly] = max(row_kmax[ly], np.int64(last[i]))
+        kmax = row_kmax.max()
+        out_geo[start + kmax + 1: end] = 0.0  # behind every pixel's last contribution
+        out_col[start + kmax + 1: end] = 0.0
+        wbuf = np.zeros(npx, fdt)
+        cdot = np.zeros(npx, fdt)
+        for kk in range(kmax, -1, -1):
+            k = start + kk
             g = gid[k]
             ya = rows[k, 0] - py0
             yb = rows[k, 1] - py0
-            while ya <= yb and row_kmax[ya] < k:  # rows spent before k cost nothing
+            while ya <= yb and row_kmax[ya] < kk:  # rows spent before k cost nothing
                 ya += 1
-            while yb >= ya and row_kmax[yb] < k:
+            while yb >= ya and row_kmax[yb] < kk:
                 yb -= 1
+            out_geo[k] = 0.0
+            out_col[k] = 0.0
             if ya > yb:
                 continue
             i0, i1 = ya * TILE, (yb + 1) * TILE
-            mx = np.float64(means2d[cam, g, 0]) - fx0
-            my = np.float64(means2d[cam, g, 1]) - fy0 - ya
-            ca, cb, cc = np.float64(conics[cam, g, 0]), np.float64(conics[cam, g, 1]), np.float64(conics[cam, g, 2])
-            op = np.float64(opacities[g])
-            c0 = np.float64(colors[g, 0])
+            mx = f(means2d[cam, g, 0]) - f(px0) - half
+            my = f(means2d[cam, g, 1]) - f(py0 + ya) - half
+            ca, cb, cc = f(conics[cam, g, 0]), f(conics[cam, g, 1]), f(conics[cam, g, 2])
+            ha, hc = half * ca, half * cc
+            op = f(opacities[g])
+            c0 = f(colors[g, 0])
+            k32 = np.int32(kk)
             # slices from 0: see forward_tiles
             tr, rs, la, wb, v0, cd = trans[i0:i1], rest[i0:i1], last[i0:i1], wbuf[i0:i1], vc[i0:i1], cdot[i0:i1]
+            ox, oy = pix_x[i0:i1], pix_y[:i1 - i0]
             if d > 1:  # c . v_C per pixel (inline below when d == 1)
                 for j in range(i1 - i0):
                     cd[j] = c0 * v0[j]
                 for ch in range(1, d):
-                    cv = np.float64(colors[g, ch])
+                    cv = f(colors[g, ch])
                     vch = vc[ch * npx + i0: ch * npx + i1]
                     for j in range(i1 - i0):
                         cd[j] += cv * vch[j]
             # sums of v_sigma times dx, dy, dx^2, dx dy, dy^2: d sigma / d (mx, my, a, b, c) are linear in them
-            g_x = 0.0
-            g_y = 0.0
-            g_xx = 0.0
-            g_xy = 0.0
-            g_yy = 0.0
-            g_o = 0.0
-            g_c0 = 0.0
-            n_hit = 0.0
+            g_x = zero
+            g_y = zero
+            g_xx = zero
+            g_xy = zero
+            g_yy = zero
+            g_o = zero
+            g_c0 = zero
+            n_hit = zero
             for j in range(i1 - i0):
-                dx = mx - (j & _LANE_MASK)
-                dy = my - (j >> _TILE_SHIFT)
-                sigma = 0.5 * (ca * dx * dx + cc * dy * dy) + cb * dx * dy
-                vis = _exp_neg(min(max(sigma, 0.0), _SIGMA_CLAMP))
+                dx = mx - ox[j]
+                dy = my - oy[j]
+                sigma = (ha * dx + cb * dy) * dx + hc * dy * dy
+                vis = exp_neg(min(max(sigma, zero), s_clamp))
                 raw = op * vis
-                alpha = min(ALPHA_MAX, raw)
-                ok = (sigma >= 0.0) & (alpha >= ALPHA_MIN) & (k <= la[j])
-                ra = 1.0 / (1.0 - alpha)
+                alpha = min(a_max, raw)
+                ok = (sigma >= zero) & (alpha >= a_min) & (k32 <= la[j])
+                ra = one / (one - alpha)
                 tb = tr[j] * ra  # T before this Gaussian
                 w = alpha * tb
                 cdj = cd[j] if d > 1 else c0 * v0[j]
                 v_al = cdj * tb - rs[j] * ra
                 tr[j] = tb if ok else tr[j]
                 rs[j] = rs[j] + cdj * w if ok else rs[j]
-                wv = w if ok else 0.0
+                wv = w if ok else zero
                 wb[j] = wv
                 g_c0 += wv * v0[j]
-                gate = ok & (raw < ALPHA_MAX)  # the clamp at ALPHA_MAX passes no gradient
-                v_sig = -raw * v_al if gate else 0.0
-                g_o += vis * v_al if gate else 0.0
+                gate = ok & (raw < a_max)  # the clamp at ALPHA_MAX passes no gradient
+                v_sig = -raw * v_al if gate else zero
+                g_o += vis * v_al if gate else zero
                 sx = v_sig * dx
                 sy = v_sig * dy
                 g_xx += sx * dx
@@ -393,24 +459,24 @@ def backward_tiles(
                 g_yy += sy * dy
                 g_x += sx
                 g_y += sy
-                n_hit += 1.0 if ok else 0.0
+                n_hit += one if ok else zero
             out_col[k, 0] = g_c0
             for ch in range(1, d):
                 vch = vc[ch * npx + i0: ch * npx + i1]
-                sc = 0.0
+                sc = zero
                 for j in range(i1 - i0):
                     sc += wb[j] * vch[j]
                 out_col[k, ch] = sc
-            if n_hit > 0.0:
+            if n_hit > zero:
                 out_geo[k, 0] = ca * g_x + cb * g_y
                 out_geo[k, 1] = cb * g_x + cc * g_y
-                out_geo[k, 2] = 0.5 * g_xx
+                out_geo[k, 2] = half * g_xx
                 out_geo[k, 3] = g_xy
-                out_geo[k, 4] = 0.5 * g_yy
+                out_geo[k, 4] = half * g_yy
                 out_geo[k, 5] = g_o
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def reduce_grads(
     tile_start,  # [C * n_tiles + 1] int64
     gid,  # [n_isect] int32
@@ -419,19 +485,19 @@ def reduce_grads(
     col,  # [n_isect, D]
     v_means2d,  # [C, N, 2] accumulated
     v_conics,  # [C, N, 3] accumulated
-    v_opac,  # [N] accumulated
-    v_colors,  # [N, D] accumulated
+    v_opac,  # [C, N] accumulated: per camera, summed over cameras by the caller
+    v_colors,  # [C, N, D] accumulated: per camera, summed over cameras by the caller
 ):
+    """Sum the per-entry gradient rows per Gaussian, one camera per thread."""
     d = col.shape[1]
-    for t in range(tile_start.shape[0] - 1):
-        cam = t // n_tiles
-        for k in range(tile_start[t], tile_start[t + 1]):
+    for cam in prange(v_means2d.shape[0]):
+        for k in range(tile_start[cam * n_tiles], tile_start[(cam + 1) * n_tiles]):
             g = gid[k]
             v_means2d[cam, g, 0] += geo[k, 0]
             v_means2d[cam, g, 1] += geo[k, 1]
             v_conics[cam, g, 0] += geo[k, 2]
             v_conics[cam, g, 1] += geo[k, 3]
             v_conics[cam, g, 2] += geo[k, 4]
-            v_opac[g] += geo[k, 5]
+            v_opac[cam, g] += geo[k, 5]
             for ch in range(d):
-                v_colors[g, ch] += col[k, ch]
+                v_colors[cam, g, ch] += col[k, ch]
