@@ -34,8 +34,10 @@ _CULL_MARGIN = 1e-6  # binning widens each ellipse to sigma <= smax + this (>> e
 _ROW_MARGIN = 1e-3  # and each row range by this many pixels (>> the rounding of the ellipse geometry)
 _ILL_CONDITIONED = 1e-9  # det(conic) below this times a c: the geometry is not trusted, the box's rows are kept
 _TILE_SHIFT = 4  # TILE = 1 << 4; pixel i of a tile's flat buffers sits at row i >> 4, column i & 15
-_LANE_MASK = 15
-assert TILE == 1 << _TILE_SHIFT == _LANE_MASK + 1
+HALF = TILE // 2  # each tile's buffers hold its left HALF columns, then its right ones
+_HALF_PX = HALF * TILE  # pixels of a half tile
+_HALF_SHIFT = 3  # HALF = 1 << 3
+assert HALF == 1 << _HALF_SHIFT
 
 
 _LN2 = math.log(2.0)
@@ -122,17 +124,19 @@ def _band_extent(mx, my, ca, cb, cc, smax, xa, xb):  # -> (ylo, yhi), (inf, -inf
 
 
 @njit(cache=True, inline="always")
-def _tile_rows(means2d, conics, smax, pix_box, c, g, tx, ty, width, height):  # -> (row0, row1), row0 > row1: miss
-    """The image rows of tile (tx, ty) where the Gaussian's alpha >= ALPHA_MIN ellipse may have
-    pixels (a superset: widened by _CULL_MARGIN in sigma and _ROW_MARGIN in pixels), within its box."""
+def _band_rows(means2d, conics, smax, pix_box, c, g, col0, col1, ty, height):  # -> (row0, row1), row0 > row1: miss
+    """The image rows of tile row ty, in the pixel columns col0..col1, where the Gaussian's alpha >= ALPHA_MIN
+    ellipse may have pixels (a superset: widened by _CULL_MARGIN in sigma and _ROW_MARGIN in pixels), within its box."""
     row0 = max(pix_box[c, g, 2], ty * TILE)
     row1 = min(pix_box[c, g, 3], ty * TILE + TILE - 1)
+    if max(col0, pix_box[c, g, 0]) > min(col1, pix_box[c, g, 1]):
+        return row0, row0 - 1  # the box misses these columns
     ca, cb, cc = np.float64(conics[c, g, 0]), np.float64(conics[c, g, 1]), np.float64(conics[c, g, 2])
     det = ca * cc - cb * cb
     if not (ca > 0.0 and cc > 0.0 and det > _ILL_CONDITIONED * ca * cc):
         return row0, row1  # underflowed or needle-thin conic: keep the box's rows
     ylo, yhi = _band_extent(np.float64(means2d[c, g, 0]), np.float64(means2d[c, g, 1]), ca, cb, cc,
-                            smax[g] + _CULL_MARGIN, tx * TILE + 0.5, min(tx * TILE + TILE, width) - 0.5)
+                            smax[g] + _CULL_MARGIN, col0 + 0.5, col1 + 0.5)
     if not ylo <= yhi:
         return row0, row0 - 1
     # row j (pixel centre j + 0.5) is kept when ylo <= j + 0.5 <= yhi, widened by _ROW_MARGIN
@@ -143,17 +147,26 @@ def _tile_rows(means2d, conics, smax, pix_box, c, g, tx, ty, width, height):  # 
 
 @njit(cache=True, parallel=True)
 def _tile_hits(order, n_valid, tile_box, means2d, conics, smax, pix_box, width, height, box_start, out_rows):
-    """out_rows[box_start[c, j] + r] = rows of the r-th tile of the j-th Gaussian's box (camera c) it may touch."""
+    """out_rows[box_start[c, j] + r] = rows of each half of the r-th tile of the j-th Gaussian's box
+    (camera c) it may touch: (row0, row1) of the left HALF columns, then of the right ones."""
     for c in range(order.shape[0]):
         for j in prange(n_valid[c]):
             g = order[c, j]
             r = box_start[c, j]
             for ty in range(tile_box[c, j, 2], tile_box[c, j, 3] + 1):
                 for tx in range(tile_box[c, j, 0], tile_box[c, j, 1] + 1):
-                    row0, row1 = _tile_rows(means2d, conics, smax, pix_box, c, g, tx, ty, width, height)
-                    out_rows[r, 0] = row0
-                    out_rows[r, 1] = row1
+                    for h in range(2):
+                        col0 = tx * TILE + h * HALF
+                        row0, row1 = _band_rows(means2d, conics, smax, pix_box, c, g, col0,
+                                                min(col0 + HALF, width) - 1, ty, height)
+                        out_rows[r, 2 * h] = row0
+                        out_rows[r, 2 * h + 1] = row1
                     r += 1
+
+
+@njit(cache=True, inline="always")
+def _hits(rows, r):  # does candidate/entry r touch any row of either half?
+    return rows[r, 0] <= rows[r, 1] or rows[r, 2] <= rows[r, 3]
 
 
 @njit(cache=True)
@@ -168,12 +181,12 @@ def bin_tiles(
     height,
     tiles_x,
     tiles_y,
-):  # -> tile_start [C * n_tiles + 1] int64, gid [n_isect] int32, rows [n_isect, 2] int64
+):  # -> tile_start [C * n_tiles + 1] int64, gid [n_isect] int32, rows [n_isect, 4] int64
     """Lists of the Gaussians meeting each tile, front to back, with the rows of the tile each
     may touch: the tiles of each pixel box, less those its alpha >= ALPHA_MIN ellipse misses
-    (gsplat's tile culling), and per kept entry the ellipse's row range inside the tile (on the
-    random 20k-Gaussian benchmark scene: 17% fewer entries, 26% fewer rows). The geometry runs
-    in parallel, the counting sort by tile after it."""
+    (gsplat's tile culling), and per kept entry the ellipse's row range inside each half of the
+    tile (its left and right HALF columns). The geometry runs in parallel, the counting sort by
+    tile after it."""
     n_cam, n = order.shape
     n_tiles = tiles_x * tiles_y
     smax = np.log(np.maximum(opacities.astype(np.float64), ALPHA_MIN) / ALPHA_MIN)  # alpha >= ALPHA_MIN iff sigma <= smax
@@ -187,7 +200,7 @@ def bin_tiles(
                 tile_box[c, j, q] = pix_box[c, g, q] >> _TILE_SHIFT  # boxes are inside the image: >= 0
             box_start[c, j] = total
             total += (tile_box[c, j, 1] - tile_box[c, j, 0] + 1) * (tile_box[c, j, 3] - tile_box[c, j, 2] + 1)
-    cand = np.empty((total, 2), dtype=np.int64)
+    cand = np.empty((total, 4), dtype=np.int64)
     _tile_hits(order, n_valid, tile_box, means2d, conics, smax, pix_box, width, height, box_start, cand)
     counts = np.zeros(n_cam * n_tiles + 1, dtype=np.int64)
     for c in range(n_cam):
@@ -196,13 +209,13 @@ def bin_tiles(
             r = box_start[c, j]
             for ty in range(tile_box[c, j, 2], tile_box[c, j, 3] + 1):
                 for tx in range(tile_box[c, j, 0], tile_box[c, j, 1] + 1):
-                    if cand[r, 0] <= cand[r, 1]:
+                    if _hits(cand, r):
                         counts[base + ty * tiles_x + tx + 1] += 1
                     r += 1
     tile_start = np.cumsum(counts)
     fill = tile_start[:-1].copy()
     gid = np.empty(tile_start[-1], dtype=np.int32)
-    rows = np.empty((tile_start[-1], 2), dtype=np.int64)
+    rows = np.empty((tile_start[-1], 4), dtype=np.int64)
     for c in range(n_cam):
         base = c * n_tiles
         for j in range(n_valid[c]):
@@ -210,12 +223,11 @@ def bin_tiles(
             r = box_start[c, j]
             for ty in range(tile_box[c, j, 2], tile_box[c, j, 3] + 1):
                 for tx in range(tile_box[c, j, 0], tile_box[c, j, 1] + 1):
-                    if cand[r, 0] <= cand[r, 1]:
+                    if _hits(cand, r):
                         t = base + ty * tiles_x + tx
                         f = fill[t]
                         gid[f] = g
-                        rows[f, 0] = cand[r, 0]
-                        rows[f, 1] = cand[r, 1]
+                        rows[f] = cand[r]
                         fill[t] = f + 1
                     r += 1
     return tile_start, gid, rows
@@ -231,10 +243,15 @@ def _tile_origin(t, tiles_x, n_tiles, width, height):  # -> cam, px0, py0, pw, p
     return cam, px0, py0, min(TILE, width - px0), min(TILE, height - py0)
 
 
+@njit(cache=True, inline="always")
+def _pixel(lx, ly):  # -> index in a tile's buffers of the pixel at column lx, row ly of the tile
+    return (lx >> _HALF_SHIFT) * _HALF_PX + ly * HALF + (lx & (HALF - 1))
+
+
 @njit(cache=True)
-def _pixel_offsets(fdt):  # -> x [TILE * TILE], y [TILE * TILE]: pixel i's column and row in its tile, as floats
+def _pixel_offsets(fdt):  # -> x [TILE * TILE], y [TILE * TILE]: column and row in the tile of buffer index i
     i = np.arange(TILE * TILE)
-    return (i & _LANE_MASK).astype(fdt), (i >> _TILE_SHIFT).astype(fdt)
+    return ((i // _HALF_PX) * HALF + (i & (HALF - 1))).astype(fdt), ((i >> _HALF_SHIFT) & (TILE - 1)).astype(fdt)
 
 
 @njit(cache=True, parallel=True, fastmath=_FASTMATH, error_model="numpy")
@@ -244,7 +261,7 @@ def forward_tiles(
     opacities,  # [N]
     colors,  # [N, D]
     background,  # [D]
-    rows,  # [n_isect, 2] int64: image rows of the tile each entry may touch (from bin_tiles)
+    rows,  # [n_isect, 4] int64: image rows of each half tile each entry may touch (from bin_tiles)
     tile_start,  # [C * n_tiles + 1] int64
     gid,  # [n_isect] int32
     width,
@@ -268,12 +285,12 @@ def forward_tiles(
     for t in prange(n_all):
         cam, px0, py0, pw, ph = _tile_origin(t, tiles_x, n_tiles, width, height)
         start, end = tile_start[t], tile_start[t + 1]
-        # flat per-tile state, pixel i = ly * TILE + lx: one long vectorisable loop per Gaussian
+        # flat per-tile state (pixel order of `_pixel`): one long vectorisable loop per Gaussian and half tile
         # T per pixel, negated once the pixel is spent (and -1 outside the image): no separate mask
         trans = np.full(npx, -one)
         for ly in range(ph):
             for lx in range(pw):
-                trans[ly * TILE + lx] = one
+                trans[_pixel(lx, ly)] = one
         acc = np.zeros(d * npx, fdt)
         last = np.full(npx, -1, np.int32)
         n_active = pw * ph
@@ -283,46 +300,48 @@ def forward_tiles(
                 break
             g = gid[k]
             kk = np.int32(k - start)
-            i0 = (rows[k, 0] - py0) * TILE
-            i1 = (rows[k, 1] - py0 + 1) * TILE
-            # the centre relative to the first pixel of the entry's first row
-            mx = f(means2d[cam, g, 0]) - f(px0) - half
-            my = f(means2d[cam, g, 1]) - f(rows[k, 0]) - half
+            mx = f(means2d[cam, g, 0]) - f(px0) - half  # the centre relative to the tile's first pixel centre
+            my = f(means2d[cam, g, 1]) - f(py0) - half
             ca, cb, cc = f(conics[cam, g, 0]), f(conics[cam, g, 1]), f(conics[cam, g, 2])
             ha, hc = half * ca, half * cc
             op = f(opacities[g])
             c0 = f(colors[g, 0])
-            # slices, so that the loop index starts at 0: numba then knows it is not negative and
-            # LLVM vectorises the loop (a range(i0, i1) loop stays scalar)
-            tr, ac, la, wb = trans[i0:i1], acc[i0:i1], last[i0:i1], wbuf[i0:i1]
-            ox, oy = pix_x[i0:i1], pix_y[:i1 - i0]
-            n_stop = zero
-            for j in range(i1 - i0):
-                dx = mx - ox[j]
-                dy = my - oy[j]
-                sigma = (ha * dx + cb * dy) * dx + hc * dy * dy  # 0.5 (a dx^2 + c dy^2) + b dx dy
-                alpha = min(a_max, op * exp_neg(min(max(sigma, zero), s_clamp)))
-                tc = tr[j]
-                nt = tc * (one - alpha)
-                ok = (sigma >= zero) & (alpha >= a_min) & (tc > zero)
-                stop = ok & (nt <= t_min)
-                con = ok & (nt > t_min)
-                w = alpha * tc if con else zero
-                wb[j] = w
-                ac[j] += w * c0
-                tr[j] = nt if con else (-tc if stop else tc)
-                la[j] = kk if con else la[j]
-                n_stop += one if stop else zero
-            n_active -= np.int64(n_stop)
-            for ch in range(1, d):
-                cv = f(colors[g, ch])
-                ach = acc[ch * npx + i0: ch * npx + i1]
+            for h in range(2):
+                if rows[k, 2 * h] > rows[k, 2 * h + 1]:
+                    continue
+                i0 = h * _HALF_PX + (rows[k, 2 * h] - py0) * HALF
+                i1 = h * _HALF_PX + (rows[k, 2 * h + 1] - py0 + 1) * HALF
+                # slices, so that the loop index starts at 0: numba then knows it is not negative and
+                # LLVM vectorises the loop (a range(i0, i1) loop stays scalar)
+                tr, ac, la, wb = trans[i0:i1], acc[i0:i1], last[i0:i1], wbuf[i0:i1]
+                ox, oy = pix_x[i0:i1], pix_y[i0:i1]
+                n_stop = zero
                 for j in range(i1 - i0):
-                    ach[j] += wb[j] * cv
+                    dx = mx - ox[j]
+                    dy = my - oy[j]
+                    sigma = (ha * dx + cb * dy) * dx + hc * dy * dy  # 0.5 (a dx^2 + c dy^2) + b dx dy
+                    alpha = min(a_max, op * exp_neg(min(max(sigma, zero), s_clamp)))
+                    tc = tr[j]
+                    nt = tc * (one - alpha)
+                    ok = (sigma >= zero) & (alpha >= a_min) & (tc > zero)
+                    stop = ok & (nt <= t_min)
+                    con = ok & (nt > t_min)
+                    w = alpha * tc if con else zero
+                    wb[j] = w
+                    ac[j] += w * c0
+                    tr[j] = nt if con else (-tc if stop else tc)
+                    la[j] = kk if con else la[j]
+                    n_stop += one if stop else zero
+                n_active -= np.int64(n_stop)
+                for ch in range(1, d):
+                    cv = f(colors[g, ch])
+                    ach = acc[ch * npx + i0: ch * npx + i1]
+                    for j in range(i1 - i0):
+                        ach[j] += wb[j] * cv
         for ly in range(ph):
             for lx in range(pw):
                 y, x = py0 + ly, px0 + lx
-                i = ly * TILE + lx
+                i = _pixel(lx, ly)
                 tf = abs(trans[i])
                 for ch in range(d):
                     out_img[cam, y, x, ch] = acc[ch * npx + i] + tf * f(background[ch])
@@ -337,7 +356,7 @@ def backward_tiles(
     opacities,  # [N]
     colors,  # [N, D]
     background,  # [D]
-    rows,  # [n_isect, 2] int64: image rows of the tile each entry may touch (from bin_tiles)
+    rows,  # [n_isect, 4] int64: image rows of each half tile each entry may touch (from bin_tiles)
     tile_start,  # [C * n_tiles + 1] int64
     gid,  # [n_isect] int32
     width,
@@ -371,11 +390,11 @@ def backward_tiles(
         rest = np.zeros(npx, fdt)
         vc = np.zeros(d * npx, fdt)
         last = np.full(npx, -1, np.int32)  # pixels outside the image never match
-        row_kmax = np.full(TILE, -1, np.int64)  # per row, the last list position any of its pixels uses
+        row_kmax = np.full((2, TILE), -1, np.int64)  # per half row, the last list position any of its pixels uses
         for ly in range(ph):
             for lx in range(pw):
                 y, x = py0 + ly, px0 + lx
-                i = ly * TILE + lx
+                i = _pixel(lx, ly)
                 tf = f(t_final[cam, y, x])
                 trans[i] = tf
                 bgdot = zero
@@ -384,7 +403,8 @@ def backward_tiles(
                     bgdot += f(background[ch]) * f(v_img[cam, y, x, ch])
                 rest[i] = tf * bgdot - tf * f(v_alpha[cam, y, x])
                 last[i] = last_idx[cam, y, x]
-                row_kmax[ly] = max(row_kmax[ly], np.int64(last[i]))
+                h = lx >> _HALF_SHIFT
+                row_kmax[h, ly] = max(row_kmax[h, ly], np.int64(last[i]))
         kmax = row_kmax.max()
         out_geo[start + kmax + 1: end] = 0.0  # behind every pixel's last contribution
         out_col[start + kmax + 1: end] = 0.0
@@ -393,35 +413,13 @@ def backward_tiles(
         for kk in range(kmax, -1, -1):
             k = start + kk
             g = gid[k]
-            ya = rows[k, 0] - py0
-            yb = rows[k, 1] - py0
-            while ya <= yb and row_kmax[ya] < kk:  # rows spent before k cost nothing
-                ya += 1
-            while yb >= ya and row_kmax[yb] < kk:
-                yb -= 1
-            out_geo[k] = 0.0
-            out_col[k] = 0.0
-            if ya > yb:
-                continue
-            i0, i1 = ya * TILE, (yb + 1) * TILE
             mx = f(means2d[cam, g, 0]) - f(px0) - half
-            my = f(means2d[cam, g, 1]) - f(py0 + ya) - half
+            my = f(means2d[cam, g, 1]) - f(py0) - half
             ca, cb, cc = f(conics[cam, g, 0]), f(conics[cam, g, 1]), f(conics[cam, g, 2])
             ha, hc = half * ca, half * cc
             op = f(opacities[g])
             c0 = f(colors[g, 0])
             k32 = np.int32(kk)
-            # slices from 0: see forward_tiles
-            tr, rs, la, wb, v0, cd = trans[i0:i1], rest[i0:i1], last[i0:i1], wbuf[i0:i1], vc[i0:i1], cdot[i0:i1]
-            ox, oy = pix_x[i0:i1], pix_y[:i1 - i0]
-            if d > 1:  # c . v_C per pixel (inline below when d == 1)
-                for j in range(i1 - i0):
-                    cd[j] = c0 * v0[j]
-                for ch in range(1, d):
-                    cv = f(colors[g, ch])
-                    vch = vc[ch * npx + i0: ch * npx + i1]
-                    for j in range(i1 - i0):
-                        cd[j] += cv * vch[j]
             # sums of v_sigma times dx, dy, dx^2, dx dy, dy^2: d sigma / d (mx, my, a, b, c) are linear in them
             g_x = zero
             g_y = zero
@@ -431,42 +429,65 @@ def backward_tiles(
             g_o = zero
             g_c0 = zero
             n_hit = zero
-            for j in range(i1 - i0):
-                dx = mx - ox[j]
-                dy = my - oy[j]
-                sigma = (ha * dx + cb * dy) * dx + hc * dy * dy
-                vis = exp_neg(min(max(sigma, zero), s_clamp))
-                raw = op * vis
-                alpha = min(a_max, raw)
-                ok = (sigma >= zero) & (alpha >= a_min) & (k32 <= la[j])
-                ra = one / (one - alpha)
-                tb = tr[j] * ra  # T before this Gaussian
-                w = alpha * tb
-                cdj = cd[j] if d > 1 else c0 * v0[j]
-                v_al = cdj * tb - rs[j] * ra
-                tr[j] = tb if ok else tr[j]
-                rs[j] = rs[j] + cdj * w if ok else rs[j]
-                wv = w if ok else zero
-                wb[j] = wv
-                g_c0 += wv * v0[j]
-                gate = ok & (raw < a_max)  # the clamp at ALPHA_MAX passes no gradient
-                v_sig = -raw * v_al if gate else zero
-                g_o += vis * v_al if gate else zero
-                sx = v_sig * dx
-                sy = v_sig * dy
-                g_xx += sx * dx
-                g_xy += sx * dy
-                g_yy += sy * dy
-                g_x += sx
-                g_y += sy
-                n_hit += one if ok else zero
-            out_col[k, 0] = g_c0
-            for ch in range(1, d):
-                vch = vc[ch * npx + i0: ch * npx + i1]
-                sc = zero
+            for ch in range(d):
+                out_col[k, ch] = 0.0
+            for h in range(2):
+                ya = rows[k, 2 * h] - py0
+                yb = rows[k, 2 * h + 1] - py0
+                while ya <= yb and row_kmax[h, ya] < kk:  # rows spent before k cost nothing
+                    ya += 1
+                while yb >= ya and row_kmax[h, yb] < kk:
+                    yb -= 1
+                if ya > yb:
+                    continue
+                i0, i1 = h * _HALF_PX + ya * HALF, h * _HALF_PX + (yb + 1) * HALF
+                # slices from 0: see forward_tiles
+                tr, rs, la, wb, v0, cd = trans[i0:i1], rest[i0:i1], last[i0:i1], wbuf[i0:i1], vc[i0:i1], cdot[i0:i1]
+                ox, oy = pix_x[i0:i1], pix_y[i0:i1]
+                if d > 1:  # c . v_C per pixel (inline below when d == 1)
+                    for j in range(i1 - i0):
+                        cd[j] = c0 * v0[j]
+                    for ch in range(1, d):
+                        cv = f(colors[g, ch])
+                        vch = vc[ch * npx + i0: ch * npx + i1]
+                        for j in range(i1 - i0):
+                            cd[j] += cv * vch[j]
                 for j in range(i1 - i0):
-                    sc += wb[j] * vch[j]
-                out_col[k, ch] = sc
+                    dx = mx - ox[j]
+                    dy = my - oy[j]
+                    sigma = (ha * dx + cb * dy) * dx + hc * dy * dy
+                    vis = exp_neg(min(max(sigma, zero), s_clamp))
+                    raw = op * vis
+                    alpha = min(a_max, raw)
+                    ok = (sigma >= zero) & (alpha >= a_min) & (k32 <= la[j])
+                    ra = one / (one - alpha)
+                    tb = tr[j] * ra  # T before this Gaussian
+                    w = alpha * tb
+                    cdj = cd[j] if d > 1 else c0 * v0[j]
+                    v_al = cdj * tb - rs[j] * ra
+                    tr[j] = tb if ok else tr[j]
+                    rs[j] = rs[j] + cdj * w if ok else rs[j]
+                    wv = w if ok else zero
+                    wb[j] = wv
+                    g_c0 += wv * v0[j]
+                    gate = ok & (raw < a_max)  # the clamp at ALPHA_MAX passes no gradient
+                    v_sig = -raw * v_al if gate else zero
+                    g_o += vis * v_al if gate else zero
+                    sx = v_sig * dx
+                    sy = v_sig * dy
+                    g_xx += sx * dx
+                    g_xy += sx * dy
+                    g_yy += sy * dy
+                    g_x += sx
+                    g_y += sy
+                    n_hit += one if ok else zero
+                for ch in range(1, d):
+                    vch = vc[ch * npx + i0: ch * npx + i1]
+                    sc = zero
+                    for j in range(i1 - i0):
+                        sc += wb[j] * vch[j]
+                    out_col[k, ch] += sc
+            out_col[k, 0] = g_c0
             if n_hit > zero:
                 out_geo[k, 0] = ca * g_x + cb * g_y
                 out_geo[k, 1] = cb * g_x + cc * g_y
@@ -474,6 +495,8 @@ def backward_tiles(
                 out_geo[k, 3] = g_xy
                 out_geo[k, 4] = half * g_yy
                 out_geo[k, 5] = g_o
+            else:
+                out_geo[k] = 0.0
 
 
 @njit(cache=True, parallel=True)
