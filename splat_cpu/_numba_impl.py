@@ -138,8 +138,8 @@ class _Composite(torch.autograd.Function):
         v_al_np = (_np(v_alphas[..., 0]) if v_alphas is not None
                    else np.zeros((c_n, p.height, p.width), dtype=means2d.dtype))
         n_isect = p.gid.shape[0]
-        geo = np.empty((n_isect, 6), dtype=np.float64)  # every row written by backward_tiles
-        col = np.empty((n_isect, d), dtype=np.float64)
+        geo = np.empty((n_isect, 6), dtype=means2d.dtype)  # every row written by backward_tiles
+        col = np.empty((n_isect, d), dtype=means2d.dtype)
         with numba.parallel_chunksize(_CHUNK):
             K.backward_tiles(*arrs, p.rows, p.tile_start, p.gid, p.width, p.height, p.tiles_x, p.tiles_y,
                              ctx.t_final, ctx.last, v_img_np, v_al_np, geo, col)

@@ -30,7 +30,7 @@ from .constants import ALPHA_MAX, ALPHA_MIN, T_MIN, TILE
 _FASTMATH = {"contract", "arcp", "nsz", "reassoc"}  # FMA and reassociation; no nan/inf assumptions
 _SIGMA_CLAMP = 5.6  # exp(-5.6) = 0.0037 < ALPHA_MIN: beyond it alpha is skipped whatever the opacity
 assert math.exp(-_SIGMA_CLAMP) < ALPHA_MIN
-_CULL_MARGIN = 1e-6  # binning widens each ellipse to sigma <= smax + this (>> exp's 1e-11 relative error)
+_CULL_MARGIN = 1e-4  # binning widens each ellipse to sigma <= smax + this (>> float32 rounding of sigma and exp)
 _ROW_MARGIN = 1e-3  # and each row range by this many pixels (>> the rounding of the ellipse geometry)
 _ILL_CONDITIONED = 1e-9  # det(conic) below this times a c: the geometry is not trusted, the box's rows are kept
 _TILE_SHIFT = 4  # TILE = 1 << 4; pixel i of a tile's flat buffers sits at row i >> 4, column i & 15
@@ -100,43 +100,46 @@ def _exp_neg_impl(s):
 
 
 @njit(cache=True, inline="always")
-def _band_extent(mx, my, ca, cb, cc, smax, xa, xb):  # -> (ylo, yhi), (inf, -inf) when empty
-    """The y-extent of the ellipse sigma <= smax, sigma = 0.5 (a dx^2 + c dy^2) + b dx dy with
-    (dx, dy) = (mx - x, my - y), inside the vertical band xa <= x <= xb: the ellipse's top and
-    bottom points when they lie in the band, and the chords on the band's two edges."""
+def _ellipse(mx, my, ca, cb, cc, smax):  # -> the terms of `_band_extent`, once per Gaussian
+    """The ellipse sigma <= smax, sigma = 0.5 (a dx^2 + c dy^2) + b dx dy with (dx, dy) = (mx - x, my - y):
+    its centre, b, 1 / c, b^2 - a c, 2 c smax, and its top and bottom points (where dx = -b dy / a)."""
+    ey = math.sqrt(2.0 * smax * ca / (ca * cc - cb * cb))
+    ex = cb * ey / ca
+    return mx, my, cb, 1.0 / cc, cb * cb - ca * cc, 2.0 * cc * smax, mx + ex, my - ey, mx - ex, my + ey
+
+
+@njit(cache=True, inline="always")
+def _band_extent(ell, xa, xb):  # -> (ylo, yhi), (inf, -inf) when empty
+    """The y-extent of the ellipse `ell` (from `_ellipse`) inside the vertical band xa <= x <= xb:
+    its top and bottom points when they lie in the band, and the chords on the band's two edges."""
+    mx, my, cb, inv_cc, q, c2s, x_top, y_top, x_bot, y_bot = ell
     ylo, yhi = np.inf, -np.inf
-    det = ca * cc - cb * cb
-    ey = math.sqrt(2.0 * smax * ca / det)  # |dy| at the top and bottom, where dx = -b dy / a
-    for sgn in range(2):
-        dy = ey if sgn == 0 else -ey
-        x = mx + cb * dy / ca
-        if xa <= x <= xb:
-            ylo = min(ylo, my - dy)
-            yhi = max(yhi, my - dy)
+    if xa <= x_top <= xb:
+        ylo, yhi = min(ylo, y_top), max(yhi, y_top)
+    if xa <= x_bot <= xb:
+        ylo, yhi = min(ylo, y_bot), max(yhi, y_bot)
     for edge in range(2):
         dx = mx - (xa if edge == 0 else xb)
-        disc = dx * dx * (cb * cb - ca * cc) + 2.0 * cc * smax
+        disc = dx * dx * q + c2s
         if disc >= 0.0:
             r = math.sqrt(disc)
-            ylo = min(ylo, my - (-cb * dx + r) / cc)
-            yhi = max(yhi, my - (-cb * dx - r) / cc)
+            ylo = min(ylo, my - (r - cb * dx) * inv_cc)
+            yhi = max(yhi, my + (r + cb * dx) * inv_cc)
     return ylo, yhi
 
 
 @njit(cache=True, inline="always")
-def _band_rows(means2d, conics, smax, pix_box, c, g, col0, col1, ty, height):  # -> (row0, row1), row0 > row1: miss
+def _band_rows(ell, trusted, bx0, bx1, by0, by1, col0, col1, ty, height):  # -> (row0, row1), row0 > row1: miss
     """The image rows of tile row ty, in the pixel columns col0..col1, where the Gaussian's alpha >= ALPHA_MIN
-    ellipse may have pixels (a superset: widened by _CULL_MARGIN in sigma and _ROW_MARGIN in pixels), within its box."""
-    row0 = max(pix_box[c, g, 2], ty * TILE)
-    row1 = min(pix_box[c, g, 3], ty * TILE + TILE - 1)
-    if max(col0, pix_box[c, g, 0]) > min(col1, pix_box[c, g, 1]):
+    ellipse `ell` may have pixels (a superset: widened by _CULL_MARGIN in sigma and _ROW_MARGIN in
+    pixels), within its inclusive pixel box (bx0, bx1, by0, by1)."""
+    row0 = max(by0, ty * TILE)
+    row1 = min(by1, ty * TILE + TILE - 1)
+    if max(col0, bx0) > min(col1, bx1):
         return row0, row0 - 1  # the box misses these columns
-    ca, cb, cc = np.float64(conics[c, g, 0]), np.float64(conics[c, g, 1]), np.float64(conics[c, g, 2])
-    det = ca * cc - cb * cb
-    if not (ca > 0.0 and cc > 0.0 and det > _ILL_CONDITIONED * ca * cc):
-        return row0, row1  # underflowed or needle-thin conic: keep the box's rows
-    ylo, yhi = _band_extent(np.float64(means2d[c, g, 0]), np.float64(means2d[c, g, 1]), ca, cb, cc,
-                            smax[g] + _CULL_MARGIN, col0 + 0.5, col1 + 0.5)
+    if not trusted or (col0 <= bx0 and bx1 <= col1):
+        return row0, row1  # an untrusted conic, or the whole box within the columns: the box's rows
+    ylo, yhi = _band_extent(ell, col0 + 0.5, col1 + 0.5)
     if not ylo <= yhi:
         return row0, row0 - 1
     # row j (pixel centre j + 0.5) is kept when ylo <= j + 0.5 <= yhi, widened by _ROW_MARGIN
@@ -148,19 +151,27 @@ def _band_rows(means2d, conics, smax, pix_box, c, g, col0, col1, ty, height):  #
 @njit(cache=True, parallel=True)
 def _tile_hits(order, n_valid, tile_box, means2d, conics, smax, pix_box, width, height, box_start, out_rows):
     """out_rows[box_start[c, j] + r] = rows of each half of the r-th tile of the j-th Gaussian's box
-    (camera c) it may touch: (row0, row1) of the left HALF columns, then of the right ones."""
+    (camera c) it may touch, counted from the tile's top row: (row0, row1) of the left HALF
+    columns, then of the right ones; (0, -1) where it touches none."""
     for c in range(order.shape[0]):
         for j in prange(n_valid[c]):
             g = order[c, j]
             r = box_start[c, j]
+            ca, cb, cc = np.float64(conics[c, g, 0]), np.float64(conics[c, g, 1]), np.float64(conics[c, g, 2])
+            # an underflowed or needle-thin conic is not trusted: its box's rows are kept
+            trusted = ca > 0.0 and cc > 0.0 and ca * cc - cb * cb > _ILL_CONDITIONED * ca * cc
+            ell = _ellipse(np.float64(means2d[c, g, 0]), np.float64(means2d[c, g, 1]), ca, cb, cc,
+                           smax[g] + _CULL_MARGIN) if trusted else (0.0,) * 10
+            bx0, bx1, by0, by1 = pix_box[c, g, 0], pix_box[c, g, 1], pix_box[c, g, 2], pix_box[c, g, 3]
             for ty in range(tile_box[c, j, 2], tile_box[c, j, 3] + 1):
                 for tx in range(tile_box[c, j, 0], tile_box[c, j, 1] + 1):
                     for h in range(2):
                         col0 = tx * TILE + h * HALF
-                        row0, row1 = _band_rows(means2d, conics, smax, pix_box, c, g, col0,
+                        row0, row1 = _band_rows(ell, trusted, bx0, bx1, by0, by1, col0,
                                                 min(col0 + HALF, width) - 1, ty, height)
-                        out_rows[r, 2 * h] = row0
-                        out_rows[r, 2 * h + 1] = row1
+                        miss = row0 > row1
+                        out_rows[r, 2 * h] = 0 if miss else row0 - ty * TILE
+                        out_rows[r, 2 * h + 1] = -1 if miss else row1 - ty * TILE
                     r += 1
 
 
@@ -169,7 +180,6 @@ def _hits(rows, r):  # does candidate/entry r touch any row of either half?
     return rows[r, 0] <= rows[r, 1] or rows[r, 2] <= rows[r, 3]
 
 
-@njit(cache=True)
 def bin_tiles(
     order,  # [C, N] int64: per camera, Gaussian indices front to back (first n_valid[c] are valid)
     n_valid,  # [C] int64
@@ -181,16 +191,25 @@ def bin_tiles(
     height,
     tiles_x,
     tiles_y,
-):  # -> tile_start [C * n_tiles + 1] int64, gid [n_isect] int32, rows [n_isect, 4] int64
+):  # -> tile_start [C * n_tiles + 1] int64, gid [n_isect] int32, rows [n_isect, 4] int8
     """Lists of the Gaussians meeting each tile, front to back, with the rows of the tile each
     may touch: the tiles of each pixel box, less those its alpha >= ALPHA_MIN ellipse misses
     (gsplat's tile culling), and per kept entry the ellipse's row range inside each half of the
-    tile (its left and right HALF columns). The geometry runs in parallel, the counting sort by
+    tile (its left and right HALF columns), counted from the tile's top row. The geometry runs in parallel, the counting sort by
     tile after it."""
-    n_cam, n = order.shape
-    n_tiles = tiles_x * tiles_y
     smax = np.log(np.maximum(opacities.astype(np.float64), ALPHA_MIN) / ALPHA_MIN)  # alpha >= ALPHA_MIN iff sigma <= smax
-    tile_box = np.empty((n_cam, n, 4), dtype=np.int64)  # per list position: tile range (tx0, tx1, ty0, ty1)
+    tile_box, box_start = _tile_boxes(order, n_valid, pix_box)
+    cand = np.empty((box_start[-1, -1], 4), dtype=np.int8)  # small: fresh memory costs page faults
+    _tile_hits(order, n_valid, tile_box, means2d, conics, smax, pix_box, width, height, box_start, cand)
+    return _tile_lists(order, n_valid, tile_box, box_start, cand, tiles_x, tiles_y)
+
+
+@njit(cache=True)
+def _tile_boxes(order, n_valid, pix_box):  # -> tile_box [C, N, 4], box_start [C, N + 1] (box_start[-1, -1]: total)
+    """Per camera and list position: the tile range (tx0, tx1, ty0, ty1) of the Gaussian's pixel box, and
+    where its candidate tiles start in one flat array over all cameras."""
+    n_cam, n = order.shape
+    tile_box = np.empty((n_cam, n, 4), dtype=np.int64)
     box_start = np.zeros((n_cam, n + 1), dtype=np.int64)
     total = 0
     for c in range(n_cam):
@@ -200,8 +219,15 @@ def bin_tiles(
                 tile_box[c, j, q] = pix_box[c, g, q] >> _TILE_SHIFT  # boxes are inside the image: >= 0
             box_start[c, j] = total
             total += (tile_box[c, j, 1] - tile_box[c, j, 0] + 1) * (tile_box[c, j, 3] - tile_box[c, j, 2] + 1)
-    cand = np.empty((total, 4), dtype=np.int64)
-    _tile_hits(order, n_valid, tile_box, means2d, conics, smax, pix_box, width, height, box_start, cand)
+        box_start[c, n_valid[c]:] = total
+    return tile_box, box_start
+
+
+@njit(cache=True)
+def _tile_lists(order, n_valid, tile_box, box_start, cand, tiles_x, tiles_y):  # -> tile_start, gid, rows
+    """Counting sort of the kept candidates by tile, keeping each camera's front-to-back order."""
+    n_cam = order.shape[0]
+    n_tiles = tiles_x * tiles_y
     counts = np.zeros(n_cam * n_tiles + 1, dtype=np.int64)
     for c in range(n_cam):
         base = c * n_tiles
@@ -215,7 +241,7 @@ def bin_tiles(
     tile_start = np.cumsum(counts)
     fill = tile_start[:-1].copy()
     gid = np.empty(tile_start[-1], dtype=np.int32)
-    rows = np.empty((tile_start[-1], 4), dtype=np.int64)
+    rows = np.empty((tile_start[-1], 4), dtype=np.int8)
     for c in range(n_cam):
         base = c * n_tiles
         for j in range(n_valid[c]):
@@ -227,7 +253,8 @@ def bin_tiles(
                         t = base + ty * tiles_x + tx
                         f = fill[t]
                         gid[f] = g
-                        rows[f] = cand[r]
+                        for q in range(4):
+                            rows[f, q] = cand[r, q]
                         fill[t] = f + 1
                     r += 1
     return tile_start, gid, rows
@@ -261,7 +288,7 @@ def forward_tiles(
     opacities,  # [N]
     colors,  # [N, D]
     background,  # [D]
-    rows,  # [n_isect, 4] int64: image rows of each half tile each entry may touch (from bin_tiles)
+    rows,  # [n_isect, 4] int8: rows of each half tile each entry may touch (from bin_tiles)
     tile_start,  # [C * n_tiles + 1] int64
     gid,  # [n_isect] int32
     width,
@@ -307,10 +334,11 @@ def forward_tiles(
             op = f(opacities[g])
             c0 = f(colors[g, 0])
             for h in range(2):
-                if rows[k, 2 * h] > rows[k, 2 * h + 1]:
+                ya, yb = np.int64(rows[k, 2 * h]), np.int64(rows[k, 2 * h + 1])
+                if ya > yb:
                     continue
-                i0 = h * _HALF_PX + (rows[k, 2 * h] - py0) * HALF
-                i1 = h * _HALF_PX + (rows[k, 2 * h + 1] - py0 + 1) * HALF
+                i0 = h * _HALF_PX + ya * HALF
+                i1 = h * _HALF_PX + (yb + 1) * HALF
                 # slices, so that the loop index starts at 0: numba then knows it is not negative and
                 # LLVM vectorises the loop (a range(i0, i1) loop stays scalar)
                 tr, ac, la, wb = trans[i0:i1], acc[i0:i1], last[i0:i1], wbuf[i0:i1]
@@ -356,7 +384,7 @@ def backward_tiles(
     opacities,  # [N]
     colors,  # [N, D]
     background,  # [D]
-    rows,  # [n_isect, 4] int64: image rows of each half tile each entry may touch (from bin_tiles)
+    rows,  # [n_isect, 4] int8: rows of each half tile each entry may touch (from bin_tiles)
     tile_start,  # [C * n_tiles + 1] int64
     gid,  # [n_isect] int32
     width,
@@ -432,8 +460,7 @@ def backward_tiles(
             for ch in range(d):
                 out_col[k, ch] = 0.0
             for h in range(2):
-                ya = rows[k, 2 * h] - py0
-                yb = rows[k, 2 * h + 1] - py0
+                ya, yb = np.int64(rows[k, 2 * h]), np.int64(rows[k, 2 * h + 1])
                 while ya <= yb and row_kmax[h, ya] < kk:  # rows spent before k cost nothing
                     ya += 1
                 while yb >= ya and row_kmax[h, yb] < kk:
