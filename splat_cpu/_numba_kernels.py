@@ -223,13 +223,14 @@ def _tile_boxes(order, n_valid, pix_box):  # -> tile_box [C, N, 4], box_start [C
     return tile_box, box_start
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def _tile_lists(order, n_valid, tile_box, box_start, cand, tiles_x, tiles_y):  # -> tile_start, gid, rows
-    """Counting sort of the kept candidates by tile, keeping each camera's front-to-back order."""
+    """Counting sort of the kept candidates by tile, keeping each camera's front-to-back order
+    (cameras in parallel: their tiles are disjoint)."""
     n_cam = order.shape[0]
     n_tiles = tiles_x * tiles_y
     counts = np.zeros(n_cam * n_tiles + 1, dtype=np.int64)
-    for c in range(n_cam):
+    for c in prange(n_cam):
         base = c * n_tiles
         for j in range(n_valid[c]):
             r = box_start[c, j]
@@ -242,7 +243,7 @@ def _tile_lists(order, n_valid, tile_box, box_start, cand, tiles_x, tiles_y):  #
     fill = tile_start[:-1].copy()
     gid = np.empty(tile_start[-1], dtype=np.int32)
     rows = np.empty((tile_start[-1], 4), dtype=np.int8)
-    for c in range(n_cam):
+    for c in prange(n_cam):
         base = c * n_tiles
         for j in range(n_valid[c]):
             g = order[c, j]
