@@ -215,7 +215,8 @@ def _print_phases(rows: list[dict]) -> None:
             if ph is None:
                 continue
             cells = " ".join(f"{ph[k]:8.1f}" if k in ph else f"{'-':>8}" for k, _ in PHASES)
-            print(f"{cfg['width']:>4}x{cfg['height']:<4} {cfg['n']:>7} {cfg['c']:>2} {cfg['d']:>2} | {label:>8} | {cells}")
+            size = f"{cfg['width']:>4}x{cfg['height']:<4}"
+            print(f"{size} {cfg['n']:>7} {cfg['c']:>2} {cfg['d']:>2} | {label:>8} | {cells}")
 
 
 def main(argv: list[str] | None = None) -> int:

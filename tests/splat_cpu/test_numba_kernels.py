@@ -20,7 +20,7 @@ from .conftest import make_scene
 from .test_rasterize import _close, _grads, NAMES
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=K._FASTMATH)  # as in the kernels
 def _exp_neg_all(s):  # [M] -> [M] in the dtype of s
     out = np.empty_like(s)
     for i in range(s.shape[0]):
@@ -30,7 +30,7 @@ def _exp_neg_all(s):  # [M] -> [M] in the dtype of s
 
 @pytest.mark.parametrize("dtype,n_eps", [(np.float32, 2), (np.float64, 16)])
 def test_exp_neg_relative_error_over_its_whole_range(dtype, n_eps):
-    """Within a few epsilons of the type (measured: 1.1e-7 in float32, under 1 eps; 2.0e-15 in
+    """Within a few epsilons of the type (measured: 8.7e-8 in float32, under 1 eps; 2.0e-15 in
     float64, where the rounding of n ln 2 for n <= 8 dominates)."""
     bound = n_eps * float(np.finfo(dtype).eps)
     s = np.linspace(0.0, K._SIGMA_CLAMP, 200_001).astype(dtype)
