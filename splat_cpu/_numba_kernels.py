@@ -148,8 +148,14 @@ def _band_rows(ell, trusted, bx0, bx1, by0, by1, col0, col1, ty, height):  # -> 
     return row0, row1
 
 
+@njit(cache=True, inline="always")
+def _tile_range(pix_box, c, g):  # -> (tx0, tx1, ty0, ty1): the tiles of the pixel box (inside the image: >= 0)
+    return (pix_box[c, g, 0] >> _TILE_SHIFT, pix_box[c, g, 1] >> _TILE_SHIFT,
+            pix_box[c, g, 2] >> _TILE_SHIFT, pix_box[c, g, 3] >> _TILE_SHIFT)
+
+
 @njit(cache=True, parallel=True)
-def _tile_hits(order, n_valid, tile_box, means2d, conics, smax, pix_box, width, height, box_start, out_rows):
+def _tile_hits(order, n_valid, means2d, conics, smax, pix_box, width, height, box_start, out_rows):
     """out_rows[box_start[c, j] + r] = rows of each half of the r-th tile of the j-th Gaussian's box
     (camera c) it may touch, counted from the tile's top row: (row0, row1) of the left HALF
     columns, then of the right ones; (0, -1) where it touches none."""
@@ -163,8 +169,9 @@ def _tile_hits(order, n_valid, tile_box, means2d, conics, smax, pix_box, width, 
             ell = _ellipse(np.float64(means2d[c, g, 0]), np.float64(means2d[c, g, 1]), ca, cb, cc,
                            smax[g] + _CULL_MARGIN) if trusted else (0.0,) * 10
             bx0, bx1, by0, by1 = pix_box[c, g, 0], pix_box[c, g, 1], pix_box[c, g, 2], pix_box[c, g, 3]
-            for ty in range(tile_box[c, j, 2], tile_box[c, j, 3] + 1):
-                for tx in range(tile_box[c, j, 0], tile_box[c, j, 1] + 1):
+            tx0, tx1, ty0, ty1 = _tile_range(pix_box, c, g)
+            for ty in range(ty0, ty1 + 1):
+                for tx in range(tx0, tx1 + 1):
                     for h in range(2):
                         col0 = tx * TILE + h * HALF
                         row0, row1 = _band_rows(ell, trusted, bx0, bx1, by0, by1, col0,
@@ -199,33 +206,29 @@ def bin_tiles(
     in parallel, the counting sort by tile after it."""
     # alpha >= ALPHA_MIN iff sigma <= smax
     smax = np.log(np.maximum(opacities.astype(np.float64), ALPHA_MIN) / ALPHA_MIN)
-    tile_box, box_start = _tile_boxes(order, n_valid, pix_box)
+    box_start = _box_starts(order, n_valid, pix_box)
     cand = np.empty((box_start[-1, -1], 4), dtype=np.int8)  # small: fresh memory costs page faults
-    _tile_hits(order, n_valid, tile_box, means2d, conics, smax, pix_box, width, height, box_start, cand)
-    return _tile_lists(order, n_valid, tile_box, box_start, cand, tiles_x, tiles_y)
+    _tile_hits(order, n_valid, means2d, conics, smax, pix_box, width, height, box_start, cand)
+    return _tile_lists(order, n_valid, pix_box, box_start, cand, tiles_x, tiles_y)
 
 
 @njit(cache=True)
-def _tile_boxes(order, n_valid, pix_box):  # -> tile_box [C, N, 4], box_start [C, N + 1] (box_start[-1, -1]: total)
-    """Per camera and list position: the tile range (tx0, tx1, ty0, ty1) of the Gaussian's pixel box, and
-    where its candidate tiles start in one flat array over all cameras."""
+def _box_starts(order, n_valid, pix_box):  # -> box_start [C, N + 1] int64 (box_start[-1, -1]: the total)
+    """Where the candidate tiles of each camera's j-th Gaussian start in one flat array over all cameras."""
     n_cam, n = order.shape
-    tile_box = np.empty((n_cam, n, 4), dtype=np.int64)
     box_start = np.zeros((n_cam, n + 1), dtype=np.int64)
     total = 0
     for c in range(n_cam):
         for j in range(n_valid[c]):
-            g = order[c, j]
-            for q in range(4):
-                tile_box[c, j, q] = pix_box[c, g, q] >> _TILE_SHIFT  # boxes are inside the image: >= 0
+            tx0, tx1, ty0, ty1 = _tile_range(pix_box, c, order[c, j])
             box_start[c, j] = total
-            total += (tile_box[c, j, 1] - tile_box[c, j, 0] + 1) * (tile_box[c, j, 3] - tile_box[c, j, 2] + 1)
+            total += (tx1 - tx0 + 1) * (ty1 - ty0 + 1)
         box_start[c, n_valid[c]:] = total
-    return tile_box, box_start
+    return box_start
 
 
 @njit(cache=True, parallel=True)
-def _tile_lists(order, n_valid, tile_box, box_start, cand, tiles_x, tiles_y):  # -> tile_start, gid, rows
+def _tile_lists(order, n_valid, pix_box, box_start, cand, tiles_x, tiles_y):  # -> tile_start, gid, rows
     """Counting sort of the kept candidates by tile, keeping each camera's front-to-back order
     (cameras in parallel: their tiles are disjoint)."""
     n_cam = order.shape[0]
@@ -235,8 +238,9 @@ def _tile_lists(order, n_valid, tile_box, box_start, cand, tiles_x, tiles_y):  #
         base = c * n_tiles
         for j in range(n_valid[c]):
             r = box_start[c, j]
-            for ty in range(tile_box[c, j, 2], tile_box[c, j, 3] + 1):
-                for tx in range(tile_box[c, j, 0], tile_box[c, j, 1] + 1):
+            tx0, tx1, ty0, ty1 = _tile_range(pix_box, c, order[c, j])
+            for ty in range(ty0, ty1 + 1):
+                for tx in range(tx0, tx1 + 1):
                     if _hits(cand, r):
                         counts[base + ty * tiles_x + tx + 1] += 1
                     r += 1
@@ -249,8 +253,9 @@ def _tile_lists(order, n_valid, tile_box, box_start, cand, tiles_x, tiles_y):  #
         for j in range(n_valid[c]):
             g = order[c, j]
             r = box_start[c, j]
-            for ty in range(tile_box[c, j, 2], tile_box[c, j, 3] + 1):
-                for tx in range(tile_box[c, j, 0], tile_box[c, j, 1] + 1):
+            tx0, tx1, ty0, ty1 = _tile_range(pix_box, c, order[c, j])
+            for ty in range(ty0, ty1 + 1):
+                for tx in range(tx0, tx1 + 1):
                     if _hits(cand, r):
                         t = base + ty * tiles_x + tx
                         f = fill[t]
