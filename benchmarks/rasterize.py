@@ -13,6 +13,10 @@ fast path is forward+backward <= 1 unit at 20k Gaussians, 346x260, one grey came
 
 - `--baseline ROOT` also times the fast path of the splat_cpu found under ROOT (e.g. the
   main checkout), so a before/after pair comes from one run.
+- Each row's JSON carries `phases_ms`: the median per stage of the forward+backward as the
+  rasteriser reports it in `meta["timings"]` (project, bin, forward compositing, and on
+  checkouts that report them the backward compositing and the backward projection); the
+  same is printed as a second table.
 - `--omp-check` times the fast path in subprocesses started without OMP_WAIT_POLICY and
   with OMP_WAIT_POLICY=PASSIVE, alternately, and reports their ratio: the library must not
   depend on the caller setting it (issue 8).
@@ -107,8 +111,9 @@ def measure_one(cfg: dict) -> dict:
     def fwd_bwd():
         for leaf in leaves:
             leaf.grad = None  # as optimizer.zero_grad() does: no accumulation kernel
-        img, alpha, _ = fn(*leaves, ks, w, h)
+        img, alpha, meta = fn(*leaves, ks, w, h)
         torch.autograd.backward((img, alpha), (cot_img, cot_alpha))
+        return meta
 
     t = time.perf_counter()
     fwd_bwd()  # warm-up: loads (or compiles) the numba kernels
@@ -116,6 +121,7 @@ def measure_one(cfg: dict) -> dict:
     base_rss = _rss_mb()
     reps = cfg["reps"]
     tf, tfb, tu = [], [], []
+    phases: dict[str, list[float]] = {}
     meta = None
     for _ in range(reps):
         tu.append(unit())
@@ -125,7 +131,8 @@ def measure_one(cfg: dict) -> dict:
         meta = out[2]
         del out
         t = time.perf_counter()
-        fwd_bwd()
+        for k, v in fwd_bwd()["timings"].items():  # the stages of this forward+backward (ms)
+            phases.setdefault(k, []).append(v)
         tfb.append(time.perf_counter() - t)
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     med = lambda xs: 1e3 * sorted(xs)[len(xs) // 2]  # noqa: E731
@@ -141,6 +148,7 @@ def measure_one(cfg: dict) -> dict:
         "peak_rss_mb": peak,
         "peak_over_baseline_mb": peak - base_rss,
         "n_isect": meta.get("n_isect"),
+        "phases_ms": {k: sorted(v)[len(v) // 2] for k, v in phases.items()},
         "n_visible": [int(x) for x in meta["n_visible"]],
     }
 
@@ -192,6 +200,25 @@ def omp_check(reps: int, rounds: int, timeout: float) -> dict:
     return summary
 
 
+PHASES = [("project_ms", "project"), ("bin_ms", "bin"), ("composite_ms", "forward"),
+          ("backward_composite_ms", "backward"), ("backward_project_ms", "bwd proj")]
+
+
+def _print_phases(rows: list[dict]) -> None:
+    """Per-stage medians (ms) of the fast path's forward+backward, from `meta["timings"]` (JSON: phases_ms)."""
+    print("\nstages of the fast path's forward+backward (ms, median; '-': not reported by that checkout)")
+    print(f"{'W x H':>9} {'N':>7} {'C':>2} {'D':>2} | {'path':>8} | " + " ".join(f"{name:>8}" for _, name in PHASES))
+    for r in rows:
+        cfg = r["config"]
+        for label, res in (("fast", r["fast"]), ("base", r["baseline"])):
+            ph = res.get("phases_ms")
+            if ph is None:
+                continue
+            cells = " ".join(f"{ph[k]:8.1f}" if k in ph else f"{'-':>8}" for k, _ in PHASES)
+            size = f"{cfg['width']:>4}x{cfg['height']:<4}"
+            print(f"{size} {cfg['n']:>7} {cfg['c']:>2} {cfg['d']:>2} | {label:>8} | {cells}")
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default=None, help="JSON output path (default benchmarks/results/rasterize[_quick].json)")
@@ -239,6 +266,7 @@ def main(argv: list[str] | None = None) -> int:
               f"{_cell(fast, 'peak_rss_mb', '{:5.0f}')} | {_cell(base, 'fwd_bwd_ms')} "
               f"{_cell(base, 'fwd_bwd_units', '{:6.2f}')} | {_cell(ref, 'fwd_bwd_ms')} "
               f"{_cell(ref, 'fwd_bwd_units', '{:6.2f}')} | {('%8.1f' % ratio) if ratio else '       -'}", flush=True)
+    _print_phases(rows)
     notes = sorted({r["reference"]["skipped"] for r in rows if "skipped" in r["reference"]})
     for note in notes:
         print(f"reference skipped: {note}")

@@ -61,7 +61,8 @@ def rasterize(
         images: [C, H, W, D]; alphas: [C, H, W, 1] (1 - final transmittance);
         meta: dict with "radii" [C, N, 2] int32 (0 where culled), "means2d" [C, N, 2] (in
         the autograd graph: call retain_grad() for screen-space gradients), "depths" [C, N],
-        "n_visible" [C], "path" ("numba" or "torch"), "timings" (ms per stage).
+        "n_visible" [C], "path" ("numba" or "torch"), "timings" (ms per stage; on the numba
+        path the backward adds "backward_project_ms" and "backward_composite_ms" when it runs).
 
     Gradients flow to means, quats, scales, opacities, colors, viewmats and background.
     Raises ValueError naming the argument for wrong shapes, dtypes, devices, non-finite

@@ -65,10 +65,12 @@ class _Project(torch.autograd.Function):
     The outputs without gradient go into the dict `out`: depths [C, N] and radii [C, N, 2]
     int32 as tensors, the inclusive pixel boxes [C, N, 4] int64 and the validity mask [C, N]
     as numpy arrays. Opacities only decide validity here (no gradient through this step).
+    The backward adds its time to the dict `timings` (key "backward_project_ms").
     """
 
     @staticmethod
-    def forward(ctx, means, quats, scales, opacities, viewmats, ks, width: int, height: int, out: dict):
+    def forward(ctx, means, quats, scales, opacities, viewmats, ks, width: int, height: int, out: dict,
+                timings: dict):
         n, n_cam = means.shape[0], viewmats.shape[0]
         arrs = [_np(x) for x in (means, quats, scales, opacities, viewmats, ks)]
         means2d = np.empty((n_cam, n, 2))
@@ -78,13 +80,14 @@ class _Project(torch.autograd.Function):
         box = np.empty((n_cam, n, 4), dtype=np.int64)
         valid = np.empty((n_cam, n), dtype=np.bool_)
         P.project_forward(*arrs, width, height, means2d, conics, depths, radii, box, valid)
-        ctx.arrs, ctx.conics, ctx.valid = arrs, conics, valid
+        ctx.arrs, ctx.conics, ctx.valid, ctx.timings = arrs, conics, valid, timings
         dt = means.dtype
         out.update(depths=_tensor(depths, dt), radii=torch.from_numpy(radii), pix_box=box, valid=valid)
         return _tensor(means2d, dt), _tensor(conics, dt)
 
     @staticmethod
     def backward(ctx, v_means2d, v_conics):
+        t0 = time.perf_counter()
         means, quats, scales, _, viewmats, ks = ctx.arrs
         n, n_cam = means.shape[0], viewmats.shape[0]
         zeros = lambda *shape: np.zeros(shape)  # noqa: E731
@@ -98,7 +101,8 @@ class _Project(torch.autograd.Function):
         v_vm[:, :3, :] = v_view.sum(axis=0)
         dt = v_means2d.dtype if v_means2d is not None else v_conics.dtype
         out = [_tensor(a, dt) for a in (v_means, v_quats, v_scales, v_vm)]
-        return out[0], out[1], out[2], None, out[3], None, None, None, None
+        ctx.timings["backward_project_ms"] = 1e3 * (time.perf_counter() - t0)
+        return out[0], out[1], out[2], None, out[3], None, None, None, None, None
 
 
 _PROJECT_CHUNKS = 16  # per-chunk partial sums of the pose gradient (deterministic, no atomics)
@@ -108,28 +112,30 @@ class _Composite(torch.autograd.Function):
     """Screen-space Gaussians -> images [C, H, W, D], alphas [C, H, W, 1]; hand-written backward.
 
     Gradients go to means2d, conics, opacities, colors and background; the projection's
-    autograd graph carries them on to means, quats, scales and viewmats.
+    autograd graph carries them on to means, quats, scales and viewmats. The backward adds its
+    time to the dict `timings` (key "backward_composite_ms").
     """
 
     @staticmethod
-    def forward(ctx, means2d, conics, opacities, colors, background, plan: _Plan):  # noqa: D401
+    def forward(ctx, means2d, conics, opacities, colors, background, plan: _Plan, timings: dict):  # noqa: D401
         p = plan
         c_n = means2d.shape[0]
         d = colors.shape[1]
         arrs = (_np(means2d), _np(conics), _np(opacities), _np(colors), _np(background))
         img = np.empty((c_n, p.height, p.width, d), dtype=arrs[0].dtype)
-        t_final = np.empty((c_n, p.height, p.width), dtype=np.float64)
-        last = np.empty((c_n, p.height, p.width), dtype=np.int64)
+        t_final = np.empty((c_n, p.height, p.width), dtype=arrs[0].dtype)
+        last = np.empty((c_n, p.height, p.width), dtype=np.int32)
         with numba.parallel_chunksize(_CHUNK):
             K.forward_tiles(*arrs, p.rows, p.tile_start, p.gid, p.width, p.height, p.tiles_x, p.tiles_y,
                             img, t_final, last)
         ctx.plan, ctx.arrs, ctx.t_final, ctx.last = plan, arrs, t_final, last
-        ctx.dtype = means2d.dtype
-        alphas = torch.from_numpy((1.0 - t_final)[..., None].astype(arrs[0].dtype))
+        ctx.dtype, ctx.timings = means2d.dtype, timings
+        alphas = torch.from_numpy((1.0 - t_final)[..., None])
         return torch.from_numpy(img), alphas
 
     @staticmethod
     def backward(ctx, v_img, v_alphas):
+        t0 = time.perf_counter()
         p, arrs = ctx.plan, ctx.arrs
         means2d, conics, opac, colors, bg = arrs
         c_n, n = means2d.shape[0], means2d.shape[1]
@@ -138,21 +144,23 @@ class _Composite(torch.autograd.Function):
         v_al_np = (_np(v_alphas[..., 0]) if v_alphas is not None
                    else np.zeros((c_n, p.height, p.width), dtype=means2d.dtype))
         n_isect = p.gid.shape[0]
-        geo = np.zeros((n_isect, 6), dtype=np.float64)
-        col = np.zeros((n_isect, d), dtype=np.float64)
+        geo = np.empty((n_isect, 6), dtype=means2d.dtype)  # every row written by backward_tiles
+        col = np.empty((n_isect, d), dtype=means2d.dtype)
         with numba.parallel_chunksize(_CHUNK):
             K.backward_tiles(*arrs, p.rows, p.tile_start, p.gid, p.width, p.height, p.tiles_x, p.tiles_y,
                              ctx.t_final, ctx.last, v_img_np, v_al_np, geo, col)
         v_m = np.zeros((c_n, n, 2))
         v_c = np.zeros((c_n, n, 3))
-        v_o = np.zeros(n)
-        v_col = np.zeros((n, d))
+        v_o = np.zeros((c_n, n))
+        v_col = np.zeros((c_n, n, d))
         K.reduce_grads(p.tile_start, p.gid, p.tiles_x * p.tiles_y, geo, col, v_m, v_c, v_o, v_col)
+        v_o, v_col = v_o.sum(axis=0), v_col.sum(axis=0)
         # background: image += T_final * bg
-        v_bg = np.einsum("chw,chwd->d", ctx.t_final, v_img_np)
+        v_bg = np.einsum("chw,chwd->d", ctx.t_final, v_img_np, dtype=np.float64)
         dt = ctx.dtype
         out = [_tensor(a, dt) for a in (v_m, v_c, v_o, v_col, v_bg)]
-        return (*out, None)
+        ctx.timings["backward_composite_ms"] = 1e3 * (time.perf_counter() - t0)
+        return (*out, None, None)
 
 
 def rasterize_numba(
@@ -170,7 +178,8 @@ def rasterize_numba(
     """Inputs already validated, CPU tensors. See `splat_cpu.rasterize` for the contract."""
     t0 = time.perf_counter()
     pr: dict = {}
-    means2d, conics = _Project.apply(means, quats, scales, opacities, viewmats, Ks, width, height, pr)
+    timings: dict = {}  # the forward's stages now, the backward's when it runs
+    means2d, conics = _Project.apply(means, quats, scales, opacities, viewmats, Ks, width, height, pr, timings)
     t1 = time.perf_counter()
     valid = pr["valid"]
     key = np.where(valid, pr["depths"].numpy(), np.inf)
@@ -183,7 +192,7 @@ def rasterize_numba(
     plan = _Plan(rows, tile_start, gid, width, height, tiles_x, tiles_y)
     t2 = time.perf_counter()
     bg = background if background is not None else torch.zeros(colors.shape[1], dtype=colors.dtype)
-    images, alphas = _Composite.apply(means2d, conics, opacities, colors, bg, plan)
+    images, alphas = _Composite.apply(means2d, conics, opacities, colors, bg, plan, timings)
     t3 = time.perf_counter()
     meta = {
         "path": "numba",
@@ -192,6 +201,7 @@ def rasterize_numba(
         "depths": pr["depths"],
         "n_visible": torch.from_numpy(n_valid),
         "n_isect": int(gid.shape[0]),
-        "timings": {"project_ms": 1e3 * (t1 - t0), "bin_ms": 1e3 * (t2 - t1), "composite_ms": 1e3 * (t3 - t2)},
+        "timings": timings,
     }
+    timings.update(project_ms=1e3 * (t1 - t0), bin_ms=1e3 * (t2 - t1), composite_ms=1e3 * (t3 - t2))
     return images, alphas, meta

@@ -2,17 +2,19 @@
 
 Layout: the image of camera `cam` is cut into 16 x 16 tiles; tile id = cam * n_tiles + ty * tiles_x + tx.
 `tile_start[t]:tile_start[t + 1]` indexes `gid`, the tile's Gaussians front to back, and
-`rows`, the image rows of the tile that each may touch. Binning (gsplat-style tile culling)
-keeps a tile only when the Gaussian's alpha >= 1/255 ellipse (o exp(-sigma) >= ALPHA_MIN,
-the opacity-aware extent) reaches its pixels, and only the rows it reaches there.
-Each tile keeps flat per-pixel buffers (pixel i at row i >> 4, column i & 15) and walks its
-Gaussians in depth order; a Gaussian's rows are one contiguous slice of those buffers,
-processed as one loop without branches (selects only) that LLVM vectorises, with a
-polynomial exp (`_exp_neg`, relative error < 1e-11). The forward keeps, per pixel, the final
-transmittance and the list position of the last contributing Gaussian; the backward walks
-the list back from there, recovering T by division by (1 - alpha), and writes one gradient
-row per (tile, Gaussian) entry, summed per Gaussian afterwards. Arithmetic inside is float64
-whatever the input dtype.
+`rows`, the rows of each half tile (its left and right 8 columns) that each may touch.
+Binning (gsplat-style tile culling) keeps a tile only when the Gaussian's alpha >= 1/255
+ellipse (o exp(-sigma) >= ALPHA_MIN, the opacity-aware extent) reaches its pixels, and per
+half tile only the rows it reaches there. Each tile keeps flat per-pixel buffers, the left
+half's 16 rows of 8 pixels then the right half's (`_pixel`), and walks its Gaussians in depth
+order; a Gaussian's rows in a half are one contiguous slice of those buffers, processed as one
+loop without branches (selects only) that LLVM vectorises, with a polynomial exp (`exp_neg`).
+The forward keeps, per pixel, the final transmittance and the list position of the last
+contributing Gaussian; the backward walks the list back from there, recovering T by division
+by (1 - alpha), and writes one gradient row per (tile, Gaussian) entry, summed per Gaussian
+afterwards. Arithmetic inside the compositing is in the inputs' float type: float32 inputs
+run 16 float32 lanes per AVX-512 vector (their outputs were float32 before; the error against
+the float64 brute force is unchanged, tests/splat_cpu), float64 inputs run in float64.
 """
 
 from __future__ import annotations
@@ -20,81 +22,124 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, prange
+from llvmlite import ir
+from numba import njit, prange, types
+from numba.extending import intrinsic, overload
+from numpy.polynomial import Chebyshev, Polynomial
 
 from .constants import ALPHA_MAX, ALPHA_MIN, T_MIN, TILE
 
 _FASTMATH = {"contract", "arcp", "nsz", "reassoc"}  # FMA and reassociation; no nan/inf assumptions
 _SIGMA_CLAMP = 5.6  # exp(-5.6) = 0.0037 < ALPHA_MIN: beyond it alpha is skipped whatever the opacity
 assert math.exp(-_SIGMA_CLAMP) < ALPHA_MIN
-_CULL_MARGIN = 1e-6  # binning widens each ellipse to sigma <= smax + this (>> exp's 1e-11 relative error)
+_CULL_MARGIN = 1e-4  # binning widens each ellipse to sigma <= smax + this (>> float32 rounding of sigma and exp)
 _ROW_MARGIN = 1e-3  # and each row range by this many pixels (>> the rounding of the ellipse geometry)
 _ILL_CONDITIONED = 1e-9  # det(conic) below this times a c: the geometry is not trusted, the box's rows are kept
-_TILE_SHIFT = 4  # TILE = 1 << 4; pixel i of a tile's flat buffers sits at row i >> 4, column i & 15
-_LANE_MASK = 15
-assert TILE == 1 << _TILE_SHIFT == _LANE_MASK + 1
+_TILE_SHIFT = 4  # TILE = 1 << 4: pixel x lies in tile column x >> 4
+HALF = TILE // 2  # each tile's buffers hold its left HALF columns, then its right ones
+_HALF_PX = HALF * TILE  # pixels of a half tile
+_HALF_SHIFT = 3  # HALF = 1 << 3
+assert HALF == 1 << _HALF_SHIFT
 
 
-@njit(cache=True, inline="always", fastmath=_FASTMATH, error_model="numpy")
-def _exp_neg(s):
-    """exp(-s) for s in [0, _SIGMA_CLAMP] as (exp(-s / 16))^16, Taylor to degree 10 on [-0.35, 0]; vectorisable.
+_LN2 = math.log(2.0)  # one constant: fastmath would fold a Cody-Waite split of it (n <= 8 keeps the error small)
+# exp(-r) on |r| <= ln2 / 2 by its Chebyshev interpolant in the power basis, lowest degree first; the
+# degree per float width reaches the width's rounding (tested in tests/splat_cpu/test_numba_kernels.py)
+_EXP_DEGREE = {32: 6, 64: 12}
+_EXP_COEFS = {bits: tuple(Chebyshev.interpolate(lambda r: np.exp(-r), deg, domain=[-_LN2 / 2, _LN2 / 2])
+                          .convert(kind=Polynomial).coef.tolist()) for bits, deg in _EXP_DEGREE.items()}
+_FLOAT_BITS = {32: (23, 127), 64: (52, 1023)}  # mantissa bits and exponent bias of IEEE floats
 
-    Relative error < 1e-11 (the Taylor remainder 0.35^11 / 11! = 2.4e-13, times 16 by the squarings).
+
+@intrinsic
+def _float_from_bits(typingctx, bits, like):
+    """The float of `like`'s type whose IEEE bit pattern is the integer `bits` (LLVM bitcast, vectorisable)."""
+    if not isinstance(bits, types.Integer) or not isinstance(like, types.Float):
+        return None
+    int_ty = ir.IntType(like.bitwidth)
+    float_ty = ir.FloatType() if like.bitwidth == 32 else ir.DoubleType()
+
+    def codegen(context, builder, signature, args):
+        value = args[0]
+        if bits.bitwidth > like.bitwidth:
+            value = builder.trunc(value, int_ty)
+        elif bits.bitwidth < like.bitwidth:
+            value = builder.sext(value, int_ty)
+        return builder.bitcast(value, float_ty)
+
+    return like(bits, like), codegen
+
+
+def exp_neg(s):
+    """exp(-s) for s in [0, _SIGMA_CLAMP], in the float type of s (float32 or float64); numba only."""
+    raise NotImplementedError("exp_neg is compiled inside numba kernels only")
+
+
+@overload(exp_neg, inline="always")
+def _exp_neg_impl(s):
+    """exp(-s) = 2^-n exp(-r), n = round(s / ln 2), |r| <= ln2 / 2: a polynomial and an exponent, no branch.
+
+    Relative error 8.7e-8 in float32 and 2.0e-15 in float64 (measured by tests/splat_cpu/test_numba_kernels.py).
     """
-    x = -0.0625 * s
-    p = 1.0 / 3628800.0
-    p = p * x + 1.0 / 362880.0
-    p = p * x + 1.0 / 40320.0
-    p = p * x + 1.0 / 5040.0
-    p = p * x + 1.0 / 720.0
-    p = p * x + 1.0 / 120.0
-    p = p * x + 1.0 / 24.0
-    p = p * x + 1.0 / 6.0
-    p = p * x + 0.5
-    p = p * x + 1.0
-    p = p * x + 1.0
-    p = p * p
-    p = p * p
-    p = p * p
-    return p * p
+    if not isinstance(s, types.Float):
+        return None
+    f = np.float32 if s.bitwidth == 32 else np.float64
+    coefs = tuple(f(c) for c in _EXP_COEFS[s.bitwidth][::-1])  # highest degree first, for Horner
+    mant, bias = _FLOAT_BITS[s.bitwidth]
+    log2e, ln2, half = f(1.0 / _LN2), f(_LN2), f(0.5)
+
+    def impl(s):
+        n = np.floor(s * log2e + half)
+        r = s - n * ln2
+        p = coefs[0]
+        for c in coefs[1:]:
+            p = p * r + c
+        return p * _float_from_bits((bias - np.int64(n)) << mant, s)
+
+    return impl
 
 
 @njit(cache=True, inline="always")
-def _band_extent(mx, my, ca, cb, cc, smax, xa, xb):  # -> (ylo, yhi), (inf, -inf) when empty
-    """The y-extent of the ellipse sigma <= smax, sigma = 0.5 (a dx^2 + c dy^2) + b dx dy with
-    (dx, dy) = (mx - x, my - y), inside the vertical band xa <= x <= xb: the ellipse's top and
-    bottom points when they lie in the band, and the chords on the band's two edges."""
+def _ellipse(mx, my, ca, cb, cc, smax):  # -> the terms of `_band_extent`, once per Gaussian
+    """The ellipse sigma <= smax, sigma = 0.5 (a dx^2 + c dy^2) + b dx dy with (dx, dy) = (mx - x, my - y):
+    its centre, b, 1 / c, b^2 - a c, 2 c smax, and its top and bottom points (where dx = -b dy / a)."""
+    ey = math.sqrt(2.0 * smax * ca / (ca * cc - cb * cb))
+    ex = cb * ey / ca
+    return mx, my, cb, 1.0 / cc, cb * cb - ca * cc, 2.0 * cc * smax, mx + ex, my - ey, mx - ex, my + ey
+
+
+@njit(cache=True, inline="always")
+def _band_extent(ell, xa, xb):  # -> (ylo, yhi), (inf, -inf) when empty
+    """The y-extent of the ellipse `ell` (from `_ellipse`) inside the vertical band xa <= x <= xb:
+    its top and bottom points when they lie in the band, and the chords on the band's two edges."""
+    mx, my, cb, inv_cc, q, c2s, x_top, y_top, x_bot, y_bot = ell
     ylo, yhi = np.inf, -np.inf
-    det = ca * cc - cb * cb
-    ey = math.sqrt(2.0 * smax * ca / det)  # |dy| at the top and bottom, where dx = -b dy / a
-    for sgn in range(2):
-        dy = ey if sgn == 0 else -ey
-        x = mx + cb * dy / ca
-        if xa <= x <= xb:
-            ylo = min(ylo, my - dy)
-            yhi = max(yhi, my - dy)
+    if xa <= x_top <= xb:
+        ylo, yhi = min(ylo, y_top), max(yhi, y_top)
+    if xa <= x_bot <= xb:
+        ylo, yhi = min(ylo, y_bot), max(yhi, y_bot)
     for edge in range(2):
         dx = mx - (xa if edge == 0 else xb)
-        disc = dx * dx * (cb * cb - ca * cc) + 2.0 * cc * smax
+        disc = dx * dx * q + c2s
         if disc >= 0.0:
             r = math.sqrt(disc)
-            ylo = min(ylo, my - (-cb * dx + r) / cc)
-            yhi = max(yhi, my - (-cb * dx - r) / cc)
+            ylo = min(ylo, my - (r - cb * dx) * inv_cc)
+            yhi = max(yhi, my + (r + cb * dx) * inv_cc)
     return ylo, yhi
 
 
 @njit(cache=True, inline="always")
-def _tile_rows(means2d, conics, smax, pix_box, c, g, tx, ty, width, height):  # -> (row0, row1), row0 > row1: miss
-    """The image rows of tile (tx, ty) where the Gaussian's alpha >= ALPHA_MIN ellipse may have
-    pixels (a superset: widened by _CULL_MARGIN in sigma and _ROW_MARGIN in pixels), within its box."""
-    row0 = max(pix_box[c, g, 2], ty * TILE)
-    row1 = min(pix_box[c, g, 3], ty * TILE + TILE - 1)
-    ca, cb, cc = np.float64(conics[c, g, 0]), np.float64(conics[c, g, 1]), np.float64(conics[c, g, 2])
-    det = ca * cc - cb * cb
-    if not (ca > 0.0 and cc > 0.0 and det > _ILL_CONDITIONED * ca * cc):
-        return row0, row1  # underflowed or needle-thin conic: keep the box's rows
-    ylo, yhi = _band_extent(np.float64(means2d[c, g, 0]), np.float64(means2d[c, g, 1]), ca, cb, cc,
-                            smax[g] + _CULL_MARGIN, tx * TILE + 0.5, min(tx * TILE + TILE, width) - 0.5)
+def _band_rows(ell, trusted, bx0, bx1, by0, by1, col0, col1, ty, height):  # -> (row0, row1), row0 > row1: miss
+    """The image rows of tile row ty, in the pixel columns col0..col1, where the Gaussian's alpha >= ALPHA_MIN
+    ellipse `ell` may have pixels (a superset: widened by _CULL_MARGIN in sigma and _ROW_MARGIN in
+    pixels), within its inclusive pixel box (bx0, bx1, by0, by1)."""
+    row0 = max(by0, ty * TILE)
+    row1 = min(by1, ty * TILE + TILE - 1)
+    if max(col0, bx0) > min(col1, bx1):
+        return row0, row0 - 1  # the box misses these columns
+    if not trusted or (col0 <= bx0 and bx1 <= col1):
+        return row0, row1  # an untrusted conic, or the whole box within the columns: the box's rows
+    ylo, yhi = _band_extent(ell, col0 + 0.5, col1 + 0.5)
     if not ylo <= yhi:
         return row0, row0 - 1
     # row j (pixel centre j + 0.5) is kept when ylo <= j + 0.5 <= yhi, widened by _ROW_MARGIN
@@ -103,22 +148,45 @@ def _tile_rows(means2d, conics, smax, pix_box, c, g, tx, ty, width, height):  # 
     return row0, row1
 
 
+@njit(cache=True, inline="always")
+def _tile_range(pix_box, c, g):  # -> (tx0, tx1, ty0, ty1): the tiles of the pixel box (inside the image: >= 0)
+    return (pix_box[c, g, 0] >> _TILE_SHIFT, pix_box[c, g, 1] >> _TILE_SHIFT,
+            pix_box[c, g, 2] >> _TILE_SHIFT, pix_box[c, g, 3] >> _TILE_SHIFT)
+
+
 @njit(cache=True, parallel=True)
-def _tile_hits(order, n_valid, tile_box, means2d, conics, smax, pix_box, width, height, box_start, out_rows):
-    """out_rows[box_start[c, j] + r] = rows of the r-th tile of the j-th Gaussian's box (camera c) it may touch."""
+def _tile_hits(order, n_valid, means2d, conics, smax, pix_box, width, height, box_start, out_rows):
+    """out_rows[box_start[c, j] + r] = rows of each half of the r-th tile of the j-th Gaussian's box
+    (camera c) it may touch, counted from the tile's top row: (row0, row1) of the left HALF
+    columns, then of the right ones; (0, -1) where it touches none."""
     for c in range(order.shape[0]):
         for j in prange(n_valid[c]):
             g = order[c, j]
             r = box_start[c, j]
-            for ty in range(tile_box[c, j, 2], tile_box[c, j, 3] + 1):
-                for tx in range(tile_box[c, j, 0], tile_box[c, j, 1] + 1):
-                    row0, row1 = _tile_rows(means2d, conics, smax, pix_box, c, g, tx, ty, width, height)
-                    out_rows[r, 0] = row0
-                    out_rows[r, 1] = row1
+            ca, cb, cc = np.float64(conics[c, g, 0]), np.float64(conics[c, g, 1]), np.float64(conics[c, g, 2])
+            # an underflowed or needle-thin conic is not trusted: its box's rows are kept
+            trusted = ca > 0.0 and cc > 0.0 and ca * cc - cb * cb > _ILL_CONDITIONED * ca * cc
+            ell = _ellipse(np.float64(means2d[c, g, 0]), np.float64(means2d[c, g, 1]), ca, cb, cc,
+                           smax[g] + _CULL_MARGIN) if trusted else (0.0,) * 10
+            bx0, bx1, by0, by1 = pix_box[c, g, 0], pix_box[c, g, 1], pix_box[c, g, 2], pix_box[c, g, 3]
+            tx0, tx1, ty0, ty1 = _tile_range(pix_box, c, g)
+            for ty in range(ty0, ty1 + 1):
+                for tx in range(tx0, tx1 + 1):
+                    for h in range(2):
+                        col0 = tx * TILE + h * HALF
+                        row0, row1 = _band_rows(ell, trusted, bx0, bx1, by0, by1, col0,
+                                                min(col0 + HALF, width) - 1, ty, height)
+                        miss = row0 > row1
+                        out_rows[r, 2 * h] = 0 if miss else row0 - ty * TILE
+                        out_rows[r, 2 * h + 1] = -1 if miss else row1 - ty * TILE
                     r += 1
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
+def _hits(rows, r):  # does candidate/entry r touch any row of either half?
+    return rows[r, 0] <= rows[r, 1] or rows[r, 2] <= rows[r, 3]
+
+
 def bin_tiles(
     order,  # [C, N] int64: per camera, Gaussian indices front to back (first n_valid[c] are valid)
     n_valid,  # [C] int64
@@ -130,54 +198,70 @@ def bin_tiles(
     height,
     tiles_x,
     tiles_y,
-):  # -> tile_start [C * n_tiles + 1] int64, gid [n_isect] int32, rows [n_isect, 2] int64
+):  # -> tile_start [C * n_tiles + 1] int64, gid [n_isect] int32, rows [n_isect, 4] int8
     """Lists of the Gaussians meeting each tile, front to back, with the rows of the tile each
     may touch: the tiles of each pixel box, less those its alpha >= ALPHA_MIN ellipse misses
-    (gsplat's tile culling), and per kept entry the ellipse's row range inside the tile (on the
-    random 20k-Gaussian benchmark scene: 17% fewer entries, 26% fewer rows). The geometry runs
+    (gsplat's tile culling), and per kept entry the ellipse's row range inside each half of the
+    tile (its left and right HALF columns), counted from the tile's top row. The geometry runs
     in parallel, the counting sort by tile after it."""
+    # alpha >= ALPHA_MIN iff sigma <= smax
+    smax = np.log(np.maximum(opacities.astype(np.float64), ALPHA_MIN) / ALPHA_MIN)
+    box_start = _box_starts(order, n_valid, pix_box)
+    cand = np.empty((box_start[-1, -1], 4), dtype=np.int8)  # small: fresh memory costs page faults
+    _tile_hits(order, n_valid, means2d, conics, smax, pix_box, width, height, box_start, cand)
+    return _tile_lists(order, n_valid, pix_box, box_start, cand, tiles_x, tiles_y)
+
+
+@njit(cache=True)
+def _box_starts(order, n_valid, pix_box):  # -> box_start [C, N + 1] int64 (box_start[-1, -1]: the total)
+    """Where the candidate tiles of each camera's j-th Gaussian start in one flat array over all cameras."""
     n_cam, n = order.shape
-    n_tiles = tiles_x * tiles_y
-    smax = np.log(np.maximum(opacities.astype(np.float64), ALPHA_MIN) / ALPHA_MIN)  # alpha >= ALPHA_MIN iff sigma <= smax
-    tile_box = np.empty((n_cam, n, 4), dtype=np.int64)  # per list position: tile range (tx0, tx1, ty0, ty1)
     box_start = np.zeros((n_cam, n + 1), dtype=np.int64)
     total = 0
     for c in range(n_cam):
         for j in range(n_valid[c]):
-            g = order[c, j]
-            for q in range(4):
-                tile_box[c, j, q] = pix_box[c, g, q] >> _TILE_SHIFT  # boxes are inside the image: >= 0
+            tx0, tx1, ty0, ty1 = _tile_range(pix_box, c, order[c, j])
             box_start[c, j] = total
-            total += (tile_box[c, j, 1] - tile_box[c, j, 0] + 1) * (tile_box[c, j, 3] - tile_box[c, j, 2] + 1)
-    cand = np.empty((total, 2), dtype=np.int64)
-    _tile_hits(order, n_valid, tile_box, means2d, conics, smax, pix_box, width, height, box_start, cand)
+            total += (tx1 - tx0 + 1) * (ty1 - ty0 + 1)
+        box_start[c, n_valid[c]:] = total
+    return box_start
+
+
+@njit(cache=True, parallel=True)
+def _tile_lists(order, n_valid, pix_box, box_start, cand, tiles_x, tiles_y):  # -> tile_start, gid, rows
+    """Counting sort of the kept candidates by tile, keeping each camera's front-to-back order
+    (cameras in parallel: their tiles are disjoint)."""
+    n_cam = order.shape[0]
+    n_tiles = tiles_x * tiles_y
     counts = np.zeros(n_cam * n_tiles + 1, dtype=np.int64)
-    for c in range(n_cam):
+    for c in prange(n_cam):
         base = c * n_tiles
         for j in range(n_valid[c]):
             r = box_start[c, j]
-            for ty in range(tile_box[c, j, 2], tile_box[c, j, 3] + 1):
-                for tx in range(tile_box[c, j, 0], tile_box[c, j, 1] + 1):
-                    if cand[r, 0] <= cand[r, 1]:
+            tx0, tx1, ty0, ty1 = _tile_range(pix_box, c, order[c, j])
+            for ty in range(ty0, ty1 + 1):
+                for tx in range(tx0, tx1 + 1):
+                    if _hits(cand, r):
                         counts[base + ty * tiles_x + tx + 1] += 1
                     r += 1
     tile_start = np.cumsum(counts)
     fill = tile_start[:-1].copy()
     gid = np.empty(tile_start[-1], dtype=np.int32)
-    rows = np.empty((tile_start[-1], 2), dtype=np.int64)
-    for c in range(n_cam):
+    rows = np.empty((tile_start[-1], 4), dtype=np.int8)
+    for c in prange(n_cam):
         base = c * n_tiles
         for j in range(n_valid[c]):
             g = order[c, j]
             r = box_start[c, j]
-            for ty in range(tile_box[c, j, 2], tile_box[c, j, 3] + 1):
-                for tx in range(tile_box[c, j, 0], tile_box[c, j, 1] + 1):
-                    if cand[r, 0] <= cand[r, 1]:
+            tx0, tx1, ty0, ty1 = _tile_range(pix_box, c, order[c, j])
+            for ty in range(ty0, ty1 + 1):
+                for tx in range(tx0, tx1 + 1):
+                    if _hits(cand, r):
                         t = base + ty * tiles_x + tx
                         f = fill[t]
                         gid[f] = g
-                        rows[f, 0] = cand[r, 0]
-                        rows[f, 1] = cand[r, 1]
+                        for q in range(4):
+                            rows[f, q] = cand[r, q]
                         fill[t] = f + 1
                     r += 1
     return tile_start, gid, rows
@@ -193,6 +277,17 @@ def _tile_origin(t, tiles_x, n_tiles, width, height):  # -> cam, px0, py0, pw, p
     return cam, px0, py0, min(TILE, width - px0), min(TILE, height - py0)
 
 
+@njit(cache=True, inline="always")
+def _pixel(lx, ly):  # -> index in a tile's buffers of the pixel at column lx, row ly of the tile
+    return (lx >> _HALF_SHIFT) * _HALF_PX + ly * HALF + (lx & (HALF - 1))
+
+
+@njit(cache=True)
+def _pixel_offsets(fdt):  # -> x [TILE * TILE], y [TILE * TILE]: column and row in the tile of buffer index i
+    i = np.arange(TILE * TILE)
+    return ((i // _HALF_PX) * HALF + (i & (HALF - 1))).astype(fdt), ((i >> _HALF_SHIFT) & (TILE - 1)).astype(fdt)
+
+
 @njit(cache=True, parallel=True, fastmath=_FASTMATH, error_model="numpy")
 def forward_tiles(
     means2d,  # [C, N, 2]
@@ -200,7 +295,7 @@ def forward_tiles(
     opacities,  # [N]
     colors,  # [N, D]
     background,  # [D]
-    rows,  # [n_isect, 2] int64: image rows of the tile each entry may touch (from bin_tiles)
+    rows,  # [n_isect, 4] int8: rows of each half tile each entry may touch (from bin_tiles)
     tile_start,  # [C * n_tiles + 1] int64
     gid,  # [n_isect] int32
     width,
@@ -209,70 +304,83 @@ def forward_tiles(
     tiles_y,
     out_img,  # [C, H, W, D] written
     out_t,  # [C, H, W] written: final transmittance
-    out_last,  # [C, H, W] int64 written: list position of the last contributing Gaussian, start - 1 if none
+    out_last,  # [C, H, W] int32 written: position in the tile's list of the last contributing Gaussian, -1 if none
 ):
+    """Composite every tile front to back, in the float type of the inputs (all of one dtype)."""
     n_tiles = tiles_x * tiles_y
     n_all = tile_start.shape[0] - 1
     d = colors.shape[1]
     npx = TILE * TILE
+    fdt = means2d.dtype
+    f = fdt.type
+    zero, one, half = f(0.0), f(1.0), f(0.5)
+    a_max, a_min, t_min, s_clamp = f(ALPHA_MAX), f(ALPHA_MIN), f(T_MIN), f(_SIGMA_CLAMP)
+    pix_x, pix_y = _pixel_offsets(fdt)
     for t in prange(n_all):
         cam, px0, py0, pw, ph = _tile_origin(t, tiles_x, n_tiles, width, height)
         start, end = tile_start[t], tile_start[t + 1]
-        # flat per-tile state, pixel i = ly * TILE + lx: one long vectorisable loop per Gaussian
+        # flat per-tile state (pixel order of `_pixel`): one long vectorisable loop per Gaussian and half tile
         # T per pixel, negated once the pixel is spent (and -1 outside the image): no separate mask
-        trans = np.full(npx, -1.0)
+        trans = np.full(npx, -one)
         for ly in range(ph):
             for lx in range(pw):
-                trans[ly * TILE + lx] = 1.0
-        acc = np.zeros(d * npx)
-        last = np.full(npx, start - 1, dtype=np.int64)
+                trans[_pixel(lx, ly)] = one
+        acc = np.zeros(d * npx, fdt)
+        last = np.full(npx, -1, np.int32)
         n_active = pw * ph
-        wbuf = np.zeros(npx)
-        fx0, fy0 = px0 + 0.5, py0 + 0.5
+        wbuf = np.zeros(npx, fdt)
         for k in range(start, end):
             if n_active == 0:
                 break
             g = gid[k]
-            mx, my = np.float64(means2d[cam, g, 0]) - fx0, np.float64(means2d[cam, g, 1]) - fy0
-            ca, cb, cc = np.float64(conics[cam, g, 0]), np.float64(conics[cam, g, 1]), np.float64(conics[cam, g, 2])
-            op = np.float64(opacities[g])
-            c0 = np.float64(colors[g, 0])
-            i0 = (rows[k, 0] - py0) * TILE
-            i1 = (rows[k, 1] - py0 + 1) * TILE
-            my -= i0 >> _TILE_SHIFT
-            # slices, so that the loop index starts at 0: numba then knows it is not negative and
-            # LLVM vectorises the loop (a range(i0, i1) loop stays scalar)
-            tr, ac, la, wb = trans[i0:i1], acc[i0:i1], last[i0:i1], wbuf[i0:i1]
-            nstop = 0.0
-            for j in range(i1 - i0):
-                dx = mx - (j & _LANE_MASK)
-                dy = my - (j >> _TILE_SHIFT)
-                sigma = 0.5 * (ca * dx * dx + cc * dy * dy) + cb * dx * dy
-                alpha = min(ALPHA_MAX, op * _exp_neg(min(max(sigma, 0.0), _SIGMA_CLAMP)))
-                tc = tr[j]
-                nt = tc * (1.0 - alpha)
-                ok = (sigma >= 0.0) & (alpha >= ALPHA_MIN) & (tc > 0.0)
-                stop = ok & (nt <= T_MIN)
-                con = ok & (nt > T_MIN)
-                w = alpha * tc if con else 0.0
-                wb[j] = w
-                ac[j] += w * c0
-                tr[j] = nt if con else (-tc if stop else tc)
-                la[j] = k if con else la[j]
-                nstop += 1.0 if stop else 0.0
-            n_active -= int(nstop)
-            for ch in range(1, d):
-                cv = np.float64(colors[g, ch])
-                ach = acc[ch * npx + i0: ch * npx + i1]
+            kk = np.int32(k - start)
+            mx = f(means2d[cam, g, 0]) - f(px0) - half  # the centre relative to the tile's first pixel centre
+            my = f(means2d[cam, g, 1]) - f(py0) - half
+            ca, cb, cc = f(conics[cam, g, 0]), f(conics[cam, g, 1]), f(conics[cam, g, 2])
+            ha, hc = half * ca, half * cc
+            op = f(opacities[g])
+            c0 = f(colors[g, 0])
+            for h in range(2):
+                ya, yb = np.int64(rows[k, 2 * h]), np.int64(rows[k, 2 * h + 1])
+                if ya > yb:
+                    continue
+                i0 = h * _HALF_PX + ya * HALF
+                i1 = h * _HALF_PX + (yb + 1) * HALF
+                # slices, so that the loop index starts at 0: numba then knows it is not negative and
+                # LLVM vectorises the loop (a range(i0, i1) loop stays scalar)
+                tr, ac, la, wb = trans[i0:i1], acc[i0:i1], last[i0:i1], wbuf[i0:i1]
+                ox, oy = pix_x[i0:i1], pix_y[i0:i1]
+                n_stop = zero
                 for j in range(i1 - i0):
-                    ach[j] += wb[j] * cv
+                    dx = mx - ox[j]
+                    dy = my - oy[j]
+                    sigma = (ha * dx + cb * dy) * dx + hc * dy * dy  # 0.5 (a dx^2 + c dy^2) + b dx dy
+                    alpha = min(a_max, op * exp_neg(min(max(sigma, zero), s_clamp)))
+                    tc = tr[j]
+                    nt = tc * (one - alpha)
+                    ok = (sigma >= zero) & (alpha >= a_min) & (tc > zero)
+                    stop = ok & (nt <= t_min)
+                    con = ok & (nt > t_min)
+                    w = alpha * tc if con else zero
+                    wb[j] = w
+                    ac[j] += w * c0
+                    tr[j] = nt if con else (-tc if stop else tc)
+                    la[j] = kk if con else la[j]
+                    n_stop += one if stop else zero
+                n_active -= np.int64(n_stop)
+                for ch in range(1, d):
+                    cv = f(colors[g, ch])
+                    ach = acc[ch * npx + i0: ch * npx + i1]
+                    for j in range(i1 - i0):
+                        ach[j] += wb[j] * cv
         for ly in range(ph):
             for lx in range(pw):
                 y, x = py0 + ly, px0 + lx
-                i = ly * TILE + lx
+                i = _pixel(lx, ly)
+                tf = abs(trans[i])
                 for ch in range(d):
-                    out_img[cam, y, x, ch] = acc[ch * npx + i] + abs(trans[i]) * background[ch]
-                out_t[cam, y, x] = abs(trans[i])
+                    out_img[cam, y, x, ch] = acc[ch * npx + i] + tf * f(background[ch])
+                out_t[cam, y, x] = tf
                 out_last[cam, y, x] = last[i]
 
 
@@ -283,134 +391,149 @@ def backward_tiles(
     opacities,  # [N]
     colors,  # [N, D]
     background,  # [D]
-    rows,  # [n_isect, 2] int64: image rows of the tile each entry may touch (from bin_tiles)
+    rows,  # [n_isect, 4] int8: rows of each half tile each entry may touch (from bin_tiles)
     tile_start,  # [C * n_tiles + 1] int64
     gid,  # [n_isect] int32
     width,
     height,
     tiles_x,
     tiles_y,
-    t_final,  # [C, H, W]
-    last_idx,  # [C, H, W] int64
+    t_final,  # [C, H, W] from forward_tiles
+    last_idx,  # [C, H, W] int32 from forward_tiles
     v_img,  # [C, H, W, D] cotangent of the images
     v_alpha,  # [C, H, W] cotangent of the alphas
     out_geo,  # [n_isect, 6] written: d/d (mx, my, conic a, b, c, opacity) per list entry
     out_col,  # [n_isect, D] written: d/d colour per list entry
 ):
+    """Walk each tile's list back from its last contributing Gaussian; every entry's row is written."""
     n_tiles = tiles_x * tiles_y
     n_all = tile_start.shape[0] - 1
     d = colors.shape[1]
     npx = TILE * TILE
+    fdt = means2d.dtype
+    f = fdt.type
+    zero, one, half = f(0.0), f(1.0), f(0.5)
+    a_max, a_min, s_clamp = f(ALPHA_MAX), f(ALPHA_MIN), f(_SIGMA_CLAMP)
+    pix_x, pix_y = _pixel_offsets(fdt)
     for t in prange(n_all):
         start, end = tile_start[t], tile_start[t + 1]
         if end == start:
             continue
         cam, px0, py0, pw, ph = _tile_origin(t, tiles_x, n_tiles, width, height)
-        trans = np.ones(npx)
+        trans = np.ones(npx, fdt)
         # rest: sum over later Gaussians of (c . v_C) alpha T, plus T_N (bg . v_C) - T_N v_alpha
-        rest = np.zeros(npx)
-        vc = np.zeros(d * npx)
-        last = np.full(npx, start - 1, dtype=np.int64)  # pixels outside the image never match
-        kmax = start - 1
-        row_kmax = np.full(TILE, start - 1, dtype=np.int64)  # rows whose pixels all stopped before k
+        rest = np.zeros(npx, fdt)
+        vc = np.zeros(d * npx, fdt)
+        last = np.full(npx, -1, np.int32)  # pixels outside the image never match
+        row_kmax = np.full((2, TILE), -1, np.int64)  # per half row, the last list position any of its pixels uses
         for ly in range(ph):
             for lx in range(pw):
                 y, x = py0 + ly, px0 + lx
-                i = ly * TILE + lx
-                tf = np.float64(t_final[cam, y, x])
+                i = _pixel(lx, ly)
+                tf = f(t_final[cam, y, x])
                 trans[i] = tf
-                bgdot = 0.0
+                bgdot = zero
                 for ch in range(d):
-                    vc[ch * npx + i] = v_img[cam, y, x, ch]
-                    bgdot += background[ch] * v_img[cam, y, x, ch]
-                rest[i] = tf * bgdot - tf * v_alpha[cam, y, x]
+                    vc[ch * npx + i] = f(v_img[cam, y, x, ch])
+                    bgdot += f(background[ch]) * f(v_img[cam, y, x, ch])
+                rest[i] = tf * bgdot - tf * f(v_alpha[cam, y, x])
                 last[i] = last_idx[cam, y, x]
-                row_kmax[ly] = max(row_kmax[ly], last[i])
-            kmax = max(kmax, row_kmax[ly])
-        wbuf = np.zeros(npx)
-        cdot = np.zeros(npx)
-        fx0, fy0 = px0 + 0.5, py0 + 0.5
-        for k in range(kmax, start - 1, -1):
+                h = lx >> _HALF_SHIFT
+                row_kmax[h, ly] = max(row_kmax[h, ly], np.int64(last[i]))
+        kmax = row_kmax.max()
+        out_geo[start + kmax + 1: end] = 0.0  # behind every pixel's last contribution
+        out_col[start + kmax + 1: end] = 0.0
+        wbuf = np.zeros(npx, fdt)
+        cdot = np.zeros(npx, fdt)
+        for kk in range(kmax, -1, -1):
+            k = start + kk
             g = gid[k]
-            ya = rows[k, 0] - py0
-            yb = rows[k, 1] - py0
-            while ya <= yb and row_kmax[ya] < k:  # rows spent before k cost nothing
-                ya += 1
-            while yb >= ya and row_kmax[yb] < k:
-                yb -= 1
-            if ya > yb:
-                continue
-            i0, i1 = ya * TILE, (yb + 1) * TILE
-            mx = np.float64(means2d[cam, g, 0]) - fx0
-            my = np.float64(means2d[cam, g, 1]) - fy0 - ya
-            ca, cb, cc = np.float64(conics[cam, g, 0]), np.float64(conics[cam, g, 1]), np.float64(conics[cam, g, 2])
-            op = np.float64(opacities[g])
-            c0 = np.float64(colors[g, 0])
-            # slices from 0: see forward_tiles
-            tr, rs, la, wb, v0, cd = trans[i0:i1], rest[i0:i1], last[i0:i1], wbuf[i0:i1], vc[i0:i1], cdot[i0:i1]
-            if d > 1:  # c . v_C per pixel (inline below when d == 1)
-                for j in range(i1 - i0):
-                    cd[j] = c0 * v0[j]
-                for ch in range(1, d):
-                    cv = np.float64(colors[g, ch])
-                    vch = vc[ch * npx + i0: ch * npx + i1]
-                    for j in range(i1 - i0):
-                        cd[j] += cv * vch[j]
+            mx = f(means2d[cam, g, 0]) - f(px0) - half
+            my = f(means2d[cam, g, 1]) - f(py0) - half
+            ca, cb, cc = f(conics[cam, g, 0]), f(conics[cam, g, 1]), f(conics[cam, g, 2])
+            ha, hc = half * ca, half * cc
+            op = f(opacities[g])
+            c0 = f(colors[g, 0])
+            k32 = np.int32(kk)
             # sums of v_sigma times dx, dy, dx^2, dx dy, dy^2: d sigma / d (mx, my, a, b, c) are linear in them
-            g_x = 0.0
-            g_y = 0.0
-            g_xx = 0.0
-            g_xy = 0.0
-            g_yy = 0.0
-            g_o = 0.0
-            g_c0 = 0.0
-            n_hit = 0.0
-            for j in range(i1 - i0):
-                dx = mx - (j & _LANE_MASK)
-                dy = my - (j >> _TILE_SHIFT)
-                sigma = 0.5 * (ca * dx * dx + cc * dy * dy) + cb * dx * dy
-                vis = _exp_neg(min(max(sigma, 0.0), _SIGMA_CLAMP))
-                raw = op * vis
-                alpha = min(ALPHA_MAX, raw)
-                ok = (sigma >= 0.0) & (alpha >= ALPHA_MIN) & (k <= la[j])
-                ra = 1.0 / (1.0 - alpha)
-                tb = tr[j] * ra  # T before this Gaussian
-                w = alpha * tb
-                cdj = cd[j] if d > 1 else c0 * v0[j]
-                v_al = cdj * tb - rs[j] * ra
-                tr[j] = tb if ok else tr[j]
-                rs[j] = rs[j] + cdj * w if ok else rs[j]
-                wv = w if ok else 0.0
-                wb[j] = wv
-                g_c0 += wv * v0[j]
-                gate = ok & (raw < ALPHA_MAX)  # the clamp at ALPHA_MAX passes no gradient
-                v_sig = -raw * v_al if gate else 0.0
-                g_o += vis * v_al if gate else 0.0
-                sx = v_sig * dx
-                sy = v_sig * dy
-                g_xx += sx * dx
-                g_xy += sx * dy
-                g_yy += sy * dy
-                g_x += sx
-                g_y += sy
-                n_hit += 1.0 if ok else 0.0
-            out_col[k, 0] = g_c0
-            for ch in range(1, d):
-                vch = vc[ch * npx + i0: ch * npx + i1]
-                sc = 0.0
+            g_x = zero
+            g_y = zero
+            g_xx = zero
+            g_xy = zero
+            g_yy = zero
+            g_o = zero
+            g_c0 = zero
+            n_hit = zero
+            for ch in range(d):
+                out_col[k, ch] = 0.0
+            for h in range(2):
+                ya, yb = np.int64(rows[k, 2 * h]), np.int64(rows[k, 2 * h + 1])
+                while ya <= yb and row_kmax[h, ya] < kk:  # rows spent before k cost nothing
+                    ya += 1
+                while yb >= ya and row_kmax[h, yb] < kk:
+                    yb -= 1
+                if ya > yb:
+                    continue
+                i0, i1 = h * _HALF_PX + ya * HALF, h * _HALF_PX + (yb + 1) * HALF
+                # slices from 0: see forward_tiles
+                tr, rs, la, wb, v0, cd = trans[i0:i1], rest[i0:i1], last[i0:i1], wbuf[i0:i1], vc[i0:i1], cdot[i0:i1]
+                ox, oy = pix_x[i0:i1], pix_y[i0:i1]
+                if d > 1:  # c . v_C per pixel (inline below when d == 1)
+                    for j in range(i1 - i0):
+                        cd[j] = c0 * v0[j]
+                    for ch in range(1, d):
+                        cv = f(colors[g, ch])
+                        vch = vc[ch * npx + i0: ch * npx + i1]
+                        for j in range(i1 - i0):
+                            cd[j] += cv * vch[j]
                 for j in range(i1 - i0):
-                    sc += wb[j] * vch[j]
-                out_col[k, ch] = sc
-            if n_hit > 0.0:
+                    dx = mx - ox[j]
+                    dy = my - oy[j]
+                    sigma = (ha * dx + cb * dy) * dx + hc * dy * dy
+                    vis = exp_neg(min(max(sigma, zero), s_clamp))
+                    raw = op * vis
+                    alpha = min(a_max, raw)
+                    ok = (sigma >= zero) & (alpha >= a_min) & (k32 <= la[j])
+                    ra = one / (one - alpha)
+                    tb = tr[j] * ra  # T before this Gaussian
+                    w = alpha * tb
+                    cdj = cd[j] if d > 1 else c0 * v0[j]
+                    v_al = cdj * tb - rs[j] * ra
+                    tr[j] = tb if ok else tr[j]
+                    rs[j] = rs[j] + cdj * w if ok else rs[j]
+                    wv = w if ok else zero
+                    wb[j] = wv
+                    g_c0 += wv * v0[j]
+                    gate = ok & (raw < a_max)  # the clamp at ALPHA_MAX passes no gradient
+                    v_sig = -raw * v_al if gate else zero
+                    g_o += vis * v_al if gate else zero
+                    sx = v_sig * dx
+                    sy = v_sig * dy
+                    g_xx += sx * dx
+                    g_xy += sx * dy
+                    g_yy += sy * dy
+                    g_x += sx
+                    g_y += sy
+                    n_hit += one if ok else zero
+                for ch in range(1, d):
+                    vch = vc[ch * npx + i0: ch * npx + i1]
+                    sc = zero
+                    for j in range(i1 - i0):
+                        sc += wb[j] * vch[j]
+                    out_col[k, ch] += sc
+            out_col[k, 0] = g_c0
+            if n_hit > zero:
                 out_geo[k, 0] = ca * g_x + cb * g_y
                 out_geo[k, 1] = cb * g_x + cc * g_y
-                out_geo[k, 2] = 0.5 * g_xx
+                out_geo[k, 2] = half * g_xx
                 out_geo[k, 3] = g_xy
-                out_geo[k, 4] = 0.5 * g_yy
+                out_geo[k, 4] = half * g_yy
                 out_geo[k, 5] = g_o
+            else:
+                out_geo[k] = 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def reduce_grads(
     tile_start,  # [C * n_tiles + 1] int64
     gid,  # [n_isect] int32
@@ -419,19 +542,19 @@ def reduce_grads(
     col,  # [n_isect, D]
     v_means2d,  # [C, N, 2] accumulated
     v_conics,  # [C, N, 3] accumulated
-    v_opac,  # [N] accumulated
-    v_colors,  # [N, D] accumulated
+    v_opac,  # [C, N] accumulated: per camera, summed over cameras by the caller
+    v_colors,  # [C, N, D] accumulated: per camera, summed over cameras by the caller
 ):
+    """Sum the per-entry gradient rows per Gaussian, one camera per thread."""
     d = col.shape[1]
-    for t in range(tile_start.shape[0] - 1):
-        cam = t // n_tiles
-        for k in range(tile_start[t], tile_start[t + 1]):
+    for cam in prange(v_means2d.shape[0]):
+        for k in range(tile_start[cam * n_tiles], tile_start[(cam + 1) * n_tiles]):
             g = gid[k]
             v_means2d[cam, g, 0] += geo[k, 0]
             v_means2d[cam, g, 1] += geo[k, 1]
             v_conics[cam, g, 0] += geo[k, 2]
             v_conics[cam, g, 1] += geo[k, 3]
             v_conics[cam, g, 2] += geo[k, 4]
-            v_opac[g] += geo[k, 5]
+            v_opac[cam, g] += geo[k, 5]
             for ch in range(d):
-                v_colors[g, ch] += col[k, ch]
+                v_colors[cam, g, ch] += col[k, ch]

@@ -18,6 +18,7 @@ from numba import njit, prange
 from .constants import ALPHA_MIN, COV2D_BLUR, NEAR
 
 _INT32_MAX = 2**31 - 1
+_FORWARD_CHUNKS = 64  # Gaussians are projected in this many chunks (scratch arrays once per chunk)
 
 
 @njit(cache=True, inline="always")
@@ -65,6 +66,71 @@ def _jw(viewmats, c, fx, fy, x, y, z, t):  # t = J W [2, 3] written (J at the me
         t[1, k] = j11 * viewmats[c, 1, k] + j12 * viewmats[c, 2, k]
 
 
+@njit(cache=True, inline="always")
+def _project_one(means, quats, scales, opacities, viewmats, ks, width, height, g, q, m, cov, p, t,
+                 out_means2d, out_conics, out_depths, out_radii, out_box, out_valid):
+    """project_forward for Gaussian g into every camera; q, m, cov, p, t are scratch."""
+    n_cam = viewmats.shape[0]
+    _covariance(quats, scales, g, q, m, cov)
+    op = np.float64(opacities[g])
+    extend = math.sqrt(2.0 * math.log(max(op, ALPHA_MIN) / ALPHA_MIN))
+    for c in range(n_cam):
+        out_means2d[c, g, 0] = 0.0
+        out_means2d[c, g, 1] = 0.0
+        out_conics[c, g, 0] = 1.0
+        out_conics[c, g, 1] = 0.0
+        out_conics[c, g, 2] = 1.0
+        out_depths[c, g] = 0.0
+        out_radii[c, g, 0] = 0
+        out_radii[c, g, 1] = 0
+        out_box[c, g, 0] = 0
+        out_box[c, g, 1] = -1
+        out_box[c, g, 2] = 0
+        out_box[c, g, 3] = -1
+        out_valid[c, g] = False
+        _camera_point(viewmats, c, means, g, p)
+        x, y, z = p[0], p[1], p[2]
+        if not z > NEAR or op < ALPHA_MIN:
+            continue
+        fx, fy = np.float64(ks[c, 0, 0]), np.float64(ks[c, 1, 1])
+        _jw(viewmats, c, fx, fy, x, y, z, t)
+        ca = COV2D_BLUR
+        cb = 0.0
+        cc = COV2D_BLUR
+        for i in range(3):
+            for j in range(3):
+                ca += t[0, i] * cov[i, j] * t[0, j]
+                cb += t[0, i] * cov[i, j] * t[1, j]
+                cc += t[1, i] * cov[i, j] * t[1, j]
+        det = ca * cc - cb * cb
+        if not (det > 0.0 and math.isfinite(det)):
+            continue
+        u = fx * x / z + np.float64(ks[c, 0, 2])
+        v = fy * y / z + np.float64(ks[c, 1, 2])
+        rx = math.ceil(extend * math.sqrt(ca))
+        ry = math.ceil(extend * math.sqrt(cc))
+        # pixel i is inside when |i + 0.5 - u| <= rx; clamp in float64 before any integer conversion
+        x0 = min(max(math.ceil(u - rx - 0.5), 0.0), float(width))
+        x1 = min(max(math.floor(u + rx - 0.5), -1.0), float(width - 1))
+        y0 = min(max(math.ceil(v - ry - 0.5), 0.0), float(height))
+        y1 = min(max(math.floor(v + ry - 0.5), -1.0), float(height - 1))
+        if x0 > x1 or y0 > y1:
+            continue
+        out_valid[c, g] = True
+        out_means2d[c, g, 0] = u
+        out_means2d[c, g, 1] = v
+        out_conics[c, g, 0] = cc / det
+        out_conics[c, g, 1] = -cb / det
+        out_conics[c, g, 2] = ca / det
+        out_depths[c, g] = z
+        out_radii[c, g, 0] = np.int32(min(rx, float(_INT32_MAX)))
+        out_radii[c, g, 1] = np.int32(min(ry, float(_INT32_MAX)))
+        out_box[c, g, 0] = np.int64(x0)
+        out_box[c, g, 1] = np.int64(x1)
+        out_box[c, g, 2] = np.int64(y0)
+        out_box[c, g, 3] = np.int64(y1)
+
+
 @njit(cache=True, parallel=True)
 def project_forward(
     means,  # [N, 3]
@@ -83,71 +149,16 @@ def project_forward(
     out_valid,  # [C, N] bool written
 ):
     n = means.shape[0]
-    n_cam = viewmats.shape[0]
-    for g in prange(n):
-        q = np.empty(4)
+    n_chunks = min(n, _FORWARD_CHUNKS)
+    for chunk in prange(n_chunks):
+        q = np.empty(4)  # scratch of the chunk (allocated once per chunk, not per Gaussian)
         m = np.empty((3, 3))
         cov = np.empty((3, 3))
         p = np.empty(3)
         t = np.empty((2, 3))
-        _covariance(quats, scales, g, q, m, cov)
-        op = np.float64(opacities[g])
-        extend = math.sqrt(2.0 * math.log(max(op, ALPHA_MIN) / ALPHA_MIN))
-        for c in range(n_cam):
-            out_means2d[c, g, 0] = 0.0
-            out_means2d[c, g, 1] = 0.0
-            out_conics[c, g, 0] = 1.0
-            out_conics[c, g, 1] = 0.0
-            out_conics[c, g, 2] = 1.0
-            out_depths[c, g] = 0.0
-            out_radii[c, g, 0] = 0
-            out_radii[c, g, 1] = 0
-            out_box[c, g, 0] = 0
-            out_box[c, g, 1] = -1
-            out_box[c, g, 2] = 0
-            out_box[c, g, 3] = -1
-            out_valid[c, g] = False
-            _camera_point(viewmats, c, means, g, p)
-            x, y, z = p[0], p[1], p[2]
-            if not z > NEAR or op < ALPHA_MIN:
-                continue
-            fx, fy = np.float64(ks[c, 0, 0]), np.float64(ks[c, 1, 1])
-            _jw(viewmats, c, fx, fy, x, y, z, t)
-            ca = COV2D_BLUR
-            cb = 0.0
-            cc = COV2D_BLUR
-            for i in range(3):
-                for j in range(3):
-                    ca += t[0, i] * cov[i, j] * t[0, j]
-                    cb += t[0, i] * cov[i, j] * t[1, j]
-                    cc += t[1, i] * cov[i, j] * t[1, j]
-            det = ca * cc - cb * cb
-            if not (det > 0.0 and math.isfinite(det)):
-                continue
-            u = fx * x / z + np.float64(ks[c, 0, 2])
-            v = fy * y / z + np.float64(ks[c, 1, 2])
-            rx = math.ceil(extend * math.sqrt(ca))
-            ry = math.ceil(extend * math.sqrt(cc))
-            # pixel i is inside when |i + 0.5 - u| <= rx; clamp in float64 before any integer conversion
-            x0 = min(max(math.ceil(u - rx - 0.5), 0.0), float(width))
-            x1 = min(max(math.floor(u + rx - 0.5), -1.0), float(width - 1))
-            y0 = min(max(math.ceil(v - ry - 0.5), 0.0), float(height))
-            y1 = min(max(math.floor(v + ry - 0.5), -1.0), float(height - 1))
-            if x0 > x1 or y0 > y1:
-                continue
-            out_valid[c, g] = True
-            out_means2d[c, g, 0] = u
-            out_means2d[c, g, 1] = v
-            out_conics[c, g, 0] = cc / det
-            out_conics[c, g, 1] = -cb / det
-            out_conics[c, g, 2] = ca / det
-            out_depths[c, g] = z
-            out_radii[c, g, 0] = np.int32(min(rx, float(_INT32_MAX)))
-            out_radii[c, g, 1] = np.int32(min(ry, float(_INT32_MAX)))
-            out_box[c, g, 0] = np.int64(x0)
-            out_box[c, g, 1] = np.int64(x1)
-            out_box[c, g, 2] = np.int64(y0)
-            out_box[c, g, 3] = np.int64(y1)
+        for g in range(chunk * n // n_chunks, (chunk + 1) * n // n_chunks):
+            _project_one(means, quats, scales, opacities, viewmats, ks, width, height, g, q, m, cov, p, t,
+                         out_means2d, out_conics, out_depths, out_radii, out_box, out_valid)
 
 
 @njit(cache=True, parallel=True)
@@ -179,6 +190,7 @@ def project_backward(
         v_cov = np.empty((3, 3))  # d/d Sigma (3D), summed over cameras
         v_t = np.empty((2, 3))
         tsig = np.empty((2, 3))
+        vr = np.empty((3, 3))
         for g in range(ch * n // n_chunks, (ch + 1) * n // n_chunks):
             nrm = _covariance(quats, scales, g, q, m, cov)
             v_cov[:] = 0.0
@@ -253,7 +265,6 @@ def project_backward(
             out_means[g, 1] = vm1
             out_means[g, 2] = vm2
             # Sigma = M M^T, M = R S: v_M = (v_Sigma + v_Sigma^T) M; v_R = v_M S; v_s_j = sum_i v_M_ij R_ij
-            vr = np.empty((3, 3))
             for j in range(3):
                 s = np.float64(scales[g, j])
                 vs = 0.0
