@@ -74,7 +74,8 @@ def texture_case(seed: int) -> Case:
 def scene_case(name: str, rgb: bool, shake: float, seed: int, generator: str) -> Case:
     from scenes import make_scene
 
-    sc = make_scene(name, "small", seed=seed, rgb=rgb, c=0.2, sigma_c=0.03, shake=shake, n_frames=3, n_test=0)
+    sc = make_scene(name, "small", seed=seed, rgb=rgb, sensor="ideal", c=0.2, sigma_c=0.03, shake=shake, n_frames=3,
+                    n_test=0)
     cap = sc.capture
     c_true = Contrast(float(sc.c_pos.mean()), float(sc.c_neg.mean()))
     return Case(generator, seed, np.asarray(cap.frames, np.float64), np.asarray(cap.exposures), cap.events,
@@ -86,10 +87,11 @@ def realistic_case(seed: int, gamma: float = REAL_GAMMA, generator: str = "reali
     from scenes import make_scene
     from scenes.simulate import MIN_C_FRACTION, _crossings_numba
 
-    sc = make_scene("boxes", "small", seed=seed, rgb=False, c=0.2, sigma_c=0.03, shake=1.0, n_frames=3, n_test=0)
+    sc = make_scene("boxes", "small", seed=seed, rgb=False, sensor="ideal", c=0.2, sigma_c=0.03, shake=1.0, n_frames=3,
+                    n_test=0)
     cap = sc.capture
     ex = np.asarray(cap.exposures)
-    n_blur = int(cap.meta["n_blur"])
+    n_blur = int(sc.truth["n_blur"])  # the generator's own setting (benchmark side)
     dt = (ex[0, 1] - ex[0, 0]) / n_blur
     t_end = ex[-1, 1] + 0.02
     grid = np.arange(int(round(t_end / dt)) + 1) * dt
