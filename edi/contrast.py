@@ -46,7 +46,7 @@ from scipy import ndimage
 from scipy.optimize import minimize_scalar
 
 from .errors import InputError
-from .events import EventStream, events_in_window
+from .events import EventStream, events_in_window, seconds_to_us
 from .model import LOG_EPS, SATURATION, Contrast, check_frames, check_gamma, edi_log_ratio, linearize
 
 __all__ = ["estimate_c", "ContrastReport", "minimize_log"]
@@ -72,6 +72,8 @@ GAMMA_BRACKET = (0.4, 2.5)
 #: tolerance of that search in log gamma
 GAMMA_XATOL = 2e-3
 
+#: consistency: key of the (pixel, time) sort of the events, pixel * _TIME_KEY + t (t < 2^40 us: 12.7 days)
+_TIME_KEY = np.int64(2**40)
 #: consistency: fixed-point iterations and relative tolerance
 CONSISTENCY_ITERS = 20
 #: consistency: points of the coarse scan of log c that brackets the root
@@ -237,24 +239,125 @@ def _paper_energy(b: np.ndarray, exposure: tuple[float, float], events: EventStr
     return energy
 
 
+def _exposure_tails(events: EventStream, exposure: np.ndarray, polarity: int) -> np.ndarray:
+    """[H, W] sum over the exposure's events of one polarity of (t_end - t_i) / T: the mean over
+    the exposure of that polarity's count since t_start (0 for a sharp frame)."""
+    t_s, t_e = float(exposure[0]), float(exposure[1])
+    if t_e <= t_s:
+        return np.zeros((events.height, events.width))
+    i0, i1 = events_in_window(events, t_s, t_e)
+    win = events[i0:i1]
+    sel = win.p == polarity
+    w = (t_e - win.times_s()[sel]) / (t_e - t_s)
+    pix = win.y[sel].astype(np.int64) * events.width + win.x[sel]
+    return np.bincount(pix, weights=w, minlength=events.width * events.height).reshape(events.height, events.width)
+
+
+def _mean_residual(events: EventStream, exposures: np.ndarray) -> np.ndarray:
+    """[F, 2, H, W]: the quantisation residual of each pixel, mean over each exposure (the
+    frame's instant when t_start == t_end), in units of c_pos (row 0) and c_neg (row 1).
+
+    A pixel's log intensity is its reference level (what c times the events give) plus a
+    residual: 0 just after an event, +-c just before the next. EDI's latent carries the mean
+    residual of its exposure, which differs between frames (a pixel rising in one frame sits
+    about c/2 above its reference, falling in the next c/2 below), and the counts between frames
+    do not see it. Between two events of the same polarity p the residual is modelled as a ramp
+    from 0 to p c (the intensity kept moving the same way); between events of opposite polarity,
+    or before a pixel's first event, it is unknown and taken as 0. Row 0 is the mean of the ramp
+    fraction over the intervals that end with a + event, row 1 with a - event, so the residual
+    is c_pos row 0 - c_neg row 1."""
+    H, W = events.height, events.width
+    F = len(exposures)
+    out = np.zeros((F, 2, H * W))
+    M = len(events)
+    if M == 0:
+        return out.reshape(F, 2, H, W)
+    pix = events.y.astype(np.int64) * W + events.x
+    order = np.lexsort((events.t, pix))
+    t = events.t[order].astype(np.float64)
+    q = pix[order]
+    pos = events.p[order] > 0
+    t_prev = np.empty(M)
+    t_prev[0] = t[0]
+    t_prev[1:] = t[:-1]
+    ramp = np.zeros(M, bool)  # the interval ending at this event follows an event of the same polarity
+    ramp[1:] = (q[1:] == q[:-1]) & (pos[1:] == pos[:-1])
+    span = np.maximum(t - t_prev, 1.0)
+    # prefix sums of the whole-interval integrals of the ramp fraction (span / 2), per polarity
+    prefix = np.zeros((2, M + 1))
+    prefix[0, 1:] = np.cumsum(np.where(ramp & pos, 0.5 * span, 0.0))
+    prefix[1, 1:] = np.cumsum(np.where(ramp & ~pos, 0.5 * span, 0.0))
+    key = q * _TIME_KEY + events.t[order]
+    base = np.arange(H * W, dtype=np.int64) * _TIME_KEY
+
+    def add(f: int, k: np.ndarray, ok: np.ndarray, lo: float, hi: float) -> None:
+        """the interval ending at event k (where ``ok``), its ramp integral over [lo, hi]"""
+        kk = k[ok]
+        a = np.clip(lo, t_prev[kk], t[kk]) - t_prev[kk]
+        b = np.clip(hi, t_prev[kk], t[kk]) - t_prev[kk]
+        v = np.where(ramp[kk], (b * b - a * a) / (2.0 * span[kk]), 0.0)
+        out[f, 0, ok] += np.where(pos[kk], v, 0.0)
+        out[f, 1, ok] += np.where(pos[kk], 0.0, v)
+
+    for f, (t_s, t_e) in enumerate(exposures):
+        A, B = seconds_to_us(float(t_s)), seconds_to_us(float(t_e))
+        a = np.searchsorted(key, base + A)  # the first event of each pixel at or after A
+        b = np.searchsorted(key, base + B)
+        own_a = a < M
+        own_a[own_a] = q[a[own_a]] == np.flatnonzero(own_a)
+        if B <= A:  # an instant: the ramp fraction there
+            kk = a[own_a]
+            u = np.where(ramp[kk], np.clip((A - t_prev[kk]) / span[kk], 0.0, 1.0), 0.0)
+            out[f, 0, own_a] = np.where(pos[kk], u, 0.0)
+            out[f, 1, own_a] = np.where(pos[kk], 0.0, u)
+            continue
+        inner = b - a >= 2  # whole intervals end at a + 1 .. b - 1
+        hi_i = np.minimum(np.maximum(b, a + 1), M)
+        lo_i = np.minimum(a + 1, hi_i)
+        out[f, :, inner] += (prefix[:, hi_i] - prefix[:, lo_i]).T[inner]
+        add(f, a, own_a, A, B)  # the interval ending at the first event (it may start before A)
+        own_b = (b < M) & (b > a)
+        own_b[own_b] = q[b[own_b]] == np.flatnonzero(own_b)
+        add(f, b, own_b, A, B)  # the interval running past B
+        out[f] /= B - A
+    return out.reshape(F, 2, H, W)
+
+
 def _consistency_pairs(fr: np.ndarray, ex: np.ndarray, events: EventStream):
     """Per consecutive pair (i, i+1) of frames: the counts N+, N- between the centres (negated
-    when the centres run backwards), their instruments (the 8 neighbours' counts) and the
-    mask of pixels saturated in neither frame."""
+    when the centres run backwards) corrected by the change of the quantisation residual
+    (``_mean_residual``), their instruments and the mask of pixels saturated in neither frame.
+
+    The instruments are the 8 neighbours' changes of the exposure-mean count (events between
+    the exposure starts, plus the later exposure's tails, minus the earlier's): what the blurry
+    frames' ratio follows to first order. The neighbours' counts between the centres, used
+    before, follow it less when the exposures fill most of the frame interval, and the
+    relation's small errors then moved the estimate by 2-11% on ``moving_texture`` (40 ms
+    exposures every 50 ms)."""
     centres = ex.mean(axis=1)
     valid = (fr < SATURATION).all(axis=-1) & (fr > 0.0).all(axis=-1)  # [F, H, W]
+    resid = _mean_residual(events, ex)  # [F, 2, H, W]
     pairs = []
     for i in range(fr.shape[0] - 1):
         lo, hi = sorted((centres[i], centres[i + 1]))
         j0, j1 = events_in_window(events, lo, hi)
         win = events[j0:j1]
         sign = 1.0 if centres[i + 1] >= centres[i] else -1.0
+        first, second = (i, i + 1) if sign > 0 else (i + 1, i)
         n_pos = sign * win.count_image(1).astype(np.float64)
         n_neg = sign * win.count_image(-1).astype(np.float64)
-        z_pos, z_neg = (ndimage.correlate(n, _NEIGHBOURS, mode="constant") for n in (n_pos, n_neg))
+        k0, k1 = events_in_window(events, *sorted((ex[first, 0], ex[second, 0])))
+        between = events[k0:k1]
+        z = []
+        for row, pol in enumerate((1, -1)):
+            k = (between.count_image(pol) * (1.0 if ex[second, 0] >= ex[first, 0] else -1.0)
+                 + _exposure_tails(events, ex[second], pol) - _exposure_tails(events, ex[first], pol))
+            z.append(sign * ndimage.correlate(k, _NEIGHBOURS, mode="constant"))
+        n_pos = n_pos + resid[i + 1, 0] - resid[i, 0]
+        n_neg = n_neg + resid[i + 1, 1] - resid[i, 1]
         ok = valid[i] & valid[i + 1]
-        if ((z_pos != 0) | (z_neg != 0))[ok].any():
-            pairs.append((i, n_pos, n_neg, z_pos, z_neg, ok))
+        if ((z[0] != 0) | (z[1] != 0))[ok].any():
+            pairs.append((i, n_pos, n_neg, z[0], z[1], ok))
     return pairs, 1.0 - float(valid.mean())
 
 
