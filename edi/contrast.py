@@ -353,11 +353,12 @@ def _consistency_pairs(fr: np.ndarray, ex: np.ndarray, events: EventStream):
             k = (between.count_image(pol) * (1.0 if ex[second, 0] >= ex[first, 0] else -1.0)
                  + _exposure_tails(events, ex[second], pol) - _exposure_tails(events, ex[first], pol))
             z.append(sign * ndimage.correlate(k, _NEIGHBOURS, mode="constant"))
+        ok = valid[i] & valid[i + 1]
+        fired = ok & ((n_pos != 0) | (n_neg != 0))
         n_pos = n_pos + resid[i + 1, 0] - resid[i, 0]
         n_neg = n_neg + resid[i + 1, 1] - resid[i, 1]
-        ok = valid[i] & valid[i + 1]
         if ((z[0] != 0) | (z[1] != 0))[ok].any():
-            pairs.append((i, n_pos, n_neg, z[0], z[1], ok))
+            pairs.append((i, n_pos, n_neg, z[0], z[1], ok, fired))
     return pairs, 1.0 - float(valid.mean())
 
 
@@ -386,11 +387,10 @@ def _consistency_update(fr: np.ndarray, ex: np.ndarray, events: EventStream, pai
         logs[j] = np.log(fr[j].mean(axis=-1) + LOG_EPS) + r[0]  # log(L + eps), exact (no clipping)
     m = np.zeros((2, 3))  # rows z+ / z-: sum z D, sum z N+, sum z N-
     res2 = tot2 = 0.0
-    for i, n_pos, n_neg, z_pos, z_neg, ok in pairs:
+    for i, n_pos, n_neg, z_pos, z_neg, ok, fired in pairs:
         d = (logs[i + 1] - logs[i]) * np.sign(centres[i + 1] - centres[i])
         for row, z in enumerate((z_pos, z_neg)):
             m[row] += ((z * d)[ok].sum(), (z * n_pos)[ok].sum(), (z * n_neg)[ok].sum())
-        fired = ok & ((n_pos != 0) | (n_neg != 0))
         res2 += float(((d - c.pos * n_pos + c.neg * n_neg)[fired] ** 2).sum())
         tot2 += float((d[fired] ** 2).sum())
     energy = res2 / tot2 if tot2 > 0 else math.inf
