@@ -11,7 +11,7 @@ Public API::
     Contrast(pos, neg), parse_c(c)                  # a threshold pair; float | pair -> Contrast
     linearize(img, gamma), apply_gamma(img, gamma)  # recorded = irradiance ** gamma, both ways
     deblur(blur, exposure, events, times=None, c=None, gamma=1.0) -> [H, W(, D)] | [F, H, W(, D)]
-    estimate_c(frames, exposures, events, pair=False, gamma=1.0 | "estimate", return_report=False)
+    estimate_c(frames, exposures, events, pair=False, gamma=1.0, return_report=False)
         -> float | Contrast (pair=True), and a ContrastReport
     medi(frames, exposures, events, c=None) -> [F, H, W(, D)]
     moving_texture(...) -> SyntheticSequence        # seeded synthetic ground truth

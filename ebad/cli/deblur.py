@@ -31,11 +31,11 @@ latent video). When that estimate has no interior minimum the command says so: g
 (DAVIS sensors: 0.1 to 0.5) or more frames. The frames are taken as linear unless --gamma G
 says recorded = irradiance ** G (they are linearised for EDI and the output mapped back);
 with linear frames assumed on a non-linear camera the estimated c is in the frames' units
-(about G x c), which deblurs those frames consistently but is not the events' threshold.
---gamma estimate (two or more frames) picks G with c from the frames (noisy: measured in
-benchmarks/calibration.py). --medi solves all frames jointly (mEDI: each
-pixel's log intensities follow the events between frames; saturated pixels are carried by
-their neighbours in time)."""
+(about G x c), which deblurs those frames as well as the true c and response do (measured in
+benchmarks/calibration.py) but is not the events' threshold: the frames and events do not
+tell G apart from c, so give --gamma for c in the events' units. --medi solves all frames
+jointly (mEDI: each pixel's log intensities follow the events between frames; saturated
+pixels are carried by their neighbours in time)."""
 
 _IMAGE_EXT = {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".pgm", ".npy"}
 
@@ -45,8 +45,7 @@ def add_arguments(p) -> None:
     p.add_argument("--out", required=True, help="output folder (created)")
     p.add_argument("--c", default="auto", help="contrast threshold: 'auto' (estimated), a float, or 'c_pos,c_neg'")
     p.add_argument("--gamma", default="1",
-                   help="the frames' response, recorded = irradiance ** GAMMA: a number (1: linear, the default) "
-                        "or 'estimate' (two or more frames)")
+                   help="the frames' response, recorded = irradiance ** GAMMA (default 1: linear)")
     p.add_argument("--medi", action="store_true",
                    help="solve all frames jointly (mEDI; needs two or more frames) instead of one by one")
     p.add_argument("--times", type=int, default=0, metavar="N", help="also write N sharp instants per exposure")
@@ -74,19 +73,16 @@ def _parse_c(s: str):
         raise UserError(f"--c must be 'auto', a positive float or 'c_pos,c_neg', got {s!r}") from None
 
 
-def _parse_gamma(s: str):
-    """'estimate' -> 'estimate'; a number -> float (validated by edi.model.check_gamma)."""
+def _parse_gamma(s: str) -> float:
+    """A number in edi.model.GAMMA_RANGE (validated by edi.model.check_gamma)."""
     from edi import InputError
-    from edi.model import check_gamma
+    from edi.model import GAMMA_RANGE, check_gamma
 
-    s = s.strip().lower()
-    if s == "estimate":
-        return s
     try:
         return check_gamma(float(s), "--gamma")
-    except (ValueError, InputError) as exc:
-        raise UserError(f"--gamma must be 'estimate' or a number in {list(__import__('edi').model.GAMMA_RANGE)} "
-                        f"(1: linear), got {s!r}") from exc
+    except (ValueError, InputError):
+        raise UserError(f"--gamma must be a number in [{GAMMA_RANGE[0]}, {GAMMA_RANGE[1]}] (1: linear), "
+                        f"got {s!r}") from None
 
 
 def _load_input(args):
@@ -163,8 +159,6 @@ def _estimate(frames, exposures, events, counts, c_arg, gamma):
         try:
             c, rep = edi.estimate_c(frames, exposures, events, pair=True, gamma=gamma, return_report=True)
         except edi.InputError:
-            if gamma == "estimate":
-                raise
             return None, "estimated on each frame", None
         return c, f"estimated jointly ({rep.method}, {rep.energy_name})", rep
     if not use.any():
@@ -211,8 +205,6 @@ def run(args) -> int:
     frames, exposures, events, names, unit = _load_input(args)
     if args.max_frames:
         frames, exposures, names = frames[: args.max_frames], exposures[: args.max_frames], names[: args.max_frames]
-    if gamma == "estimate" and frames.shape[0] < 2:
-        raise UserError(f"--gamma estimate needs two or more frames; {args.input} has {frames.shape[0]}: give --gamma G")
     if args.medi and frames.shape[0] < 2:
         raise UserError(f"--medi needs two or more frames; {args.input} has {frames.shape[0]}")
     counts = _event_counts(events, exposures)
@@ -225,13 +217,7 @@ def run(args) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
 
-    try:
-        c_all, c_source, c_rep = _estimate(frames, exposures, events, counts, c_arg, gamma)
-    except edi.InputError as exc:  # only with --gamma estimate: the consistency estimator could not run
-        raise UserError(f"--gamma estimate: {exc}; give --gamma G") from None
-    if gamma == "estimate":
-        gamma = c_rep.gamma
-        print(f"ebad deblur: gamma {gamma:.3f} (estimated with c from the frames and events)")
+    c_all, c_source, c_rep = _estimate(frames, exposures, events, counts, c_arg, gamma)
     units = (f"log-irradiance units, frames linearised with gamma {gamma:g}" if gamma != 1.0 else
              "frames taken as linear: if they are not, c is in the frames' units; give --gamma")
     if c_all is not None:
@@ -281,8 +267,7 @@ def run(args) -> int:
         })
     with open(out / "c.json", "w") as f:
         json.dump({"input": str(args.input), "time_unit": unit, "medi": bool(args.medi), "gamma": gamma,
-                   "gamma_source": ("estimated" if c_rep is not None and c_rep.gamma_estimated else
-                                    "given (--gamma)" if gamma != 1.0 else "assumed linear (default)"),
+                   "gamma_source": "given (--gamma)" if gamma != 1.0 else "assumed linear (default: c in the frames' units)",
                    "frames": per_frame},
                   f, indent=2)
     print(f"ebad deblur: {len(per_frame)} frame(s) written to {out}")
