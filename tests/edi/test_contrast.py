@@ -212,12 +212,16 @@ def test_ray_cast_scenes_single_and_consistency():
 # --- the quantisation residual of the consistency relation ----------------------------------------
 
 
-def residual_reference(events, exposures):
-    """Per pixel, in plain Python: the ramp fraction u(t) = (t - t_prev) / (t_next - t_prev) on
-    each interval between two events of the same polarity (0 elsewhere), its mean over each
-    exposure (its value at the instant when t_start == t_end; an event at the instant has not
-    fired yet), per polarity of the interval's closing event."""
+def residual_reference(events, exposures, n_steps=20_000):
+    """Per pixel, in plain Python and by midpoint sums: over the fraction u of the interval
+    between two events, the residual u after an event of the same polarity as the closing one,
+    (2 + sqrt 3) u^2 - (1 + sqrt 3) u after one of the other polarity, 0 before the first; its
+    mean over each exposure (its value at the instant when t_start == t_end; an event at the
+    instant has not fired yet), per polarity of the closing event."""
     from edi import seconds_to_us
+
+    def shape(u, same):
+        return u if same else (2 + math.sqrt(3)) * u * u - (1 + math.sqrt(3)) * u
 
     H, W = events.height, events.width
     out = np.zeros((len(exposures), 2, H, W))
@@ -228,17 +232,16 @@ def residual_reference(events, exposures):
             for f, (t_s, t_e) in enumerate(exposures):
                 A, B = float(seconds_to_us(t_s)), float(seconds_to_us(t_e))
                 for k in range(1, len(ts)):
-                    if ps[k] != ps[k - 1]:
-                        continue
                     t0, t1 = ts[k - 1], ts[k]
-                    row = 0 if ps[k] > 0 else 1
+                    row, same = (0 if ps[k] > 0 else 1), ps[k] == ps[k - 1]
                     if B == A:
                         if t0 < A <= t1:
-                            out[f, row, y, x] += (A - t0) / max(t1 - t0, 1.0)
+                            out[f, row, y, x] += shape((A - t0) / max(t1 - t0, 1.0), same)
                         continue
                     lo, hi = max(A, t0), min(B, t1)
                     if hi > lo:
-                        out[f, row, y, x] += ((hi - t0) ** 2 - (lo - t0) ** 2) / (2 * max(t1 - t0, 1.0)) / (B - A)
+                        tm = lo + (np.arange(n_steps) + 0.5) * (hi - lo) / n_steps
+                        out[f, row, y, x] += shape((tm - t0) / max(t1 - t0, 1.0), same).mean() * (hi - lo) / (B - A)
     return out
 
 
@@ -254,16 +257,17 @@ def test_mean_residual_matches_a_per_pixel_reference():
                           [0.0099, 0.0125], [0.02, 0.03]])
     got = _mean_residual(ev, exposures)
     want = residual_reference(ev, exposures)
-    np.testing.assert_allclose(got, want, rtol=0, atol=1e-9)
-    assert (want[:4] > 0).any() and (want[-1] == 0).all()  # something to compare; nothing after the last event
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-8)
+    assert (want[:4] > 0).any() and (want[:4] < 0).any() and (want[-1] == 0).all()  # something to compare; nothing after the last event
 
 
 @pytest.mark.slow
 def test_consistency_pair_on_blurry_texture_with_a_running_sensor():
     """moving_texture with exposures filling 80% of the frame interval, mismatch 0.03, the
-    sensor running 0.1 s before frame 0, seeds 0-9: measured (python -m benchmarks.calibration)
-    8 of 10 within 5% in the worse polarity (the two others, c = 0.3, at 1.06x); 5 of 10 before
-    the instruments followed the exposure means and the counts carried the residual."""
+    sensor running 0.1 s before frame 0, seeds 0-9: measured 0.969-1.014x, 10 of 10 within 5%
+    in the worse polarity (issue 11's target: 9 of 10); 5 of 10 (up to 1.11x) before the
+    instruments followed the exposure means and the counts carried the residual, 8 of 10 with
+    a residual of 0 where a pixel turns."""
     worst = []
     for seed in range(10):
         c = C_BY_SEED[seed % 3]
@@ -272,7 +276,7 @@ def test_consistency_pair_on_blurry_texture_with_a_running_sensor():
         assert rep.method == "consistency" and not rep.at_bound
         worst.append(max(abs(est.pos / c - 1), abs(est.neg / c - 1)))
     worst = np.array(worst)
-    assert (worst <= 0.05).sum() >= 8 and worst.max() <= 0.08, np.round(worst, 3)
+    assert (worst <= 0.05).sum() >= 9 and worst.max() <= 0.08, np.round(worst, 3)
 
 
 @pytest.mark.slow
