@@ -21,9 +21,11 @@ Two estimators (each an energy of c, every evaluation one EDI pass per frame use
 * ``consistency`` (two or more frames; mEDI's relation). For consecutive frames i, i+1
   with latents L_i, L_{i+1} at their exposure centres, log(L_{i+1} + eps) - log(L_i + eps)
   = c_pos N+ - c_neg N- over the events between the centres, up to the frames' noise and the
-  quantisation of the counts. The pair comes from moment equations with the neighbours'
-  counts as instruments (``_consistency_update``), and the latents are recomputed with the
-  new pair until it stops moving (the root of update(c) = c, a few EDI passes). The least
+  quantisation of the counts; the counts carry the change of the modelled quantisation
+  residual (``_mean_residual``: EDI's latent holds its exposure's mean residual). The pair
+  comes from moment equations with the neighbours' changes of exposure-mean counts as
+  instruments (``_consistency_pairs``, ``_consistency_update``), and the latents are
+  recomputed with the new pair until it stops moving (the root of update(c) = c). The least
   squares on c N it replaces weighted each pixel by N^2, which favours the low-threshold
   pixels (they fire more), and read 0.67-0.89x the true mean c under a per-pixel mismatch
   of 0.03 (issue 11).
@@ -65,7 +67,7 @@ FLOW_PATCH = 16
 FLOW_SMOOTH = 1.0
 FLOW_BORDER = 2
 
-#: consistency: the instrument of a pixel is the sum of its 8 neighbours' counts
+#: consistency: a pixel's instrument sums over its 8 neighbours (``_consistency_pairs``)
 _NEIGHBOURS = np.array([[1.0, 1.0, 1.0], [1.0, 0.0, 1.0], [1.0, 1.0, 1.0]])
 #: consistency: key of the (pixel, time) sort of the events, pixel * _TIME_KEY + t (t < 2^40 us: 12.7 days)
 _TIME_KEY = np.int64(2**40)
@@ -302,10 +304,11 @@ def _mean_residual(events: EventStream, exposures: np.ndarray) -> np.ndarray:
     def add(f: int, k: np.ndarray, ok: np.ndarray, lo: float, hi: float) -> None:
         """the interval ending at event k (where ``ok``), the integral of its residual over [lo, hi]"""
         kk = k[ok]
-        a = (np.clip(lo, t_prev[kk], t[kk]) - t_prev[kk]) / span[kk]
-        b = (np.clip(hi, t_prev[kk], t[kk]) - t_prev[kk]) / span[kk]
-        v = np.where(ramp[kk], 0.5 * (b * b - a * a),
-                     np.where(turn[kk], TURN_A / 3 * (b**3 - a**3) - TURN_B / 2 * (b * b - a * a), 0.0)) * length[kk]
+        u0 = (np.clip(lo, t_prev[kk], t[kk]) - t_prev[kk]) / span[kk]  # the part of the interval inside
+        u1 = (np.clip(hi, t_prev[kk], t[kk]) - t_prev[kk]) / span[kk]
+        v = np.where(ramp[kk], 0.5 * (u1 * u1 - u0 * u0),
+                     np.where(turn[kk], TURN_A / 3 * (u1**3 - u0**3) - TURN_B / 2 * (u1 * u1 - u0 * u0), 0.0))
+        v = v * length[kk]
         out[f, 0, ok] += np.where(pos[kk], v, 0.0)
         out[f, 1, ok] += np.where(pos[kk], 0.0, v)
 
@@ -382,9 +385,9 @@ def _consistency_update(fr: np.ndarray, ex: np.ndarray, events: EventStream, pai
     change). Both sides are noisy, so neither a least squares on c N (biased by the error of N,
     and weighting each pixel by N^2, which favours the low-threshold pixels that fire more:
     0.66-0.86x the true mean c under a mismatch of 0.03) nor a selection of pixels by D or by
-    N is unbiased. The instruments z+, z- (the 8 neighbours' counts of each polarity) follow
-    the true change of the pixel (motion and edges are smooth) but not its own noise, and over
-    all pixels saturated in neither frame
+    N is unbiased. The instruments z+, z- (the 8 neighbours' changes of exposure-mean counts of
+    each polarity, ``_consistency_pairs``) follow the true change of the pixel (motion and edges
+    are smooth) but not its own noise, and over all pixels saturated in neither frame
 
         sum z+ D = c_pos sum z+ N+ - c_neg sum z+ N-,   sum z- D = c_pos sum z- N+ - c_neg sum z- N-
 
