@@ -5,7 +5,10 @@
 Generators (the truth is read only by this benchmark, never passed to the estimators):
 
 * ``texture``: ``edi.moving_texture`` (4 frames, c in {0.15, 0.2, 0.3} by seed, per-pixel
-  mismatch sigma_c 0.03).
+  mismatch sigma_c 0.03), the sensor running 0.1 s before the first exposure as a camera
+  does; ``texture_no_lead`` starts the sensor at the first exposure (every pixel a whole
+  threshold from firing: the first frame, the one the single-frame rows use, gets too few
+  events).
 * ``boxes_grey_strong`` / ``boxes_grey_weak`` / ``spheres_rgb_strong`` / ``spheres_rgb_weak``:
   ray-cast scenes of ``scenes.make_scene`` ("small", 160x120, 3 frames, c 0.2, sigma_c 0.03;
   shake 1.0 and 0.5).
@@ -20,10 +23,14 @@ c_true the mean of the per-pixel thresholds, per polarity for pairs, and the mea
 for one c), how many seeds are within 10% (single frame) and 5% (multi-frame) in the worse
 polarity, how many estimates sit at a bracket end, and the PSNR of ``edi.deblur`` over all
 frames with the joint pair estimate (what ``ebad deblur CAPTURE`` does) minus the PSNR with
-the true mean pair. Then the street recording (multi-frame estimate
-against a scan of fixed c, next-frame prediction gain in dB, and the same yardstick on
-synthetic sharp frames whose c is known) and the six ni_joint frames
-(single-frame estimate, whether it is at a bracket end, and a no-reference sharpness/noise
+the true mean pair and the true response (both scored against the sharp frames as the
+camera records them). Then the next-frame yardstick on synthetic sharp frames whose c is
+known, with the errors-in-variables bracket (forward and reverse least squares of the log
+change on the counts) that shows why its best fixed c is low; the realistic generator with
+its frames linearised by a range of gamma (only gamma x c is seen); the street recording
+(multi-frame estimate against a scan of fixed c and against the bracket for frame gaps 1, 2,
+4); and the six ni_joint frames (single-frame estimate, also with the frames linearised by
+gamma 0.45 and 2.2, whether it is at a bracket end, and a no-reference sharpness/noise
 measure of the deblurred frame against the blurry one).
 """
 from __future__ import annotations
@@ -61,20 +68,26 @@ class Case:
     exposures: np.ndarray  # [F, 2] seconds
     events: edi.EventStream
     c_true: Contrast  # mean of the per-pixel thresholds, per polarity
-    sharp: np.ndarray  # [F, H, W, D] true sharp frames at mid-exposure
+    sharp: np.ndarray  # [F, H, W, D] true sharp frames at mid-exposure (irradiance, linear)
+    gamma: float = 1.0  # the frames' response, recorded = irradiance ** gamma
 
 
-def texture_case(seed: int) -> Case:
+#: seconds the texture's sensor runs before its first exposure (two frame periods; see edi.moving_texture)
+TEXTURE_LEAD = 0.1
+
+
+def texture_case(seed: int, lead: float = TEXTURE_LEAD, generator: str = "texture") -> Case:
     c = (0.15, 0.2, 0.3)[seed % 3]
-    s = edi.moving_texture(num_frames=4, seed=seed, c=c, sigma_c=0.03)
+    s = edi.moving_texture(num_frames=4, seed=seed, c=c, sigma_c=0.03, lead=lead)
     sharp = np.stack([s.sharp(t) for t in s.exposures.mean(axis=1)])
-    return Case("texture", seed, s.frames, s.exposures, s.events, Contrast(c, c), sharp)
+    return Case(generator, seed, s.frames, s.exposures, s.events, Contrast(c, c), sharp)
 
 
 def scene_case(name: str, rgb: bool, shake: float, seed: int, generator: str) -> Case:
     from scenes import make_scene
 
-    sc = make_scene(name, "small", seed=seed, rgb=rgb, c=0.2, sigma_c=0.03, shake=shake, n_frames=3, n_test=0)
+    sc = make_scene(name, "small", seed=seed, rgb=rgb, sensor="ideal", c=0.2, sigma_c=0.03, shake=shake, n_frames=3,
+                    n_test=0)
     cap = sc.capture
     c_true = Contrast(float(sc.c_pos.mean()), float(sc.c_neg.mean()))
     return Case(generator, seed, np.asarray(cap.frames, np.float64), np.asarray(cap.exposures), cap.events,
@@ -86,10 +99,11 @@ def realistic_case(seed: int, gamma: float = REAL_GAMMA, generator: str = "reali
     from scenes import make_scene
     from scenes.simulate import MIN_C_FRACTION, _crossings_numba
 
-    sc = make_scene("boxes", "small", seed=seed, rgb=False, c=0.2, sigma_c=0.03, shake=1.0, n_frames=3, n_test=0)
+    sc = make_scene("boxes", "small", seed=seed, rgb=False, sensor="ideal", c=0.2, sigma_c=0.03, shake=1.0, n_frames=3,
+                    n_test=0)
     cap = sc.capture
     ex = np.asarray(cap.exposures)
-    n_blur = int(cap.meta["n_blur"])
+    n_blur = int(sc.truth["n_blur"])  # the generator's own setting (benchmark side)
     dt = (ex[0, 1] - ex[0, 0]) / n_blur
     t_end = ex[-1, 1] + 0.02
     grid = np.arange(int(round(t_end / dt)) + 1) * dt
@@ -117,11 +131,12 @@ def realistic_case(seed: int, gamma: float = REAL_GAMMA, generator: str = "reali
     ev = edi.EventStream(t_us[order], pix[order] % W, pix[order] // W, np.concatenate(ps)[order], W, H)
     frames = np.asarray(cap.frames, np.float64) ** gamma
     sharp = np.asarray(sc.gt_frames, np.float64)
-    return Case(generator, seed, frames, ex, ev, Contrast(float(c_pos.mean()), float(c_neg.mean())), sharp)
+    return Case(generator, seed, frames, ex, ev, Contrast(float(c_pos.mean()), float(c_neg.mean())), sharp, gamma)
 
 
 GENERATORS = {
     "texture": texture_case,
+    "texture_no_lead": lambda s: texture_case(s, 0.0, "texture_no_lead"),
     "boxes_grey_strong": lambda s: scene_case("boxes", False, 1.0, s, "boxes_grey_strong"),
     "boxes_grey_weak": lambda s: scene_case("boxes", False, 0.5, s, "boxes_grey_weak"),
     "spheres_rgb_strong": lambda s: scene_case("spheres", True, 1.0, s, "spheres_rgb_strong"),
@@ -170,6 +185,35 @@ def street_gain(frames: np.ndarray, exposures: np.ndarray, events: edi.EventStre
     return 10.0 * math.log10(se_hold / se_pred)
 
 
+#: regression bounds: pixels darker than this in either frame are left out (log(F + eps) is noise there)
+DARK = 0.02
+
+
+def regression_bounds(frames: np.ndarray, exposures: np.ndarray, events: edi.EventStream,
+                      gap: int = 1) -> dict:
+    """The errors-in-variables bracket of c from frames k and k + gap (grey [F, H, W]) and the
+    signed counts N between their centres, over the pixels that fired, are neither saturated
+    nor darker than ``DARK``: with D = log(F_{k+gap} + eps) - log(F_k + eps) = c N + errors in
+    both (the counts are quantised and hold noise events; the frames hold noise), the forward
+    least squares sum D N / sum N^2 (what the best fixed c of the prediction yardstick is, in
+    log units) is biased towards 0 by the errors of N, and the reverse one sum D^2 / sum D N is
+    biased away from 0 by the errors of D: c lies between them (Frisch)."""
+    centres = exposures.mean(axis=1)
+    xs, ys = [], []
+    for k in range(len(frames) - gap):
+        i0, i1 = edi.events_in_window(events, centres[k], centres[k + gap])
+        win = events[i0:i1]
+        n = win.count_image(1).astype(np.float64) - win.count_image(-1)
+        ok = (n != 0)
+        for f in (frames[k], frames[k + gap]):
+            ok &= (f < edi.SATURATION) & (f > DARK)
+        xs.append(n[ok])
+        ys.append((np.log(frames[k + gap] + LOG_EPS) - np.log(frames[k] + LOG_EPS))[ok])
+    x, y = np.concatenate(xs), np.concatenate(ys)
+    return {"gap": gap, "forward": float((x * y).sum() / (x * x).sum()), "reverse": float((y * y).sum() / (x * y).sum()),
+            "pixels": int(x.size), "fraction_one_event": float(np.mean(np.abs(x) == 1))}
+
+
 # --- the single-frame and multi-frame estimators on the synthetic generators ---------------------------
 
 
@@ -177,10 +221,12 @@ def psnr(a: np.ndarray, b: np.ndarray) -> float:
     return 10.0 * math.log10(1.0 / max(float(np.mean((np.asarray(a, np.float64) - b) ** 2)), 1e-12))
 
 
-def deblur_psnr(case: Case, c) -> float:
-    """Mean PSNR (dB) of the mid-exposure EDI latents of every frame against the true sharp frames."""
-    return float(np.mean([psnr(edi.deblur(case.frames[i], case.exposures[i], case.events, c=c), case.sharp[i])
-                          for i in range(len(case.frames))]))
+def deblur_psnr(case: Case, c, gamma: float = 1.0) -> float:
+    """Mean PSNR (dB) of the mid-exposure EDI latents of every frame (frames linearised with
+    ``gamma``, latents mapped back) against the true sharp frames as the camera records them
+    (sharp ** the true gamma)."""
+    return float(np.mean([psnr(edi.deblur(case.frames[i], case.exposures[i], case.events, c=c, gamma=gamma),
+                               case.sharp[i] ** case.gamma) for i in range(len(case.frames))]))
 
 
 ESTIMATORS = {
@@ -204,10 +250,12 @@ def run_case(case: Case) -> dict:
                  else [rep.c.mean / case.c_true.mean])
         row[name] = {"c": list(rep.c), "ratio": ratio,
                      "at_bound": rep.at_bound, "method": rep.method, "seconds": time.perf_counter() - t}
-    # what `ebad deblur CAPTURE` does (the joint pair) against EDI with the true mean pair
-    row["psnr_true_c"] = deblur_psnr(case, case.c_true)
+    # what `ebad deblur CAPTURE` does (the joint pair, frames taken as linear) against EDI with
+    # the true mean pair and the true response, both scored in the camera's recorded units
+    row["psnr_true_c"] = deblur_psnr(case, case.c_true, case.gamma)
     row["psnr_estimated_c"] = deblur_psnr(case, row["consistency_pair"]["c"])
-    row["psnr_blurry"] = float(np.mean([psnr(case.frames[i], case.sharp[i]) for i in range(len(case.frames))]))
+    row["psnr_blurry"] = float(np.mean([psnr(case.frames[i], case.sharp[i] ** case.gamma)
+                                        for i in range(len(case.frames))]))
     return row
 
 
@@ -225,7 +273,7 @@ def summarise(rows: list[dict]) -> list[dict]:
                         "tolerance": tol, "within": int((err <= tol).sum()),
                         "at_bound": int(sum(r[name]["at_bound"] for r in rs))})
         d = np.array([r["psnr_estimated_c"] - r["psnr_true_c"] for r in rs])
-        out.append({"generator": gen, "estimator": "deblur dB (estimated - true c)", "seeds": len(rs),
+        out.append({"generator": gen, "estimator": "deblur dB (estimated - true c, gamma)", "seeds": len(rs),
                     "median_ratio": float(np.median(d)), "min_ratio": float(d.min()), "max_ratio": float(d.max()),
                     "tolerance": 0.5, "within": int((d >= -0.5).sum()), "at_bound": 0})
     return out
@@ -261,7 +309,8 @@ def prediction_metric_check(cases: list[Case]) -> list[dict]:
         est = edi.estimate_c(sharp, ex, case.events)
         out.append({"generator": case.generator, "seed": case.seed, "c_true": case.c_true.mean,
                     "best_fixed_c": float(grid[int(np.argmax(gains))]), "best_gain_db": float(max(gains)),
-                    "estimate": est, "estimate_gain_db": street_gain(sharp, ex, case.events, est)})
+                    "estimate": est, "estimate_gain_db": street_gain(sharp, ex, case.events, est),
+                    "bounds": regression_bounds(sharp, ex, case.events)})
     return out
 
 
@@ -280,6 +329,31 @@ def street_rows() -> dict:
         c, rep = edi.estimate_c(fr, ex, ev, pair=pair, return_report=True)
         key = "estimate_pair" if pair else "estimate"
         out[key] = {"c": list(rep.c), "gain_db": street_gain(fr, ex, ev, rep.c), "method": rep.method}
+    out["bounds"] = [regression_bounds(fr, ex, ev, gap) for gap in STREET_GAPS]
+    est = out["estimate"]["c"][0]
+    out["estimate_within_bounds"] = bool(all(b["forward"] <= est <= b["reverse"] for b in out["bounds"]))
+    return out
+
+
+#: frame gaps of the street's regression bounds
+STREET_GAPS = (1, 2, 4)
+#: responses tried on the real ni_joint frames (recorded = irradiance ** gamma): sRGB-like and its inverse
+NI_GAMMAS = (0.45, 2.2)
+#: the realistic generator's frames linearised with each of these exponents (the flatness along gamma x c)
+GAMMA_SCAN = (0.6, 0.7, 0.8, 0.9, 1.0, 1.1, 1.25)
+
+
+def gamma_scan(cases: list[Case]) -> list[dict]:
+    """The consistency estimate (pair, mean reported) and its residual with the frames linearised
+    by each gamma of ``GAMMA_SCAN``: flat along gamma x c = const means only gamma x c is seen."""
+    out = []
+    for case in cases:
+        for g in GAMMA_SCAN:
+            c, rep = edi.estimate_c(case.frames, case.exposures, case.events, method="consistency", pair=True,
+                                    gamma=g, return_report=True)
+            out.append({"generator": case.generator, "seed": case.seed, "gamma_true": case.gamma, "gamma": g,
+                        "c_mean": c.mean, "c_true_mean": case.c_true.mean, "gamma_times_c": g * c.mean,
+                        "energy": rep.energy})
     return out
 
 
@@ -299,6 +373,11 @@ def ni_rows() -> list[dict]:
             c, rep = edi.estimate_c(B, ex, ev, energy=energy, return_report=True)
             s_l, n_l = sharpness_and_noise(edi.deblur(B, ex, ev, c=c))
             row[energy] = {"c": c, "at_bound": rep.at_bound, "sharpness_gain": s_l / s_b, "noise_gain": n_l / n_b}
+        for g in NI_GAMMAS:  # is a non-linear response why the estimate ends at the bracket?
+            c, rep = edi.estimate_c(B, ex, ev, gamma=g, return_report=True)
+            s_l, n_l = sharpness_and_noise(edi.deblur(B, ex, ev, c=c, gamma=g))
+            row[f"flow_gamma_{g:g}"] = {"c": c, "at_bound": rep.at_bound, "sharpness_gain": s_l / s_b,
+                                        "noise_gain": n_l / n_b}
         s_t, n_t = sharpness_and_noise(edi.deblur(B, ex, ev, c=edi.contrast.DEFAULT_BRACKET[1]))
         row["bracket_top"] = {"sharpness_gain": s_t / s_b, "noise_gain": n_t / n_b}
         rows.append(row)
@@ -329,29 +408,40 @@ def main(argv: list[str] | None = None) -> None:
               f"{r['max_ratio']:6.3f} {r['within']:>3d}/{r['seeds']:<2d}{'':2s} {r['at_bound']:>8d}")
     check = prediction_metric_check([load_case(g, seed, args.cache) for g in ("boxes_grey_strong", "realistic_linear")
                                      for seed in range(2 if args.quick else 3)])
-    print("\nnext-frame prediction on synthetic sharp frames (known c):")
+    print("\nnext-frame prediction on synthetic sharp frames (known c), and the regression bracket:")
     for r in check:
+        b = r["bounds"]
         print(f"  {r['generator']:18s} seed {r['seed']}: true c {r['c_true']:.3f}, best fixed c {r['best_fixed_c']:.3f} "
-              f"({r['best_gain_db']:.2f} dB), estimate {r['estimate']:.3f} ({r['estimate_gain_db']:.2f} dB)")
+              f"({r['best_gain_db']:.2f} dB), estimate {r['estimate']:.3f} ({r['estimate_gain_db']:.2f} dB); "
+              f"forward {b['forward']:.3f}, reverse {b['reverse']:.3f}")
+    scan = gamma_scan([load_case("realistic", seed, args.cache) for seed in range(2 if args.quick else 3)])
+    print("\nrealistic (gamma 0.8): consistency with the frames linearised by gamma (c mean, gamma x c, residual):")
+    for r in scan:
+        print(f"  seed {r['seed']} gamma {r['gamma']:.2f}: c {r['c_mean']:.4f} (true {r['c_true_mean']:.4f}), "
+              f"gamma x c {r['gamma_times_c']:.4f}, residual {r['energy']:.5f}")
     street = street_rows()
     if "scan" in street:
         print(f"\nstreet: best fixed c {street['best_fixed_c']} gains {street['best_gain_db']:.2f} dB; "
               f"estimate {street['estimate']['c'][0]:.3f} gains {street['estimate']['gain_db']:.2f} dB; pair "
               f"({street['estimate_pair']['c'][0]:.3f}, {street['estimate_pair']['c'][1]:.3f}) gains "
               f"{street['estimate_pair']['gain_db']:.2f} dB")
+        for b in street["bounds"]:
+            print(f"  regression bracket, frames k and k + {b['gap']}: forward {b['forward']:.3f}, reverse "
+                  f"{b['reverse']:.3f} ({b['pixels']} pixels, {100 * b['fraction_one_event']:.0f}% with one event)")
+        print(f"  estimate within every bracket: {street['estimate_within_bounds']}")
     ni = ni_rows()
     if ni:
-        print(f"\n{'ni_joint':18s} {'energy':6s} {'c':>7s} {'bound':>6s} {'sharp x':>8s} {'noise x':>8s}")
+        print(f"\n{'ni_joint':18s} {'energy':15s} {'c':>7s} {'bound':>6s} {'sharp x':>8s} {'noise x':>8s}")
         for r in ni:
-            for energy in ("flow", "paper"):
+            for energy in ("flow", "paper") + tuple(f"flow_gamma_{g:g}" for g in NI_GAMMAS):
                 e = r[energy]
-                print(f"{r['name']:18s} {energy:6s} {e['c']:7.4f} {str(e['at_bound']):>6s} "
+                print(f"{r['name']:18s} {energy:15s} {e['c']:7.4f} {str(e['at_bound']):>6s} "
                       f"{e['sharpness_gain']:8.2f} {e['noise_gain']:8.2f}")
-            print(f"{r['name']:18s} {'c=1.5':6s} {'':7s} {'':6s} {r['bracket_top']['sharpness_gain']:8.2f} "
+            print(f"{r['name']:18s} {'c=1.5':15s} {'':7s} {'':6s} {r['bracket_top']['sharpness_gain']:8.2f} "
                   f"{r['bracket_top']['noise_gain']:8.2f}")
     path = write_json("calibration_quick" if args.quick else "calibration",
                       {"seeds": len(seeds), "table": table, "rows": rows, "street": street, "ni_joint": ni,
-                       "prediction_metric_check": check,
+                       "prediction_metric_check": check, "gamma_scan": scan,
                        "seconds": time.perf_counter() - t0})
     print(f"\nwrote {path} ({time.perf_counter() - t0:.0f} s)")
 

@@ -9,8 +9,9 @@ Public API::
     read_aedat4(path) -> AedatRecording(events, frames, exposures, t0)
     LOG_EPS, SATURATION                             # log(I + LOG_EPS); saturated pixels
     Contrast(pos, neg), parse_c(c)                  # a threshold pair; float | pair -> Contrast
-    deblur(blur, exposure, events, times=None, c=None) -> [H, W(, D)] | [F, H, W(, D)]
-    estimate_c(frames, exposures, events, pair=False, return_report=False)
+    linearize(img, gamma), apply_gamma(img, gamma)  # recorded = irradiance ** gamma, both ways
+    deblur(blur, exposure, events, times=None, c=None, gamma=1.0) -> [H, W(, D)] | [F, H, W(, D)]
+    estimate_c(frames, exposures, events, pair=False, gamma=1.0, return_report=False)
         -> float | Contrast (pair=True), and a ContrastReport
     medi(frames, exposures, events, c=None) -> [F, H, W(, D)]
     moving_texture(...) -> SyntheticSequence        # seeded synthetic ground truth
@@ -21,7 +22,7 @@ from .errors import CorruptFileError, EbadError, EventError, InputError
 from .events import EventStream, events_in_window, seconds_to_us
 from .io import AedatRecording, infer_time_unit, read_aedat4, read_events
 from .medi import medi
-from .model import LOG_EPS, SATURATION, Contrast, parse_c
+from .model import LOG_EPS, SATURATION, Contrast, apply_gamma, linearize, parse_c
 from .moving_texture import moving_texture
 
 __all__ = [
@@ -32,6 +33,8 @@ __all__ = [
     "InputError",
     "Contrast",
     "parse_c",
+    "linearize",
+    "apply_gamma",
     "events_in_window",
     "moving_texture",
     "seconds_to_us",

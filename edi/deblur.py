@@ -20,7 +20,8 @@ import numpy as np
 from .contrast import ContrastReport, estimate_c
 from .errors import InputError
 from .events import EventStream, events_in_window
-from .model import LOG_EPS, SATURATION, Contrast, check_exposure, check_image, check_times, edi_log_ratio, latent_from_ratio, parse_c
+from .model import (LOG_EPS, SATURATION, Contrast, apply_gamma, check_exposure, check_gamma, check_image, check_times,
+                    edi_log_ratio, latent_from_ratio, linearize, parse_c)
 
 __all__ = ["LOG_EPS", "SATURATION", "deblur", "DeblurReport"]
 
@@ -46,6 +47,7 @@ def deblur(
     impl: str = "fast",
     n_bins: int | None = None,
     saturation: float = SATURATION,
+    gamma: float = 1.0,
     return_report: bool = False,
 ):
     """Sharp latent image(s) of a blurry frame from the events of its exposure (EDI).
@@ -63,6 +65,11 @@ def deblur(
             says whether the estimate is trustworthy: ``at_bound``).
         impl: "fast" (numba, exact), "reference" (numpy, exact) or "binned" (``n_bins``).
         saturation: blurry pixels at or above it are returned unchanged and reported.
+        gamma: the frame's response, recorded = irradiance ** gamma (1: linear). The frame is
+            linearised, deblurred (blur is a mean of irradiance, events see its log) and the
+            latent mapped back, so the output is in the frame's recorded units; ``c`` is then
+            in log-irradiance units (an estimate with ``gamma`` = 1 on a non-linear frame
+            reads about gamma x c, c in the frame's units, see ``estimate_c``).
         return_report: also return a ``DeblurReport``.
 
     Returns:
@@ -77,20 +84,23 @@ def deblur(
     if not (0.0 < float(saturation) <= 1.0):
         raise InputError(f"saturation must be in (0, 1], got {saturation!r}")
     b, is_torch = check_image(blur, "blur", events)
+    gamma = check_gamma(gamma)
     t_s, t_e = check_exposure(exposure)
     inst, single = check_times(times, t_s, t_e)
     c_report = None
     if c is None:
         i0, i1 = events_in_window(events, t_s, t_e)
         if t_e > t_s and i1 > i0:
-            c_est, c_report = estimate_c(b, np.array([t_s, t_e]), events, return_report=True)
+            c_est, c_report = estimate_c(b, np.array([t_s, t_e]), events, gamma=gamma, return_report=True)
             cc = parse_c(c_est)
         else:
             cc = Contrast(1.0, 1.0)  # unused: no events, B is returned
     else:
         cc = parse_c(c)
     r, n_ev = edi_log_ratio(events, (t_s, t_e), inst, cc, impl=impl, n_bins=n_bins)
-    lat, sat = latent_from_ratio(b, r, saturation)
+    # irradiance in, recorded values out; b >= saturation (recorded) <=> linearize(b) >= saturation ** (1 / gamma)
+    lat, sat = latent_from_ratio(linearize(b, gamma), r, float(linearize(np.float64(saturation), gamma)))
+    lat = apply_gamma(lat, gamma)
     if not np.isfinite(lat).all():  # internal invariant: inputs were finite, exp was clipped
         raise FloatingPointError("deblur produced a non-finite latent; please report this")
     if np.ndim(blur) == 2:

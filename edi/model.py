@@ -35,6 +35,9 @@ __all__ = [
     "check_times",
     "edi_log_ratio",
     "latent_from_ratio",
+    "check_gamma",
+    "linearize",
+    "apply_gamma",
 ]
 
 #: Offset in log(I + LOG_EPS) for linear intensities in [0, 1]: a black pixel has log
@@ -49,6 +52,9 @@ SATURATION: float = 0.99
 #: Float images may exceed [0, 1] by this much (rounding in the caller's arithmetic); they
 #: are clipped. Anything further out is refused.
 RANGE_TOL: float = 1e-6
+
+#: the range a response exponent (``gamma``) may take: recorded = irradiance ** gamma
+GAMMA_RANGE = (0.2, 5.0)
 
 _IMPLS = {"fast": edi_pass, "reference": edi_pass_reference}
 
@@ -255,3 +261,30 @@ def latent_from_ratio(
     if sat.any():
         lat[:, sat, :] = b[sat][None]
     return np.clip(lat, 0.0, 1.0), sat
+
+
+def check_gamma(gamma: Any, name: str = "gamma") -> float:
+    """The exponent of a power response (recorded = irradiance ** gamma), validated: finite and
+    in ``GAMMA_RANGE``; 1 is linear."""
+    try:
+        g = float(gamma)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{name} must be a number (recorded = irradiance ** {name}), got {gamma!r}") from exc
+    if not (math.isfinite(g) and GAMMA_RANGE[0] <= g <= GAMMA_RANGE[1]):
+        raise InputError(f"{name} must be in [{GAMMA_RANGE[0]}, {GAMMA_RANGE[1]}] (1: linear), got {gamma!r}")
+    return g
+
+
+def linearize(recorded: np.ndarray,  # [..., D] recorded values in [0, 1]
+              gamma: float) -> np.ndarray:
+    """Irradiance (relative, in [0, 1]) from values recorded through ``recorded = irradiance ** gamma``.
+
+    Convention: blur averages irradiance and events see its log, so EDI and the contrast
+    estimate work on ``linearize(frame, gamma)``; ``apply_gamma`` maps a latent back."""
+    return recorded if gamma == 1.0 else np.power(recorded, 1.0 / gamma)
+
+
+def apply_gamma(irradiance: np.ndarray,  # [..., D] relative irradiance in [0, 1]
+                gamma: float) -> np.ndarray:
+    """Recorded values ``irradiance ** gamma`` (the inverse of ``linearize``)."""
+    return irradiance if gamma == 1.0 else np.power(irradiance, gamma)

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .errors import InputError
 from .model import LOG_EPS
 from .events import EventStream, seconds_to_us
 
@@ -70,12 +71,20 @@ def moving_texture(
     hi: float = 0.9,
     gain: float = 3.0,
     sigma_c: float = 0.0,
+    lead: float = 0.0,  # s
 ) -> SyntheticSequence:
     """A seeded sequence of ``num_frames`` blurry frames, their exposures and ideal events.
 
     ``sigma_c`` > 0 draws every pixel's C+ and C- independently around ``c`` (std sigma_c,
     at least c / 4), like a real sensor's mismatch; 0 gives every pixel exactly ``c``.
+    ``lead`` is how long the sensor runs before the first exposure starts. With 0 every
+    pixel's reference level is set at the first exposure's start, so the first frame sees
+    fewer events than a camera that was already running would give it (its pixels all sit a
+    whole threshold away from firing); a lead of a few frame periods spreads the pixels over
+    their thresholds as in a running camera.
     """
+    if not (np.isfinite(lead) and lead >= 0):
+        raise InputError(f"lead must be a finite number of seconds >= 0, got {lead!r}")
     rng = np.random.default_rng(seed)
     K = 12
     radius = rng.uniform(0.03, 0.16, K)  # cycles per pixel: periods of 6 to 33 px
@@ -91,7 +100,7 @@ def moving_texture(
         c_pos_px = np.maximum(c_pos + sigma_c * rng.standard_normal((height, width)), c_pos / 4)
         c_neg_px = np.maximum(c_neg + sigma_c * rng.standard_normal((height, width)), c_neg / 4)
 
-    t_end_us = seconds_to_us((num_frames - 1) * period + exposure)
+    t_end_us = seconds_to_us(lead + (num_frames - 1) * period + exposure)
     steps = np.arange(0, t_end_us + step_us, step_us, dtype=np.int64)
     ref = np.log(tex.render(0.0).mean(axis=-1) + LOG_EPS)  # events see the grey level
     ts, xs, ys, ps = [], [], [], []
@@ -118,7 +127,7 @@ def moving_texture(
         ev = EventStream(t[order], np.concatenate(xs)[order], np.concatenate(ys)[order], np.concatenate(ps)[order], width, height)
     else:
         ev = EventStream.empty(width, height)
-    exposures = np.array([[i * period, i * period + exposure] for i in range(num_frames)])
+    exposures = np.array([[lead + i * period, lead + i * period + exposure] for i in range(num_frames)])
     frames = []
     for t0, t1 in exposures:
         a, b = seconds_to_us(t0), seconds_to_us(t1)

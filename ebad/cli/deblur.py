@@ -28,9 +28,14 @@ found). PNG values are linear intensity; the sharp frames and instants are 16-bi
 The contrast threshold is estimated unless --c is given: jointly from consecutive frames when
 there are two or more (c_pos and c_neg), else from the one frame (brightness constancy of the
 latent video). When that estimate has no interior minimum the command says so: give --c
-(DAVIS sensors: 0.1 to 0.5) or more frames. --medi solves all frames jointly (mEDI: each
-pixel's log intensities follow the events between frames; saturated pixels are carried by
-their neighbours in time)."""
+(DAVIS sensors: 0.1 to 0.5) or more frames. The frames are taken as linear unless --gamma G
+says recorded = irradiance ** G (they are linearised for EDI and the output mapped back);
+with linear frames assumed on a non-linear camera the estimated c is in the frames' units
+(about G x c), which deblurs those frames as well as the true c and response do (measured in
+benchmarks/calibration.py) but is not the events' threshold: the frames and events do not
+tell G apart from c, so give --gamma for c in the events' units. --medi solves all frames
+jointly (mEDI: each pixel's log intensities follow the events between frames; saturated
+pixels are carried by their neighbours in time)."""
 
 _IMAGE_EXT = {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".pgm", ".npy"}
 
@@ -39,6 +44,8 @@ def add_arguments(p) -> None:
     p.add_argument("input", help="capture folder, .aedat4 file, or a frame image (with --events)")
     p.add_argument("--out", required=True, help="output folder (created)")
     p.add_argument("--c", default="auto", help="contrast threshold: 'auto' (estimated), a float, or 'c_pos,c_neg'")
+    p.add_argument("--gamma", default="1",
+                   help="the frames' response, recorded = irradiance ** GAMMA (default 1: linear)")
     p.add_argument("--medi", action="store_true",
                    help="solve all frames jointly (mEDI; needs two or more frames) instead of one by one")
     p.add_argument("--times", type=int, default=0, metavar="N", help="also write N sharp instants per exposure")
@@ -64,6 +71,18 @@ def _parse_c(s: str):
         return parse_c(vals[0] if len(vals) == 1 else vals, "--c")
     except (ValueError, InputError):
         raise UserError(f"--c must be 'auto', a positive float or 'c_pos,c_neg', got {s!r}") from None
+
+
+def _parse_gamma(s: str) -> float:
+    """A number in edi.model.GAMMA_RANGE (validated by edi.model.check_gamma)."""
+    from edi import InputError
+    from edi.model import GAMMA_RANGE, check_gamma
+
+    try:
+        return check_gamma(float(s), "--gamma")
+    except (ValueError, InputError):
+        raise UserError(f"--gamma must be a number in [{GAMMA_RANGE[0]}, {GAMMA_RANGE[1]}] (1: linear), "
+                        f"got {s!r}") from None
 
 
 def _load_input(args):
@@ -129,7 +148,7 @@ def _check_events_reach_the_frames(events, exposures: np.ndarray, counts: np.nda
     )
 
 
-def _estimate(frames, exposures, events, counts, c_arg):
+def _estimate(frames, exposures, events, counts, c_arg, gamma):
     """-> (c for the frames or None to estimate per frame, source text, the report or None)."""
     import edi
 
@@ -138,7 +157,7 @@ def _estimate(frames, exposures, events, counts, c_arg):
     use = counts > 0
     if frames.shape[0] >= 2:
         try:
-            c, rep = edi.estimate_c(frames, exposures, events, pair=True, return_report=True)
+            c, rep = edi.estimate_c(frames, exposures, events, pair=True, gamma=gamma, return_report=True)
         except edi.InputError:
             return None, "estimated on each frame", None
         return c, f"estimated jointly ({rep.method}, {rep.energy_name})", rep
@@ -178,6 +197,7 @@ def run(args) -> int:
     logging.getLogger("edi.contrast").addHandler(logging.NullHandler())
 
     c_arg = _parse_c(args.c)
+    gamma = _parse_gamma(args.gamma)
     if args.times < 0:
         raise UserError(f"--times must be >= 0, got {args.times}")
     if args.max_frames < 0:
@@ -197,13 +217,19 @@ def run(args) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
 
-    c_all, c_source, c_rep = _estimate(frames, exposures, events, counts, c_arg)
+    c_all, c_source, c_rep = _estimate(frames, exposures, events, counts, c_arg, gamma)
+    units = (f"log-irradiance units, frames linearised with gamma {gamma:g}" if gamma != 1.0 else
+             "frames taken as linear: if they are not, c is in the frames' units; give --gamma")
     if c_all is not None:
-        print(f"ebad deblur: c_pos {c_all[0]:.4f}, c_neg {c_all[1]:.4f} ({c_source})")
+        print(f"ebad deblur: c_pos {c_all[0]:.4f}, c_neg {c_all[1]:.4f} ({c_source}; {units})")
     _say_at_bound(c_rep, "the joint estimate")
     medi_lat = None
     if args.medi:
-        medi_lat = edi.medi(frames, exposures, events, c=c_all)
+        from edi.model import to_unit_range
+
+        lin = edi.linearize(to_unit_range(frames, "frames"), gamma)
+        medi_lat = edi.apply_gamma(edi.medi(lin, exposures, events, c=c_all,
+                                            saturation=float(edi.linearize(np.float64(edi.SATURATION), gamma))), gamma)
         c_source += ", mEDI"
         print(f"ebad deblur: mEDI: {frames.shape[0]} frames solved jointly")
     per_frame = []
@@ -212,7 +238,7 @@ def run(args) -> int:
         sharp_frame = t_e <= t_s or counts[i] == 0
         if sharp_frame and args.skip_sharp:
             continue
-        lat, rep = edi.deblur(frames[i], (t_s, t_e), events, c=c_all, return_report=True)
+        lat, rep = edi.deblur(frames[i], (t_s, t_e), events, c=c_all, gamma=gamma, return_report=True)
         if rep.c_report is not None:
             print(f"ebad deblur: {names[i]}: c {rep.c.mean:.4f} ({c_source})")
             _say_at_bound(rep.c_report, names[i])
@@ -222,7 +248,7 @@ def run(args) -> int:
         _save(out / "side_by_side" / f"{names[i]}.png", np.concatenate([frames[i], lat], axis=1))
         if args.times > 0 and not sharp_frame:
             ts = t_s + (np.arange(args.times) + 0.5) * (t_e - t_s) / args.times
-            lats = edi.deblur(frames[i], (t_s, t_e), events, times=ts, c=rep.c)
+            lats = edi.deblur(frames[i], (t_s, t_e), events, times=ts, c=rep.c, gamma=gamma)
             for k in range(args.times):
                 _save(out / "instants" / f"{names[i]}_{k:02d}.png", lats[k], args.bits)
         c_report = rep.c_report or c_rep
@@ -240,7 +266,9 @@ def run(args) -> int:
             "notes": rep.notes,
         })
     with open(out / "c.json", "w") as f:
-        json.dump({"input": str(args.input), "time_unit": unit, "medi": bool(args.medi), "frames": per_frame},
+        json.dump({"input": str(args.input), "time_unit": unit, "medi": bool(args.medi), "gamma": gamma,
+                   "gamma_source": "given (--gamma)" if gamma != 1.0 else "assumed linear (default: c in the frames' units)",
+                   "frames": per_frame},
                   f, indent=2)
     print(f"ebad deblur: {len(per_frame)} frame(s) written to {out}")
     return 0

@@ -204,3 +204,31 @@ def test_an_event_at_t_start_is_in_and_one_at_t_end_is_out():
     later = EventStream([101], [0], [0], [1], 2, 1)
     L1 = deblur(B, ex, later, times=[100e-6, 150e-6], c=0.5)
     assert (L1[1, 0, 0] + LOG_EPS) / (L1[0, 0, 0] + LOG_EPS) == pytest.approx(np.exp(0.5))
+
+
+# --- a power response (gamma) ---------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("gamma", [0.45, 0.8, 2.2])
+def test_gamma_deblurs_the_linearised_frame_and_maps_the_latent_back(seq1, gamma):
+    """deblur(B ** g, gamma=g) is deblur(B) ** g: the frame is linearised, the latent re-encoded."""
+    B, ex = seq1.frames[0], seq1.exposures[0]
+    times = np.linspace(ex[0], ex[1], 3)
+    got, rep = deblur(B**gamma, ex, seq1.events, times=times, c=0.2, gamma=gamma, return_report=True)
+    want = deblur(B, ex, seq1.events, times=times, c=0.2) ** gamma
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+    assert not rep.saturated.any()
+
+
+def test_gamma_keeps_saturated_recorded_pixels(seq1):
+    B, ex = seq1.frames[0].copy(), seq1.exposures[0]
+    B[3, 4] = 0.995  # recorded at or above SATURATION: left as it is, whatever gamma
+    out, rep = deblur(B, ex, seq1.events, c=0.2, gamma=0.5, return_report=True)
+    assert rep.saturated[3, 4] and out[3, 4, 0] == pytest.approx(0.995, abs=1e-12)
+    assert rep.saturated.sum() == 1
+
+
+@pytest.mark.parametrize("bad", [0.0, -1.0, float("nan"), 10.0, "x"])
+def test_bad_gamma_is_refused_naming_it(seq1, bad):
+    with pytest.raises(InputError, match="gamma"):
+        deblur(seq1.frames[0], seq1.exposures[0], seq1.events, c=0.2, gamma=bad)
