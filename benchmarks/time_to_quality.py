@@ -99,6 +99,28 @@ class Snapshots:
             self.take(state)
 
 
+PLATEAU_PATIENCES = (2, 3, 5)
+
+
+def plateau_points(history, cfg, points: list[dict]) -> list[dict]:
+    """Where the plateau rule (``ebad.trainer.should_stop``, ``train.plateau_every`` and
+    ``plateau_tol`` of ``cfg``) would have stopped this run for each patience in
+    ``PLATEAU_PATIENCES``, replayed over its loss history, and the test PSNR of the last
+    snapshot at or before that step (None: the rule never fired within the run)."""
+    from ebad.trainer import should_stop
+
+    out = []
+    for patience in PLATEAU_PATIENCES:
+        c = copy.deepcopy(cfg)
+        c.train.plateau_patience, c.train.max_seconds = patience, None
+        hit = next((h for i, h in enumerate(history) if should_stop(history[:i + 1], 0.0, c) == "plateau"), None)
+        before = [p for p in points if hit is not None and p["step"] <= hit.step]
+        out.append({"patience": patience, "step": None if hit is None else hit.step,
+                    "seconds": None if hit is None else hit.time,
+                    "psnr_at_last_snapshot_before": before[-1]["test_psnr"] if before else None})
+    return out
+
+
 def run_one(scene, name: str, seconds: float, marks: int, exact: bool, refine_iters: int) -> dict:
     from ebad.evaluate import evaluate
     from ebad.trainer import reconstruct
@@ -128,6 +150,7 @@ def run_one(scene, name: str, seconds: float, marks: int, exact: bool, refine_it
     return {"preset": name, "peak_rss_mb_so_far": peak_mb, "gaussians": m.gaussians, "steps": m.steps, "train_seconds": m.train_seconds, "prepare_seconds": m.prepare_seconds,
             "wall_seconds": wall, "step_ms": 1000 * m.train_seconds / max(m.steps, 1), "points": points,
             "cpu_seconds": points[-1]["cpu_seconds"], "final_psnr": points[-1]["test_psnr"],
+            "plateau": plateau_points(run.history, cfg, points),
             "poses_refined": not exact}, run
 
 
@@ -175,6 +198,24 @@ def score_baseline(run, base: dict, scene, exact: bool, refine_iters: int) -> di
             "step_ms": 1000 * base["train_seconds"] / max(base["steps"], 1), "gaussians": points[-1]["gaussians"],
             "peak_rss_mb": base["peak_rss_mb"], "own_test_psnr": base["own_test_psnr"], "points": points,
             "final_psnr": points[-1]["test_psnr"], "poses_refined": not exact}
+
+
+def time_to_baseline(rows: list[dict], margin: float = 0.5) -> dict:
+    """The issue's target: the first snapshot of each run within ``margin`` dB of the baseline's
+    final PSNR, and its time as a fraction of the baseline's (wall and CPU seconds)."""
+    base = next(r for r in rows if r.get("baseline"))
+    out = {"baseline_psnr": base["final_psnr"], "baseline_seconds": base["train_seconds"],
+           "baseline_cpu_seconds": base["cpu_seconds"], "margin_db": margin, "presets": {}}
+    for r in rows:
+        if r.get("baseline"):
+            continue
+        hit = next((p for p in r["points"] if p["test_psnr"] >= base["final_psnr"] - margin), None)
+        out["presets"][r["preset"]] = {
+            "seconds": None if hit is None else hit["seconds"], "step": None if hit is None else hit["step"],
+            "psnr": None if hit is None else hit["test_psnr"],
+            "wall_ratio": None if hit is None else hit["seconds"] / base["train_seconds"],
+            "cpu_ratio": None if hit is None else hit["cpu_seconds"] / base["cpu_seconds"]}
+    return out
 
 
 def plot(results: dict, path) -> None:
@@ -258,13 +299,23 @@ def main(argv=None) -> int:
                       flush=True)
             results[mode].append(r)
             pts = "  ".join(f"{p['seconds']:.0f}s/{p['step']}:{p['test_psnr']:.2f}" for p in r["points"])
+            fired = ", ".join(f"patience {q['patience']}: " + ("never" if q["step"] is None else
+                              f"step {q['step']} ({q['seconds']:.0f} s)") for q in r["plateau"])
+            print(f"{mode:9s} {name:5s} plateau rule would stop at {fired}", flush=True)
             print(f"{mode:9s} {name:5s} prepare {r['prepare_seconds']:.1f} s, {r['step_ms']:.0f} ms/step, "
                   f"{r['steps']} steps, {r['gaussians']} Gaussians, peak RSS so far {r['peak_rss_mb_so_far']:.0f} MB "
                   f"-> {r['final_psnr']:.2f} dB   [{pts}]", flush=True)
     if args.baseline_only:
         print(f"wrote {RESULTS / (args.name + '_baseline.pt')}")
         return 0
-    path = write_json(args.name, {"size": size, "seconds": seconds, "seed": args.seed, "modes": MODES,
+    targets = {mode: time_to_baseline(rows) for mode, rows in results.items() if any(r.get("baseline") for r in rows)}
+    for mode, t in targets.items():
+        for name, row in t["presets"].items():
+            reach = ("never within the run" if row["seconds"] is None else
+                     f"at {row['seconds']:.0f} s ({row['wall_ratio']:.2f} of the baseline's wall time, "
+                     f"{row['cpu_ratio']:.2f} of its CPU time)")
+            print(f"{mode:9s} {name} reaches the baseline's {t['baseline_psnr']:.2f} dB - 0.5 {reach}")
+    path = write_json(args.name, {"targets": targets, "size": size, "seconds": seconds, "seed": args.seed, "modes": MODES,
                                   "results": results, "argv": sys.argv[1:]})
     plot(results, RESULTS / f"{args.name}.png")
     print(f"wrote {path} and {RESULTS / (args.name + '.png')}")
