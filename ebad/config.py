@@ -30,6 +30,9 @@ Target = Literal["blurry", "edi"]
 PoseSource = Literal["auto", "capture", "colmap", "static"]
 TrajectoryKind = Literal["linear", "cubic", "fixed"]
 StrategyKind = Literal["default", "none"]
+EventWindows = Literal["consecutive", "random"]
+EventNorm = Literal["l1", "l2"]
+EdiPrior = Literal["edi", "medi"]
 
 
 def _require(ok: bool, option: str, problem: str) -> None:
@@ -122,9 +125,15 @@ class LossConfig:
     # equal within run-to-run noise (learnt minus fixed: -0.24 dB in one run, +0.26 dB in another)
     learn_contrast: bool = False  # refine (c_pos, c_neg) (as logs) jointly through L_ev (off: c drifts to a degenerate minimum)
     lr_contrast: float = 1e-2  # Adam learning rate of log c_pos and log c_neg
+    event_windows: EventWindows = "consecutive"  # L_ev windows: every pair of consecutive virtual instants, or one random pair of them per step (the paper samples its window start t_s at random)
+    event_norm: EventNorm = "l1"  # L_ev residual norm: l1 (mean |r|, robust to noise events) or l2 (mean r^2, the paper's)
+    edi_prior: EdiPrior = "edi"  # the latents of L_EDI: per-frame EDI, or mEDI (all training frames jointly, linked by the events between their centres)
 
     def check(self) -> None:
         _finite(self, "loss")
+        for name, kind in (("event_windows", EventWindows), ("event_norm", EventNorm), ("edi_prior", EdiPrior)):
+            _require(getattr(self, name) in typing.get_args(kind), f"loss.{name}",
+                     f"must be one of {', '.join(typing.get_args(kind))}, got {getattr(self, name)!r}")
         for name in ("w_blur", "w_event", "w_edi"):
             _require(getattr(self, name) >= 0, f"loss.{name}", f"must be >= 0, got {getattr(self, name)}")
         _require(0 <= self.ssim_weight <= 1, "loss.ssim_weight", f"must be in [0, 1], got {self.ssim_weight}")

@@ -279,11 +279,14 @@ def prepare(capture, cfg: Config) -> TrainingData:
     if use_events and (lc.w_edi > 0 or lc.target == "edi"):
         import edi
 
-        lat = []
-        for f in range(len(idx)):
-            t0, t1 = exposures[f]
-            lat.append(np.asarray(edi.deblur(frames_np[f], (t0, t1), events, times=0.5 * (t0 + t1), c=c),
-                                  dtype=np.float32).reshape(frames_np.shape[1:]))
+        if lc.edi_prior == "medi":  # all training frames jointly, at their exposure centres
+            lat = np.asarray(edi.medi(frames_np, exposures, events, c=c), dtype=np.float32).reshape(frames_np.shape)
+        else:
+            lat = []
+            for f in range(len(idx)):
+                t0, t1 = exposures[f]
+                lat.append(np.asarray(edi.deblur(frames_np[f], (t0, t1), events, times=0.5 * (t0 + t1), c=c),
+                                      dtype=np.float32).reshape(frames_np.shape[1:]))
         latents = torch.from_numpy(np.clip(np.stack(lat), 0, 1))
     frames_t = torch.from_numpy(frames_np)
     targets = latents if (lc.target == "edi" and latents is not None) else frames_t

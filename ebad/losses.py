@@ -6,6 +6,8 @@ threshold in natural-log units; log intensities are ``log(I + eps)`` with ``eps 
 """
 from __future__ import annotations
 
+from typing import Literal
+
 import torch
 from torch import Tensor
 from kornia.metrics import ssim as _kornia_ssim
@@ -13,7 +15,9 @@ from kornia.metrics import ssim as _kornia_ssim
 from edi import LOG_EPS
 
 __all__ = ["luminance", "ssim_map", "ssim_map_kornia", "l1_ssim", "blur_loss", "event_loss", "edi_loss",
-           "LUMA"]
+           "LUMA", "EventNorm"]
+
+EventNorm = Literal["l1", "l2"]  # the norm of the L_ev residual: mean |r| (ebad's default) or mean r^2 (the paper's)
 
 LUMA = (1 / 3, 1 / 3, 1 / 3)  # the intensity a colour event pixel sees: the channel mean, as scenes.simulate_events
 
@@ -105,14 +109,18 @@ def blur_loss(renders: Tensor,  # [V, H, W, D]
 
 def event_loss(renders: Tensor,  # [V, H, W, D]
                counts: Tensor,  # [V - 1, 2, H, W] ON and OFF event counts
-               c: float | tuple[float, float] | Tensor, eps: float | None = None) -> Tensor:
-    """L_ev: mean |log L(t_{k+1}) - log L(t_k) - (c_pos N_on,k - c_neg N_off,k)| over consecutive
-    virtual instants.
+               c: float | tuple[float, float] | Tensor, eps: float | None = None,
+               norm: EventNorm = "l1") -> Tensor:
+    """L_ev: the mean over pixels and consecutive instants of |r| (``norm="l1"``) or r^2 (``"l2"``),
+    r = log L(t_{k+1}) - log L(t_k) - (c_pos N_on,k - c_neg N_off,k).
 
     ``L`` is the render's luminance (the render itself when grey); ``c`` one threshold or the pair
     (c_pos, c_neg) (a float, a 2-tuple, or a tensor of one or two values, differentiable).
-    L1 rather than L2: robust to noise events.
+    L1 is ebad's default (robust to noise events), L2 the paper's; one window (t_i, t_j) is
+    ``event_loss(renders[[i, j]], virtual_views.window_counts(counts, i, j), c)``.
     """
+    if norm not in ("l1", "l2"):
+        raise ValueError(f"norm must be 'l1' or 'l2', got {norm!r}")
     V = renders.shape[0]
     if counts.shape != (V - 1, 2) + tuple(renders.shape[1:3]):
         raise ValueError(f"counts must be [V - 1, 2, H, W] = {(V - 1, 2) + tuple(renders.shape[1:3])}, "
@@ -125,7 +133,8 @@ def event_loss(renders: Tensor,  # [V, H, W, D]
     cc = torch.as_tensor(c, dtype=diff.dtype).reshape(-1)
     c_pos, c_neg = cc[0], cc[-1]
     counts = counts.to(diff.dtype)
-    return (diff - (c_pos * counts[:, 0] - c_neg * counts[:, 1])).abs().mean()
+    r = diff - (c_pos * counts[:, 0] - c_neg * counts[:, 1])
+    return r.abs().mean() if norm == "l1" else r.square().mean()
 
 
 def edi_loss(render_mid: Tensor,  # [H, W, D]

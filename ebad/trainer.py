@@ -32,6 +32,7 @@ from .response import Response
 from .state import StepStats, TrainState, capture_fingerprint, max_gaussians
 from .strategy import RenderInfo, Strategy, make_strategy
 from .trajectory import ExposureTrajectories, virtual_instants
+from .virtual_views import random_window, window_counts
 
 __all__ = ["Run", "RunMetrics", "ViewScores", "with_poses", "frame_losses", "train_step", "train", "should_stop",
            "reconstruct", "evaluate_views", "coarse_data", "render_images", "Callback", "Evaluator", "ProgressBar",
@@ -70,7 +71,11 @@ def frame_losses(data: TrainingData, state: TrainState, f: int, cfg: Config) -> 
     ev = edi = None
     if lc.w_event > 0 and data.ev_counts[f] is not None:
         c = torch.exp(state.log_c) if state.log_c is not None else data.c
-        ev = event_loss(renders, data.ev_counts[f], c)
+        if lc.event_windows == "random":  # one random pair of virtual instants (virtual_views docstring)
+            i, j = random_window(V, state.generator)
+            ev = event_loss(renders[[i, j]], window_counts(data.ev_counts[f], i, j), c, norm=lc.event_norm)
+        else:
+            ev = event_loss(renders, data.ev_counts[f], c, norm=lc.event_norm)
         total = total + lc.w_event * ev
     if data.latents is not None and lc.w_edi > 0:
         mid = images[V] if need_mid else images[V // 2]

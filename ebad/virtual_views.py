@@ -3,6 +3,12 @@
 "Skip what the scene does not need": a frame whose exposure is empty (t_start == t_end) or
 that saw fewer than ``sharp_events_per_pixel`` events per pixel during it is sharp and gets
 V = 1 (one render, no trajectory); every other frame gets the configured V.
+
+L_ev windows (``loss.event_windows``): ``consecutive`` compares every pair of neighbouring
+virtual instants with the events between them (``event_counts``); ``random`` draws one window
+per step, a random pair of the V rendered instants (``random_window``), whose events are the
+sum of the consecutive counts it spans (``window_counts``): the paper's random t_s restricted to
+the virtual instants, at no extra render and no pass over the events.
 """
 from __future__ import annotations
 
@@ -12,7 +18,7 @@ from torch import Tensor
 
 from edi import EventStream, seconds_to_us
 
-__all__ = ["events_per_pixel", "choose_num_views", "event_counts"]
+__all__ = ["events_per_pixel", "choose_num_views", "event_counts", "random_window", "window_counts"]
 
 
 def events_per_pixel(events: EventStream, exposures: np.ndarray) -> np.ndarray:  # [F, 2] -> [F]
@@ -73,3 +79,23 @@ def event_counts(
             out[k, 0] = np.bincount(idx[on], minlength=H * W)
             out[k, 1] = np.bincount(idx[~on], minlength=H * W)
     return torch.from_numpy(out.reshape(V - 1, 2, H, W).astype(np.float32))
+
+
+def random_window(V: int, generator: torch.Generator | None = None) -> tuple[int, int]:
+    """A window (i, j), 0 <= i < j < V, of two virtual instants, uniform over the V (V - 1) / 2 pairs."""
+    if V < 2:
+        raise ValueError(f"a window needs V >= 2 virtual instants, got {V}")
+    pair = int(torch.randint(V * (V - 1) // 2, (1,), generator=generator))
+    i = 0
+    while pair >= V - 1 - i:  # row i of the upper triangle holds the V - 1 - i pairs (i, i + 1 .. V - 1)
+        pair -= V - 1 - i
+        i += 1
+    return i, i + 1 + pair
+
+
+def window_counts(counts: Tensor,  # [V - 1, 2, H, W] counts between consecutive instants (event_counts)
+                  i: int, j: int) -> Tensor:  # [1, 2, H, W]
+    """ON and OFF counts between virtual instants i < j: the consecutive counts of the windows they span."""
+    if not 0 <= i < j <= counts.shape[0]:
+        raise ValueError(f"window ({i}, {j}) must satisfy 0 <= i < j <= V - 1 = {counts.shape[0]}")
+    return counts[i:j].sum(0, keepdim=True)
