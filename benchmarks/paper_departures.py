@@ -39,10 +39,11 @@ KEYS = ("test_refined_psnr", "test_refined_ssim", "deblur_psnr", "deblur_ssim", 
 def prior_psnr(scene, c: tuple[float, float], kind: str) -> float:
     """PSNR of the L_EDI latents (``kind`` edi | medi, threshold pair ``c``) against the sharp truth."""
     import edi
+    from ebad.data import _train_indices
     from ebad.evaluate import score_frames
 
     cap = scene.capture
-    idx = [i for i, s in enumerate(cap.split) if s == "train"] if cap.split else list(range(cap.num_frames))
+    idx = _train_indices(cap)
     frames = np.asarray(cap.frames, dtype=np.float32)[idx]
     ex = np.asarray(cap.exposures, dtype=np.float64)[idx]
     if kind == "medi":

@@ -61,3 +61,37 @@ def test_ssim_gradcheck():
     a = torch.rand(1, 6, 7, 1, generator=g, dtype=torch.float64, requires_grad=True)
     b = torch.rand(1, 6, 7, 1, generator=g, dtype=torch.float64)
     torch.autograd.gradcheck(lambda x: ssim_map(x, b, 5).mean(), (a,))
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_event_loss_l2_is_the_mean_squared_residual_and_l1_the_mean_absolute(seed):
+    g = torch.Generator().manual_seed(seed)
+    renders = torch.rand(4, 5, 6, 1, generator=g)
+    counts = torch.randint(0, 4, (3, 2, 5, 6), generator=g).float()
+    c = (0.25, 0.18)
+    logL = torch.log(renders[..., 0] + 1e-3).double()
+    r = logL[1:] - logL[:-1] - (c[0] * counts[:, 0] - c[1] * counts[:, 1]).double()
+    assert float(event_loss(renders, counts, c, norm="l2")) == pytest.approx(float(r.square().mean()), rel=1e-5)
+    assert float(event_loss(renders, counts, c, norm="l1")) == pytest.approx(float(r.abs().mean()), rel=1e-5)
+    assert float(event_loss(renders, counts, c)) == float(event_loss(renders, counts, c, norm="l1"))  # default
+    with pytest.raises(ValueError, match="norm"):
+        event_loss(renders, counts, c, norm="l3")
+
+
+def test_event_loss_of_one_window_compares_its_two_instants_with_the_summed_counts():
+    from ebad.virtual_views import window_counts
+
+    c, eps = 0.2, 1e-3
+    I0 = torch.full((4, 4, 1), 0.3)
+    rises = [1.0, 2.0, -1.0]  # ON, ON ON, OFF between the four instants
+    renders = torch.stack([(I0 + eps) * math.exp(c * sum(rises[:k])) - eps for k in range(4)])
+    counts = torch.zeros(3, 2, 4, 4)
+    for k, n in enumerate(rises):
+        counts[k, 0 if n > 0 else 1] = abs(n)
+    for i, j in [(0, 1), (0, 2), (1, 3), (0, 3)]:
+        assert float(event_loss(renders[[i, j]], window_counts(counts, i, j), c, eps)) == pytest.approx(0.0, abs=1e-5)
+    # the window (0, 3) with one ON event dropped from its middle: off by c
+    short = counts.clone()
+    short[1, 0] = 1.0
+    assert float(event_loss(renders[[0, 3]], window_counts(short, 0, 3), c, eps, norm="l1")) == pytest.approx(c, abs=1e-5)
+    assert float(event_loss(renders[[0, 3]], window_counts(short, 0, 3), c, eps, norm="l2")) == pytest.approx(c * c, abs=1e-5)

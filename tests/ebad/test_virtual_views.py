@@ -5,7 +5,9 @@ import numpy as np
 import pytest
 
 from edi import EventStream
-from ebad.virtual_views import choose_num_views, event_counts
+import torch
+
+from ebad.virtual_views import choose_num_views, event_counts, random_window, window_counts
 
 
 def _stream(n_per_frame, W=8, H=6, exposures=((0.0, 0.04), (0.1, 0.14))):
@@ -42,3 +44,42 @@ def test_event_counts_match_bruteforce():
             assert np.array_equal(s[k, j].numpy(), ref)
     assert s.sum() == ((ev.t >= round(inst[0])) & (ev.t < round(inst[-1]))).sum()
     assert event_counts(ev, (0.0, 0.04), 1).shape == (0, 2, 6, 8)
+
+
+@pytest.mark.parametrize("V", [2, 3, 5, 7])
+def test_random_window_draws_every_pair_of_instants_and_only_those(V):
+    g = torch.Generator().manual_seed(V)
+    n = 400 * V * V
+    seen = {}
+    for _ in range(n):
+        i, j = random_window(V, g)
+        assert 0 <= i < j < V
+        seen[(i, j)] = seen.get((i, j), 0) + 1
+    pairs = V * (V - 1) // 2
+    assert len(seen) == pairs
+    expected = n / pairs  # uniform over the pairs: each count within 5 binomial standard deviations
+    assert all(abs(k - expected) < 5 * np.sqrt(expected) for k in seen.values())
+    with pytest.raises(ValueError, match="V >= 2"):
+        random_window(1, g)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_window_counts_are_the_events_between_the_chosen_instants(seed):
+    ev = _stream([400, 30])
+    V = 7
+    counts = event_counts(ev, (0.0, 0.04), V)
+    inst = (np.arange(V) + 0.5) / V * 0.04 * 1e6
+    g = torch.Generator().manual_seed(seed)
+    for _ in range(10):
+        i, j = random_window(V, g)
+        w = window_counts(counts, i, j)
+        assert w.shape == (1, 2, 6, 8)
+        m = (ev.t >= round(inst[i])) & (ev.t < round(inst[j]))
+        for k, pol in enumerate((1, -1)):
+            ref = np.zeros((6, 8))
+            np.add.at(ref, (ev.y[m & (ev.p == pol)], ev.x[m & (ev.p == pol)]), 1)
+            assert np.array_equal(w[0, k].numpy(), ref)
+    with pytest.raises(ValueError, match="window"):
+        window_counts(counts, 3, 3)
+    with pytest.raises(ValueError, match="window"):
+        window_counts(counts, 0, V)

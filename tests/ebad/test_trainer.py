@@ -1,0 +1,70 @@
+"""ebad.trainer.frame_losses: the L_ev options (windows, norm) and the L_EDI prior."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+import edi
+import scenes
+from ebad.config import preset
+from ebad.data import _train_indices, prepare
+from ebad.gaussians import render
+from ebad.losses import event_loss
+from ebad.state import TrainState
+from ebad.trainer import frame_losses
+from ebad.trajectory import virtual_instants
+from ebad.virtual_views import random_window, window_counts
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return scenes.make_scene("boxes", size="tiny", seed=0, n_frames=4, n_test=1)
+
+
+def _config(**loss):
+    cfg = preset("ebad")
+    for k, v in loss.items():
+        setattr(cfg.loss, k, v)
+    return cfg
+
+
+def _renders(data, state, f):  # [V, H, W, D] the frame's virtual views, as frame_losses renders them
+    V = int(data.V[f])
+    poses = state.trajectories(torch.tensor([f]), virtual_instants(V))[0]
+    return render(state.params, poses, data.K, data.width, data.height, 0.0)[0]
+
+
+@pytest.mark.parametrize("norm", ["l1", "l2"])
+def test_frame_losses_random_windows_use_one_pair_drawn_from_the_run_generator(scene, norm):
+    cfg = _config(event_windows="random", event_norm=norm)
+    data = prepare(scene.capture, cfg)
+    state = TrainState.create(data, cfg)
+    f = int(np.argmax(data.V))
+    V = int(data.V[f])
+    assert V >= 3 and data.ev_counts[f] is not None
+    with torch.no_grad():
+        renders = _renders(data, state, f)
+        seen = set()
+        for _ in range(6):
+            ref_gen = torch.Generator().set_state(state.generator.get_state())
+            i, j = random_window(V, ref_gen)
+            seen.add((i, j))
+            ev = frame_losses(data, state, f, cfg).ev
+            ref = event_loss(renders[[i, j]], window_counts(data.ev_counts[f], i, j), data.c, norm=norm)
+            assert float(ev) == pytest.approx(float(ref), rel=1e-5)
+        consecutive = event_loss(renders, data.ev_counts[f], data.c, norm=norm)
+        default = frame_losses(data, state, f, _config(event_norm=norm)).ev
+    assert len(seen) > 1  # the window changes from step to step
+    assert float(default) == pytest.approx(float(consecutive), rel=1e-5)
+
+
+def test_medi_prior_gives_the_latents_of_edi_medi(scene):
+    cfg = _config(edi_prior="medi")
+    data = prepare(scene.capture, cfg)
+    cap = scene.capture
+    idx = _train_indices(cap)
+    ref = edi.medi(np.asarray(cap.frames, np.float32)[idx], np.asarray(cap.exposures)[idx], cap.events, c=data.c)
+    assert np.allclose(data.latents.numpy(), np.asarray(ref).reshape(data.latents.shape), atol=1e-6)
+    per_frame = prepare(scene.capture, _config())
+    assert not torch.allclose(per_frame.latents, data.latents, atol=1e-3)  # a different prior, not a copy
