@@ -6,7 +6,7 @@ threshold in natural-log units; log intensities are ``log(I + eps)`` with ``eps 
 """
 from __future__ import annotations
 
-from typing import Literal
+import typing
 
 import torch
 from torch import Tensor
@@ -14,10 +14,10 @@ from kornia.metrics import ssim as _kornia_ssim
 
 from edi import LOG_EPS
 
-__all__ = ["luminance", "ssim_map", "ssim_map_kornia", "l1_ssim", "blur_loss", "event_loss", "edi_loss",
-           "LUMA", "EventNorm"]
+from .config import EventNorm  # the norm of the L_ev residual: l1, mean |r| (ebad's default), or l2, mean r^2 (the paper's)
 
-EventNorm = Literal["l1", "l2"]  # the norm of the L_ev residual: mean |r| (ebad's default) or mean r^2 (the paper's)
+__all__ = ["luminance", "ssim_map", "ssim_map_kornia", "l1_ssim", "blur_loss", "event_loss", "edi_loss",
+           "LUMA"]
 
 LUMA = (1 / 3, 1 / 3, 1 / 3)  # the intensity a colour event pixel sees: the channel mean, as scenes.simulate_events
 
@@ -119,8 +119,8 @@ def event_loss(renders: Tensor,  # [V, H, W, D]
     L1 is ebad's default (robust to noise events), L2 the paper's; one window (t_i, t_j) is
     ``event_loss(renders[[i, j]], virtual_views.window_counts(counts, i, j), c)``.
     """
-    if norm not in ("l1", "l2"):
-        raise ValueError(f"norm must be 'l1' or 'l2', got {norm!r}")
+    if norm not in typing.get_args(EventNorm):
+        raise ValueError(f"norm must be one of {typing.get_args(EventNorm)}, got {norm!r}")
     V = renders.shape[0]
     if counts.shape != (V - 1, 2) + tuple(renders.shape[1:3]):
         raise ValueError(f"counts must be [V - 1, 2, H, W] = {(V - 1, 2) + tuple(renders.shape[1:3])}, "
