@@ -81,15 +81,37 @@ def run_one(scene, spec: str, iters: int, seed: int, refine: bool, refine_iters:
 
 
 def _summary(rows: list[dict]) -> dict:
-    """``ablation.summarise`` plus the keys of this benchmark (ms/step, prior PSNR, prepare time)."""
+    """``ablation.summarise`` plus the keys of this benchmark (ms/step, prior PSNR, prepare time) and,
+    for every config but the first of a setting (the baseline), the per-seed paired differences
+    config - baseline of novel and deblurred PSNR (mean, std, and the seeds where the config is ahead)."""
     out = summarise(rows)
     for setting, by in out.items():
+        base = next(iter(by))
+        base_rows = {r["seed"]: r for r in rows if r["setting"] == setting and r["preset"] == base}
         for spec, s in by.items():
             rs = [r for r in rows if r["setting"] == setting and r["preset"] == spec]
             for k in KEYS:
                 vals = [r[k] for r in rs if r.get(k) is not None]
                 s[k] = (float(np.mean(vals)), float(np.std(vals))) if vals else (None, None)
+            for k in ("test_refined_psnr", "deblur_psnr"):
+                d = [r[k] - base_rows[r["seed"]][k] for r in rs
+                     if r["seed"] in base_rows and r[k] is not None and base_rows[r["seed"]][k] is not None]
+                s[f"delta_{k}"] = (float(np.mean(d)), float(np.std(d)), int(sum(x > 0 for x in d)), len(d)) if d else (
+                    None, None, 0, 0)
     return out
+
+
+def print_table(summary: dict) -> None:
+    print("| setting | config | novel PSNR dB | Δ novel (seeds ahead) | novel SSIM | deblurred PSNR dB | "
+          "Δ deblurred (seeds ahead) | deblurred SSIM | prior PSNR dB | ms/step | prepare s |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    for setting, by in summary.items():
+        for i, (spec, s) in enumerate(by.items()):
+            dn, dd = s["delta_test_refined_psnr"], s["delta_deblur_psnr"]
+            fd = (lambda d: "-" if i == 0 or d[0] is None else f"{d[0]:+.2f} ± {d[1]:.2f} ({d[2]}/{d[3]})")
+            print(f"| {setting} | `{spec}` | {_fmt(s['test_refined_psnr'])} | {fd(dn)} | {_fmt(s['test_refined_ssim'], 3)} | "
+                  f"{_fmt(s['deblur_psnr'])} | {fd(dd)} | {_fmt(s['deblur_ssim'], 3)} | {_fmt(s['prior_psnr'])} | "
+                  f"{_fmt(s['ms_per_step'], 0)} | {_fmt(s['prepare_seconds'], 1)} |")
 
 
 def _fmt(v: tuple, digits: int = 2) -> str:
@@ -106,7 +128,21 @@ def main(argv=None) -> int:
     ap.add_argument("--iters", type=int, default=None, help="steps per run (default 600; quick 100)")
     ap.add_argument("--refine-iters", type=int, default=150, help="test-pose refinement steps at most")
     ap.add_argument("--name", default=None, help="results file benchmarks/results/NAME.json")
+    ap.add_argument("--summarise", default=None, metavar="JSON",
+                    help="print the table of an earlier run's JSON (and rewrite its summary), without training")
     args = ap.parse_args(argv)
+    if args.summarise:
+        import json
+        from pathlib import Path
+
+        d = json.loads(Path(args.summarise).read_text())
+        d["summary"] = _summary(d["rows"])
+        d["summarised_from_run_of"] = d.pop("environment", None)  # the environment of the run that trained
+        print(f"{d['size']} boxes, {d['iters']} steps per run, seeds {d['seeds']}; mean ± std over seeds "
+              f"(novel views at refined poses in settings without exact poses; Δ: paired per seed against {d['specs'][0]})")
+        print_table(d["summary"])
+        print(f"\nwrote {write_json(Path(args.summarise).stem, d)}")
+        return 0
     import scenes
 
     iters = args.iters if args.iters is not None else (100 if args.quick else 600)
@@ -138,17 +174,9 @@ def main(argv=None) -> int:
                 print(f"{setting:6s} seed {seed} {spec:34s} novel {r['test_refined_psnr'] or float('nan'):6.2f} dB"
                       f"  deblurred {r['deblur_psnr']:6.2f} dB  prior {r['prior_psnr'] or float('nan'):6.2f} dB"
                       f"  {r['ms_per_step']:6.1f} ms/step  prepare {r['prepare_seconds']:5.1f} s", flush=True)
-    summary = _summary(rows)
     print(f"\n{size} boxes, {iters} steps per run, seeds {seeds}; mean ± std over seeds "
-          f"(novel views at refined poses in settings without exact poses)")
-    print("| setting | config | novel PSNR dB | novel SSIM | deblurred PSNR dB | deblurred SSIM | prior PSNR dB "
-          "| ms/step | prepare s |")
-    print("|---|---|---|---|---|---|---|---|---|")
-    for setting, by in summary.items():
-        for spec, s in by.items():
-            print(f"| {setting} | `{spec}` | {_fmt(s['test_refined_psnr'])} | {_fmt(s['test_refined_ssim'], 3)} | "
-                  f"{_fmt(s['deblur_psnr'])} | {_fmt(s['deblur_ssim'], 3)} | {_fmt(s['prior_psnr'])} | "
-                  f"{_fmt(s['ms_per_step'], 0)} | {_fmt(s['prepare_seconds'], 1)} |")
+          f"(novel views at refined poses in settings without exact poses; Δ: paired per seed against {specs[0]})")
+    print_table(_summary(rows))
     print(f"\nwrote {save()}")
     return 0
 
