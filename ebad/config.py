@@ -159,6 +159,7 @@ class StrategyConfig:
     refine_every: int = 50  # steps between refinements
     reset_every: int = 600  # steps between opacity resets (0: never)
     reset_opacity: float = 0.05  # opacities are clamped to at most this at a reset
+    reset_until: float = 0.5  # no opacity reset after this fraction of the run (steps over iters, or time over max_seconds): the scene needs steps to recover from one (gsplat resets until half its iterations)
 
     def check(self) -> None:
         _finite(self, "strategy")
@@ -168,6 +169,7 @@ class StrategyConfig:
         _require(self.refine_every >= 1, "strategy.refine_every", f"must be >= 1, got {self.refine_every}")
         _require(self.reset_every >= 0, "strategy.reset_every", f"must be >= 0, got {self.reset_every}")
         _require(0 < self.reset_opacity < 1, "strategy.reset_opacity", f"must be in (0, 1), got {self.reset_opacity}")
+        _require(0 <= self.reset_until <= 1, "strategy.reset_until", f"must be in [0, 1], got {self.reset_until}")
 
 
 @dataclass

@@ -42,6 +42,7 @@ class RenderInfo:
     radii: Tensor | None  # [C, N] or [C, N, 2] screen radii (0: not visible)
     width: int
     height: int
+    progress: float = 0.0  # fraction of the run done (steps over iters, or time over the budget)
 
 
 @dataclass
@@ -216,7 +217,7 @@ class DefaultStrategy:
         self.accumulate(state, info)
         if step > cfg.refine_start and step % cfg.refine_every == 0:
             report = self.refine(params, optimizers, state, step)
-        if cfg.reset_every > 0 and step > 0 and step % cfg.reset_every == 0:
+        if cfg.reset_every > 0 and step > 0 and step % cfg.reset_every == 0 and info.progress < cfg.reset_until:
             reset_opacity(params, optimizers, cfg.reset_opacity)
             report.reset = True
         return report

@@ -101,6 +101,7 @@ def train_step(data: TrainingData, state: TrainState, strategy: Strategy, f: int
     out = frame_losses(data, state, f, cfg)
     if not torch.isfinite(out.total):
         raise FloatingPointError(f"non-finite loss at step {state.step} (frame {data.names[f]})")
+    out.info.progress = _budget_fraction(state, cfg, elapsed)
     strategy.step_pre_backward(state.params, state.optimizers, state.strategy_state, state.step, out.info)
     out.total.backward()
     decay = cfg.train.lr_means_final ** _budget_fraction(state, cfg, elapsed)
