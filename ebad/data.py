@@ -86,6 +86,9 @@ class TrainingData:
         return int(self.frames.shape[0])
 
 
+MIN_DOWNSCALED_SIDE = 8  # ``downscale`` refuses (and the coarse phase skips) frames smaller than this a side after it
+
+
 def _pool(x: Tensor, factor: int) -> Tensor:  # [..., H, W] -> [..., H // factor, W // factor]
     lead = x.shape[:-2]
     y = torch.nn.functional.avg_pool2d(x.reshape(-1, 1, *x.shape[-2:]), factor)
@@ -104,7 +107,7 @@ def downscale(data: TrainingData, factor: int) -> TrainingData:
     Poses, V, c and the test views are shared with ``data`` (test views are scored at full size)."""
     if factor == 1:
         return data
-    if factor < 1 or data.height < 8 * factor or data.width < 8 * factor:
+    if factor < 1 or min(data.height, data.width) < MIN_DOWNSCALED_SIDE * factor:
         raise ValueError(f"cannot downscale {data.width} x {data.height} frames by {factor}")
     K = data.K.clone()
     K[:2] /= factor

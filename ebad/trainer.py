@@ -23,7 +23,7 @@ import torch
 from torch import Tensor
 
 from .config import Config, preset
-from .data import PrepareReport, TrainingData, downscale, prepare
+from .data import MIN_DOWNSCALED_SIDE, PrepareReport, TrainingData, downscale, prepare
 from .errors import ConfigError
 from .gaussians import num_gaussians, render
 from .losses import blur_loss, edi_loss, event_loss
@@ -327,9 +327,9 @@ def _torch_threads_that_sleep():
 
 def coarse_data(data: TrainingData, cfg: Config) -> TrainingData | None:
     """The coarse phase's problem (``train.coarse_scale``), or None when there is none: no coarse
-    phase configured, or frames too small to halve (fewer than 8 pixels a side after it)."""
+    phase configured, or frames too small for it (``data.MIN_DOWNSCALED_SIDE``)."""
     s = cfg.train.coarse_scale
-    if s <= 1 or cfg.train.coarse_until <= 0 or min(data.height, data.width) < 8 * s:
+    if s <= 1 or cfg.train.coarse_until <= 0 or min(data.height, data.width) < MIN_DOWNSCALED_SIDE * s:
         return None
     return downscale(data, s)
 
