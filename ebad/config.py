@@ -95,7 +95,7 @@ class TrajectoryConfig:
     adaptive_views: bool = True  # V from event activity: a frame with few events renders V = 1
     sharp_events_per_pixel: float = 0.05  # below this many events per pixel an exposure is sharp
     init_noise: float = 1e-3  # std of the initial start/end perturbation (radians; x scene scale for translation) that breaks the zero-motion symmetry of the blur loss
-    lr: float = 2e-3  # Adam learning rate of the knots (radians; translations in scene-scale units)
+    lr: float = 5e-4  # Adam learning rate of the knots (radians; translations in scene-scale units); 2e-3 before, whose jitter kept noisy poses 4 dB (deblurred) from the truth (benchmarks/results/pose_lr_*.json)
     anchor_mid: Literal["auto", "yes", "no"] = "auto"  # keep the mid-exposure poses fixed and learn only the motion; auto: yes when the capture states its poses are exact (pose_trust), no for approximate poses and after SfM, which then optimise every frame's whole trajectory (a sharp frame's pose too)
     pose_source: PoseSource = "auto"  # auto: capture poses when present and not marked pose_trust none, else pycolmap SfM; static: a camera on a tripod (every frame at the identity pose)
 
