@@ -96,6 +96,7 @@ class TrajectoryConfig:
     sharp_events_per_pixel: float = 0.05  # below this many events per pixel an exposure is sharp
     init_noise: float = 1e-3  # std of the initial start/end perturbation (radians; x scene scale for translation) that breaks the zero-motion symmetry of the blur loss
     lr: float = 5e-4  # Adam learning rate of the knots (radians; translations in scene-scale units); 2e-3 before, whose jitter kept noisy poses 4 dB (deblurred) from the truth (benchmarks/results/pose_lr_*.json)
+    lr_final: float = 1.0  # the knots' learning rate decays exponentially to this fraction of lr over the run (1: constant)
     anchor_mid: Literal["auto", "yes", "no"] = "auto"  # keep the mid-exposure poses fixed and learn only the motion; auto: yes when the capture states its poses are exact (pose_trust), no for approximate poses and after SfM, which then optimise every frame's whole trajectory (a sharp frame's pose too)
     pose_source: PoseSource = "auto"  # auto: capture poses when present and not marked pose_trust none, else pycolmap SfM; static: a camera on a tripod (every frame at the identity pose)
 
@@ -106,6 +107,7 @@ class TrajectoryConfig:
                  f"must be >= 0, got {self.sharp_events_per_pixel}")
         _require(self.init_noise >= 0, "trajectory.init_noise", f"must be >= 0, got {self.init_noise}")
         _require(self.lr >= 0, "trajectory.lr", f"must be >= 0, got {self.lr}")
+        _require(0 < self.lr_final <= 1, "trajectory.lr_final", f"must be in (0, 1], got {self.lr_final}")
 
 
 @dataclass

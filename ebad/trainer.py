@@ -104,8 +104,10 @@ def train_step(data: TrainingData, state: TrainState, strategy: Strategy, f: int
     out.info.progress = _budget_fraction(state, cfg, elapsed)
     strategy.step_pre_backward(state.params, state.optimizers, state.strategy_state, state.step, out.info)
     out.total.backward()
-    decay = cfg.train.lr_means_final ** _budget_fraction(state, cfg, elapsed)
-    state.optimizers["means"].param_groups[0]["lr"] = cfg.train.lr_means * data.scale * decay
+    frac = _budget_fraction(state, cfg, elapsed)
+    state.optimizers["means"].param_groups[0]["lr"] = cfg.train.lr_means * data.scale * cfg.train.lr_means_final ** frac
+    if "poses" in state.optimizers:
+        state.optimizers["poses"].param_groups[0]["lr"] = cfg.trajectory.lr * cfg.trajectory.lr_final ** frac
     for name, opt in state.optimizers.items():
         if name == "poses" and state.step < cfg.train.pose_warmup:
             continue

@@ -77,3 +77,19 @@ def test_load_refuses_a_damaged_checkpoint(tiny, tmp_path):
     path.write_bytes(path.read_bytes()[:200])
     with pytest.raises(UserError, match="last.pt: not a readable checkpoint"):
         TrainState.load(path, data, cfg)
+
+
+def test_learning_rates_decay_over_the_run_to_their_final_fractions(tiny):
+    """The means' and the knots' learning rates follow lr * final ** (fraction of the run): at
+    the start the configured lr, half-way the square root of the final fraction."""
+    cfg, data, state, strategy = _setup(tiny.capture)
+    cfg.train.iters = 4
+    cfg.train.lr_means_final = 0.01
+    cfg.trajectory.lr_final = 0.25
+    lr = lambda name: state.optimizers[name].param_groups[0]["lr"]  # noqa: E731
+    _steps(cfg, data, state, strategy, 1)  # step 0 of 4
+    assert lr("poses") == pytest.approx(cfg.trajectory.lr)
+    assert lr("means") == pytest.approx(cfg.train.lr_means * data.scale)
+    _steps(cfg, data, state, strategy, 2)  # step 2 of 4
+    assert lr("poses") == pytest.approx(cfg.trajectory.lr * 0.5)
+    assert lr("means") == pytest.approx(cfg.train.lr_means * data.scale * 0.1)
