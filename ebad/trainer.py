@@ -101,10 +101,10 @@ def train_step(data: TrainingData, state: TrainState, strategy: Strategy, f: int
     out = frame_losses(data, state, f, cfg)
     if not torch.isfinite(out.total):
         raise FloatingPointError(f"non-finite loss at step {state.step} (frame {data.names[f]})")
-    out.info.progress = _budget_fraction(state, cfg, elapsed)
+    frac = _budget_fraction(state, cfg, elapsed)
+    out.info.progress = frac
     strategy.step_pre_backward(state.params, state.optimizers, state.strategy_state, state.step, out.info)
     out.total.backward()
-    frac = _budget_fraction(state, cfg, elapsed)
     state.optimizers["means"].param_groups[0]["lr"] = cfg.train.lr_means * data.scale * cfg.train.lr_means_final ** frac
     if "poses" in state.optimizers:
         state.optimizers["poses"].param_groups[0]["lr"] = cfg.trajectory.lr * cfg.trajectory.lr_final ** frac
