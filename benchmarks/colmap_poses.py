@@ -32,13 +32,9 @@ INPUTS = {"blurry": dict(deblur=False), "edi c": dict(deblur=True, c_polarity=Fa
           "edi c+-": dict(deblur=True, c_polarity=True)}
 
 
-def _rot_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:  # [N, 4, 4] x2 -> [N]
-    rel = np.einsum("nji,njk->nik", a[:, :3, :3], b[:, :3, :3])
-    return np.degrees(np.arccos(np.clip((np.trace(rel, axis1=1, axis2=2) - 1) / 2, -1, 1)))
-
-
 def synthetic_row(sc, size: str, seed: int, sensor: str, inp: str, threads: int) -> dict:
-    from scenes.colmap import ColmapConfig, SfMError, align_similarity, apply_similarity, estimate_poses, pose_errors
+    from scenes.colmap import (ColmapConfig, SfMError, align_similarity, apply_similarity, estimate_poses, pose_errors,
+                               rotation_errors_deg)
 
     cap, name = sc.capture, sc.name
     row = {"scene": name, "size": size, "seed": seed, "sensor": sensor, "input": inp, "frames": cap.num_frames,
@@ -62,7 +58,7 @@ def synthetic_row(sc, size: str, seed: int, sensor: str, inp: str, threads: int)
         test = apply_similarity(np.stack([est.test_c2w[names[i]] for i in j]), s, r, t)
         pos = np.linalg.norm(test[:, :3, 3] - sc.gt_test_c2w[j, :3, 3], axis=1)
         row.update(test_pos_pct=float(100 * np.sqrt((pos**2).mean()) / ext),
-                   test_rot_deg=float(_rot_deg(sc.gt_test_c2w[j], test).mean()))
+                   test_rot_deg=float(rotation_errors_deg(sc.gt_test_c2w[j], test).mean()))
     return row
 
 

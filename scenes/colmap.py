@@ -33,7 +33,7 @@ from .poses import interpolate_poses
 from .errors import CaptureError
 
 __all__ = ["ColmapConfig", "PoseEstimate", "SfMError", "estimate_poses", "align_similarity", "apply_similarity",
-           "pose_errors"]
+           "rotation_errors_deg", "pose_errors"]
 
 AXIS_LENGTH = 1.0  # align_similarity: camera axis tips at this x the RMS spread of the centres
 
@@ -407,6 +407,13 @@ def apply_similarity(c2w: np.ndarray,  # [..., 4, 4]
     return out
 
 
+def rotation_errors_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:  # [N, >=3, >=3] x2 -> [N]
+    """The angle (degrees) of the rotation between each ``a[n]`` and ``b[n]`` (poses or rotations:
+    the top-left 3 x 3 blocks are read)."""
+    rel = np.einsum("nji,njk->nik", np.asarray(a, np.float64)[:, :3, :3], np.asarray(b, np.float64)[:, :3, :3])
+    return np.degrees(np.arccos(np.clip((np.trace(rel, axis1=1, axis2=2) - 1) / 2, -1, 1)))
+
+
 def pose_errors(est_c2w: np.ndarray,  # [N, 4, 4]
                 gt_c2w: np.ndarray  # [N, 4, 4]
                 ) -> dict:
@@ -419,8 +426,7 @@ def pose_errors(est_c2w: np.ndarray,  # [N, 4, 4]
     aligned = apply_similarity(est_c2w, s, r, t)
     pd = gt_c2w[:, :3, 3]
     err = np.linalg.norm(aligned[:, :3, 3] - pd, axis=1)
-    rel = np.einsum("nji,njk->nik", gt_c2w[:, :3, :3], aligned[:, :3, :3])
-    ang = np.degrees(np.arccos(np.clip((np.trace(rel, axis1=1, axis2=2) - 1) / 2, -1, 1)))
+    ang = rotation_errors_deg(gt_c2w, aligned)
     extent = float(np.linalg.norm(pd.max(0) - pd.min(0)))
     return {"ate_rmse": float(np.sqrt((err**2).mean())), "ate_max": float(err.max()),
             "rot_mean_deg": float(ang.mean()), "rot_max_deg": float(ang.max()), "scale": s,

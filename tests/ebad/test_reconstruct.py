@@ -197,14 +197,11 @@ def test_exact_poses_are_anchored_approximate_ones_are_optimised(preset_name):
 def _relative_rotation_error_deg(c2w: np.ndarray, truth: np.ndarray) -> float:
     """RMS over frame pairs of the angle between estimated and true relative rotations: free of
     the gauge (a run whose poses all move together is as good as one that stays put)."""
-    errs = []
-    for i in range(len(c2w)):
-        for j in range(i + 1, len(c2w)):
-            rel = c2w[i, :3, :3].T @ c2w[j, :3, :3]
-            rel_true = truth[i, :3, :3].T @ truth[j, :3, :3]
-            cos = (np.trace(rel.T @ rel_true) - 1) / 2
-            errs.append(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
-    return float(np.sqrt(np.mean(np.square(errs))))
+    from scenes.colmap import rotation_errors_deg
+
+    i, j = np.triu_indices(len(c2w), 1)
+    rel = lambda p: np.swapaxes(p[i, :3, :3], 1, 2) @ p[j, :3, :3]  # noqa: E731  R_i^T R_j per pair
+    return float(np.sqrt(np.mean(np.square(rotation_errors_deg(rel(np.asarray(c2w)), rel(np.asarray(truth)))))))
 
 
 @pytest.mark.slow
