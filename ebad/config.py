@@ -94,6 +94,8 @@ class TrajectoryConfig:
     num_views: int = 5  # V, virtual views per blurry exposure (uniform instants)
     adaptive_views: bool = True  # V from event activity: a frame with few events renders V = 1
     sharp_events_per_pixel: float = 0.05  # below this many events per pixel an exposure is sharp
+    view_spacing: float = 0.0  # > 0: at fraction train.coarse_until of the run (where the coarse phase ends), each blurry frame's V becomes its learnt image path length / view_spacing pixels, within [2, max_views] (ebad.virtual_views); 0: num_views throughout
+    max_views: int = 9  # the most virtual views view_spacing gives a frame
     init_noise: float = 1e-3  # std of the initial start/end perturbation (radians; x scene scale for translation) that breaks the zero-motion symmetry of the blur loss
     lr: float = 5e-4  # Adam learning rate of the knots (radians; translations in scene-scale units); 2e-3 before, whose jitter kept noisy poses 4 dB (deblurred) from the truth (benchmarks/results/pose_lr_*.json)
     lr_final: float = 1.0  # the knots' learning rate decays exponentially to this fraction of lr over the run (1: constant)
@@ -105,6 +107,8 @@ class TrajectoryConfig:
         _require(self.num_views >= 1, "trajectory.num_views", f"must be >= 1, got {self.num_views}")
         _require(self.sharp_events_per_pixel >= 0, "trajectory.sharp_events_per_pixel",
                  f"must be >= 0, got {self.sharp_events_per_pixel}")
+        _require(self.view_spacing >= 0, "trajectory.view_spacing", f"must be >= 0 pixels (0: off), got {self.view_spacing}")
+        _require(self.max_views >= 2, "trajectory.max_views", f"must be >= 2, got {self.max_views}")
         _require(self.init_noise >= 0, "trajectory.init_noise", f"must be >= 0, got {self.init_noise}")
         _require(self.lr >= 0, "trajectory.lr", f"must be >= 0, got {self.lr}")
         _require(0 < self.lr_final <= 1, "trajectory.lr_final", f"must be in (0, 1], got {self.lr_final}")
@@ -231,6 +235,8 @@ class Config:
         """Raise ``ConfigError`` naming the first option whose value cannot work; return self."""
         for section in (self.model, self.trajectory, self.loss, self.strategy, self.train):
             section.check()
+        _require(self.trajectory.view_spacing == 0 or self.train.coarse_until > 0, "trajectory.view_spacing",
+                 "needs train.coarse_until > 0: V is chosen from the trajectories learnt by then")
         return self
 
 

@@ -14,6 +14,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from edi import EventStream
+
 from .config import Config
 from .errors import UserError
 from .gaussians import scene_scale
@@ -72,6 +74,23 @@ class TrainingData:
     point_colors: Tensor | None = None  # [P, D]
     test_views: list = field(default_factory=list)  # the capture's test views that carry an image
     test_c2w: dict[str, np.ndarray] = field(default_factory=dict)  # their poses in this run's frame, by name
+    events: EventStream | None = None  # the events L_ev counts (kept to count them again when V changes)
+
+    def set_views(self, V: np.ndarray) -> None:
+        """New V per frame, in place: the event counts between the new virtual instants are
+        counted again for the frames that have counts, and the report follows."""
+        V = np.asarray(V, dtype=np.int64)
+        if V.shape != self.V.shape or (V < 1).any() or ((V > 1) != (self.V > 1)).any():
+            raise ValueError(f"new V {V.tolist()} must keep each frame's sharp (1) or blurry (> 1) status of {self.V.tolist()}")
+        changed = np.flatnonzero(V != self.V)
+        if len(changed) and any(self.ev_counts[f] is not None for f in changed) and self.events is None:
+            raise ValueError("the event counts cannot follow a new V: the data keep no events")
+        counts = list(self.ev_counts)
+        for f in changed:
+            if counts[f] is not None:
+                counts[f] = event_counts(self.events, self.exposures[f], int(V[f]))
+        self.V, self.ev_counts = V, counts
+        self.report.views, self.report.renders_per_pass = V.tolist(), int(V.sum())
 
     @property
     def height(self) -> int:
@@ -303,4 +322,5 @@ def prepare(capture, cfg: Config) -> TrainingData:
         V=V, ev_counts=ev, c=c, scale=scene_scale(c2w, d_range), depth_range=d_range, report=report,
         points=points, point_colors=point_colors, test_views=[v for v in capture.test_views if v.image is not None],
         test_c2w=test_poses(capture, pose_src, idx, c2w, registered),
+        events=events if use_events and lc.w_event > 0 else None,
     )

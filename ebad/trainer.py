@@ -32,10 +32,10 @@ from .response import Response
 from .state import StepStats, TrainState, capture_fingerprint, max_gaussians
 from .strategy import RenderInfo, Strategy, make_strategy
 from .trajectory import ExposureTrajectories, virtual_instants
-from .virtual_views import random_window, window_counts
+from .virtual_views import path_lengths_px, random_window, views_from_blur, window_counts
 
 __all__ = ["Run", "RunMetrics", "ViewScores", "with_poses", "frame_losses", "train_step", "train", "should_stop",
-           "reconstruct", "evaluate_views", "coarse_data", "render_images", "Callback", "Evaluator", "ProgressBar",
+           "reconstruct", "evaluate_views", "coarse_data", "views_from_trajectories", "render_images", "Callback", "Evaluator", "ProgressBar",
            "Checkpointer", "StepHook"]
 
 
@@ -336,19 +336,45 @@ def coarse_data(data: TrainingData, cfg: Config) -> TrainingData | None:
     return downscale(data, s)
 
 
+PATH_SAMPLES = 9  # instants over an exposure at which views_from_trajectories follows the scene's points
+PATH_POINTS = 4096  # at most this many Gaussian centres (evenly strided) stand for the scene there
+
+
+@torch.no_grad()
+def views_from_trajectories(data: TrainingData, state: TrainState, cfg: Config) -> np.ndarray:  # [F]
+    """V per frame from the learnt trajectories (``trajectory.view_spacing``): each blurry
+    frame's image path length at full resolution (``virtual_views.path_lengths_px``, over the
+    Gaussians' centres) over the spacing, within [2, max_views]."""
+    means = state.params["means"].detach()
+    points = means[:: max(1, len(means) // PATH_POINTS)]
+    poses = state.trajectories(torch.arange(data.num_frames), torch.linspace(0, 1, PATH_SAMPLES))
+    lengths = path_lengths_px(poses, points, data.K, data.width, data.height)
+    return views_from_blur(lengths, data.V, cfg.trajectory.view_spacing, cfg.trajectory.max_views)
+
+
 def train(data: TrainingData, state: TrainState, strategy: Strategy, cfg: Config,
           callbacks: Sequence[Callback] = ()) -> str:
     """Steps until ``train.iters``, a stop rule or a signal; returns why it stopped:
-    'iters', 'time', 'plateau' or 'interrupted (SIGINT)' / 'interrupted (SIGTERM)'."""
+    'iters', 'time', 'plateau' or 'interrupted (SIGINT)' / 'interrupted (SIGTERM)'.
+
+    The first ``train.coarse_until`` of the run trains on ``coarse_data``; where that phase ends,
+    ``trajectory.view_spacing`` > 0 gives each frame its V from the trajectories learnt so far
+    (``views_from_trajectories``, ``data.set_views``: ``data`` changes in place; a resumed run
+    past that point chooses again at its first step)."""
     started = time.perf_counter() - state.elapsed
     reason = "iters"
     coarse = coarse_data(data, cfg)
+    views_due = cfg.trajectory.view_spacing > 0 and bool((data.V > 1).any())
     with _Interrupts() as interrupts, _torch_threads_that_sleep():
         try:
             while state.step < cfg.train.iters:
                 f = state.next_frame()
                 elapsed = time.perf_counter() - started
-                level = coarse if coarse is not None and _budget_fraction(state, cfg, elapsed) < cfg.train.coarse_until else data
+                fine = _budget_fraction(state, cfg, elapsed) >= cfg.train.coarse_until
+                if views_due and fine:
+                    data.set_views(views_from_trajectories(data, state, cfg))
+                    views_due = False
+                level = data if fine or coarse is None else coarse
                 stats = train_step(level, state, strategy, f, cfg, elapsed)
                 state.elapsed = stats.time = time.perf_counter() - started
                 state.history.append(stats)

@@ -18,7 +18,8 @@ from torch import Tensor
 
 from edi import EventStream, seconds_to_us
 
-__all__ = ["events_per_pixel", "choose_num_views", "event_counts", "random_window", "window_counts"]
+__all__ = ["events_per_pixel", "choose_num_views", "path_lengths_px", "views_from_blur", "event_counts", "random_window",
+           "window_counts"]
 
 
 def events_per_pixel(events: EventStream, exposures: np.ndarray) -> np.ndarray:  # [F, 2] -> [F]
@@ -56,6 +57,53 @@ def choose_num_views(
     elif adaptive and events is not None and len(events) == 0:
         V[:] = 1  # a capture with an event sensor that saw nothing did not move
     return V
+
+
+def path_lengths_px(
+    poses: Tensor,  # [F, U, 4, 4] camera-to-world at U >= 2 instants spanning each exposure
+    points: Tensor,  # [P, 3] world points (the Gaussians' centres)
+    K: Tensor,  # [3, 3]
+    width: int,
+    height: int,
+    quantile: float = 0.9,
+) -> np.ndarray:  # [F] pixels, nan where no point is in view
+    """Per frame, the ``quantile`` over the points in view at mid-exposure (in front of the
+    camera at every instant, inside the image at u = 0.5) of each point's image path: the sum of
+    its pixel displacements between consecutive instants."""
+    if poses.ndim != 4 or poses.shape[1] < 2 or poses.shape[2:] != (4, 4):
+        raise ValueError(f"poses must be [F, U >= 2, 4, 4], got {tuple(poses.shape)}")
+    poses, points, K = poses.double(), points.double(), K.double()
+    R, t = poses[..., :3, :3], poses[..., :3, 3]  # camera to world
+    cam = torch.einsum("fuji,fupj->fupi", R, points[None, None] - t[:, :, None])  # R^T (p - t): [F, U, P, 3]
+    z = cam[..., 2]
+    uv = torch.stack([K[0, 0] * cam[..., 0] / z + K[0, 2], K[1, 1] * cam[..., 1] / z + K[1, 2]], -1)
+    path = (uv[:, 1:] - uv[:, :-1]).norm(dim=-1).sum(1)  # [F, P]
+    mid = uv[:, poses.shape[1] // 2]
+    seen = (z > 1e-6).all(1) & (mid[..., 0] >= 0) & (mid[..., 0] < width) & (mid[..., 1] >= 0) & (mid[..., 1] < height)
+    out = np.full(poses.shape[0], np.nan)
+    for f in range(poses.shape[0]):
+        if bool(seen[f].any()):
+            out[f] = float(torch.quantile(path[f][seen[f]], quantile))
+    return out
+
+
+def views_from_blur(
+    lengths_px: np.ndarray,  # [F] image path length over each exposure (path_lengths_px)
+    V: np.ndarray,  # [F] current V (frames with V = 1 are sharp and stay so)
+    spacing: float,  # pixels of path per virtual view
+    max_views: int,
+) -> np.ndarray:  # [F] int
+    """ceil(length / spacing) views within [2, max_views] for each blurry frame (V > 1); sharp
+    frames and frames whose length is unknown (nan) keep their V."""
+    if spacing <= 0:
+        raise ValueError(f"spacing must be > 0 pixels, got {spacing}")
+    if max_views < 2:
+        raise ValueError(f"max_views must be >= 2, got {max_views}")
+    lengths = np.asarray(lengths_px, dtype=np.float64)
+    out = np.asarray(V, dtype=np.int64).copy()
+    pick = (out > 1) & np.isfinite(lengths)
+    out[pick] = np.clip(np.ceil(lengths[pick] / spacing), 2, max_views).astype(np.int64)
+    return out
 
 
 def event_counts(

@@ -66,3 +66,69 @@ def test_coarse_phase_trains_the_first_part_at_the_coarse_size_then_full_size():
     assert [h.width for h in reconstruct(sc.capture, cfg).history] == [64] * 10
     cfg.train.coarse_scale = 8  # 8 x 6 pixels: too small to train on, so no coarse phase
     assert coarse_data(prepare(sc.capture, cfg), cfg) is None
+
+
+def test_set_views_counts_the_events_again_between_the_new_instants(tiny_data):
+    import copy
+
+    import numpy as np
+
+    from ebad.virtual_views import event_counts
+
+    d = copy.copy(tiny_data)
+    d.report = copy.copy(tiny_data.report)
+    blurry = np.flatnonzero(d.V > 1)
+    assert len(blurry) and d.events is not None
+    V = d.V.copy()
+    V[blurry[0]] = 3
+    d.set_views(V)
+    f = int(blurry[0])
+    assert d.V[f] == 3 and d.report.views[f] == 3 and d.report.renders_per_pass == int(V.sum())
+    assert torch.equal(d.ev_counts[f], event_counts(d.events, d.exposures[f], 3))
+    assert d.ev_counts[f].sum() < tiny_data.ev_counts[f].sum()  # 2 of 3 windows span less of the exposure than 4 of 5
+    assert tiny_data.V[f] == 5 and tiny_data.ev_counts[f].shape[0] == 4  # the original is untouched
+    bad = V.copy()
+    bad[f] = 1
+    with pytest.raises(ValueError, match="sharp"):
+        d.set_views(bad)
+
+
+def test_views_from_the_blur_length_take_effect_where_the_coarse_phase_ends(monkeypatch):
+    import ebad.trainer as T
+    from ebad.errors import ConfigError
+
+    sc = scenes.make_scene("boxes", size="tiny", seed=0, n_frames=4, n_test=1)
+    cfg = preset("ebad")
+    cfg.train.iters, cfg.train.progress, cfg.train.eval_every = 8, False, 0
+    cfg.train.coarse_until = 0.5
+    cameras, in_step = [], []  # cameras of each training step's render
+    inner_render, inner_losses = T.render, T.frame_losses
+
+    def counting_render(params, c2w, *args, **kwargs):
+        if in_step:
+            cameras.append(int(c2w.shape[0]))
+        return inner_render(params, c2w, *args, **kwargs)
+
+    def step_losses(*args, **kwargs):
+        in_step.append(True)
+        try:
+            return inner_losses(*args, **kwargs)
+        finally:
+            in_step.clear()
+
+    monkeypatch.setattr(T, "render", counting_render)
+    monkeypatch.setattr(T, "frame_losses", step_losses)
+    runs, per_step = {}, {}
+    for spacing in (1e6, 1e-6):  # any blur is longer than 1e-6 pixels and shorter than 1e6
+        cfg.trajectory.view_spacing = spacing
+        cameras.clear()
+        runs[spacing] = reconstruct(sc.capture, cfg)
+        per_step[spacing] = list(cameras)
+    assert (runs[1e6].V > 1).all()  # every frame of this scene is blurry
+    assert runs[1e6].V.tolist() == [2] * 4 and runs[1e-6].V.tolist() == [cfg.trajectory.max_views] * 4
+    assert runs[1e6].metrics.prepare.views == [2] * 4
+    # 4 steps at the configured V = 5, then V = 2 (+ the mid view L_EDI needs when V is even) or 9
+    assert per_step[1e6] == [5] * 4 + [3] * 4 and per_step[1e-6] == [5] * 4 + [9] * 4
+    cfg.train.coarse_until = 0.0
+    with pytest.raises(ConfigError, match="view_spacing"):
+        cfg.check()

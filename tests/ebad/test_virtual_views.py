@@ -7,7 +7,8 @@ import pytest
 from edi import EventStream
 import torch
 
-from ebad.virtual_views import choose_num_views, event_counts, random_window, window_counts
+from ebad.virtual_views import (choose_num_views, event_counts, path_lengths_px, random_window, views_from_blur,
+                                window_counts)
 
 
 def _stream(n_per_frame, W=8, H=6, exposures=((0.0, 0.04), (0.1, 0.14))):
@@ -83,3 +84,41 @@ def test_window_counts_are_the_events_between_the_chosen_instants(seed):
         window_counts(counts, 3, 3)
     with pytest.raises(ValueError, match="window"):
         window_counts(counts, 0, V)
+
+
+def _sliding_camera(b: float, U: int = 9) -> torch.Tensor:  # [1, U, 4, 4]: camera at the origin sliding b along x
+    poses = torch.eye(4, dtype=torch.float64).repeat(1, U, 1, 1)
+    poses[0, :, 0, 3] = torch.linspace(-b / 2, b / 2, U, dtype=torch.float64)
+    return poses
+
+
+def test_path_lengths_are_the_pixels_a_point_travels_over_the_exposure():
+    """A camera sliding b sideways moves every point at depth Z by fx b / Z pixels (pinhole);
+    points behind the camera or outside the image at mid-exposure do not count."""
+    K = torch.tensor([[100.0, 0, 32], [0, 100.0, 24], [0, 0, 1]])
+    g = torch.Generator().manual_seed(0)
+    Z = 4.0
+    inside = torch.cat([(torch.rand(50, 2, generator=g) - 0.5) * torch.tensor([2.0, 1.5]), torch.full((50, 1), Z)], 1)
+    behind = inside * torch.tensor([1.0, 1.0, -1.0])
+    outside = inside + torch.tensor([50.0, 0.0, 0.0])
+    for pts in (inside, torch.cat([inside, behind, outside])):
+        got = path_lengths_px(_sliding_camera(0.2), pts, K, 64, 48)
+        assert got.shape == (1,) and abs(got[0] - 100.0 * 0.2 / Z) < 1e-9
+    near = torch.cat([inside, inside * 0.5])  # the same pixels at Z / 2: twice the path for half the points
+    assert abs(path_lengths_px(_sliding_camera(0.2), near, K, 64, 48, quantile=0.9)[0] - 100.0 * 0.2 / (Z / 2)) < 1e-9
+    assert np.isnan(path_lengths_px(_sliding_camera(0.2), behind, K, 64, 48)[0])  # nothing in view
+    with pytest.raises(ValueError, match="poses"):
+        path_lengths_px(_sliding_camera(0.2)[:, :1], inside, K, 64, 48)
+
+
+def test_views_from_blur_spaces_the_instants_at_most_spacing_apart():
+    lengths = np.array([0.5, 7.0, 100.0, np.nan, 30.0, 9.0])
+    V = np.array([5, 5, 5, 5, 1, 5])
+    assert views_from_blur(lengths, V, 3.0, 9).tolist() == [2, 3, 9, 5, 1, 3]  # 9 / 3 = 3 views exactly
+    got = views_from_blur(lengths, V, 3.0, 9)
+    ok = (V > 1) & np.isfinite(lengths) & (got < 9) & (got > 2)
+    assert (lengths[ok] / got[ok] <= 3.0).all()
+    with pytest.raises(ValueError, match="spacing"):
+        views_from_blur(lengths, V, 0.0, 9)
+    with pytest.raises(ValueError, match="max_views"):
+        views_from_blur(lengths, V, 3.0, 1)
