@@ -357,6 +357,110 @@ def gamma_scan(cases: list[Case]) -> list[dict]:
     return out
 
 
+#: events_displacement: the grid (px over the window, x and y) of the global translations tried, and its refinement step
+CMAX_GRID_X, CMAX_GRID_Y, CMAX_STEP, CMAX_FINE = 40, 20, 2.0, 0.5
+#: frame_blur_against_events: blur lengths (px) and directions (degrees) tried
+BLUR_LENGTHS = (1, 2, 4, 6, 8, 12, 16, 20, 24, 32, 40, 48, 64)
+BLUR_ANGLES = tuple(range(0, 180, 15))
+#: pixels of the image border left out of the blur fit
+BLUR_MARGIN = 32
+
+
+def _warped_count(ev: edi.EventStream, dx: float, dy: float) -> np.ndarray:
+    """[H, W] events counted after moving each back along a global translation of (dx, dy) px over
+    the window (to the window's middle), smoothed by 1 px: the image of warped events."""
+    from scipy import ndimage
+
+    t = (ev.t - ev.t[0]).astype(np.float64)
+    u = (t - t.mean()) / max(float(t[-1]), 1.0)
+    xi = np.round(ev.x - dx * u).astype(np.int64)
+    yi = np.round(ev.y - dy * u).astype(np.int64)
+    ok = (xi >= 0) & (xi < ev.width) & (yi >= 0) & (yi < ev.height)
+    img = np.bincount(yi[ok] * ev.width + xi[ok], minlength=ev.width * ev.height).reshape(ev.height, ev.width)
+    return ndimage.gaussian_filter(img.astype(np.float64), 1.0)
+
+
+def events_displacement(ev: edi.EventStream) -> dict:
+    """How far the scene moved during the events' window, from the events alone (contrast
+    maximisation): the global translation (px over the window) whose warped-event image has the
+    largest variance, and that variance over the unwarped one's (1: warping concentrates nothing)."""
+    def var(d):
+        return float(_warped_count(ev, *d).var())
+
+    coarse = [(dx, dy) for dx in np.arange(-CMAX_GRID_X, CMAX_GRID_X + 1e-9, CMAX_STEP)
+              for dy in np.arange(-CMAX_GRID_Y, CMAX_GRID_Y + 1e-9, CMAX_STEP)]
+    bx, by = max(coarse, key=var)
+    fine = [(bx + a, by + b) for a in np.arange(-CMAX_STEP, CMAX_STEP + 1e-9, CMAX_FINE)
+            for b in np.arange(-CMAX_STEP, CMAX_STEP + 1e-9, CMAX_FINE)]
+    best = max(fine, key=var)
+    return {"dx": float(best[0]), "dy": float(best[1]), "px": float(math.hypot(*best)),
+            "variance_gain": var(best) / var((0.0, 0.0))}
+
+
+def _line_kernel(length: float, angle_deg: float) -> np.ndarray:
+    """A normalised straight blur kernel of ``length`` px along ``angle_deg`` (bilinear splats)."""
+    th = math.radians(angle_deg)
+    s = int(math.ceil(length)) + 3
+    k = np.zeros((s, s))
+    for u in np.linspace(-length / 2, length / 2, 4 * s + 1):
+        x, y = s // 2 + u * math.cos(th), s // 2 + u * math.sin(th)
+        x0, y0 = int(math.floor(x)), int(math.floor(y))
+        fx, fy = x - x0, y - y0
+        for ddx, ddy, w in ((0, 0, (1 - fx) * (1 - fy)), (1, 0, fx * (1 - fy)), (0, 1, (1 - fx) * fy), (1, 1, fx * fy)):
+            if 0 <= x0 + ddx < s and 0 <= y0 + ddy < s:
+                k[y0 + ddy, x0 + ddx] += w
+    return k / k.sum()
+
+
+def frame_blur_against_events(B: np.ndarray, ev: edi.EventStream) -> dict:
+    """The frame's blur measured against the events' own edge map: the smoothed |signed count| of
+    the window draws the scene's edges as thick as the motion during the window; box-blurring it
+    along a direction over l px and correlating with |grad log B| (normalised cross-correlation,
+    away from the border) finds the (l, direction) that makes it look like the frame."""
+    from scipy import ndimage
+    from scipy.signal import fftconvolve
+
+    H, W = B.shape[:2]
+    b = np.log(np.asarray(B, np.float64).reshape(H, W, -1).mean(axis=-1) / 255.0 + LOG_EPS)
+    gy, gx = np.gradient(ndimage.gaussian_filter(b, 1.0))
+    frame_edges = np.hypot(gx, gy)
+    cnt = np.abs(ev.count_image().astype(np.float64))
+    ev_edges = ndimage.gaussian_filter(cnt, 1.0)
+    m = np.zeros((H, W), bool)
+    m[BLUR_MARGIN:-BLUR_MARGIN, BLUR_MARGIN:-BLUR_MARGIN] = True
+
+    def ncc(a):
+        x, y = a[m] - a[m].mean(), frame_edges[m] - frame_edges[m].mean()
+        return float((x * y).sum() / math.sqrt((x * x).sum() * (y * y).sum()))
+
+    fits = {(l, a): ncc(fftconvolve(ev_edges, _line_kernel(l, a), mode="same")) for l in BLUR_LENGTHS for a in BLUR_ANGLES}
+    (l, a) = max(fits, key=fits.get)
+    return {"length_px": float(l), "angle_deg": float(a), "ncc": fits[(l, a)],
+            "ncc_unblurred": max(v for (ll, _), v in fits.items() if ll == BLUR_LENGTHS[0])}
+
+
+#: partial_window: fractions of the exposure whose events the estimator gets, and the seeds
+PARTIAL_FRACTIONS = (1.0, 0.5, 0.25, 0.15)
+PARTIAL_SEEDS = range(5)
+
+
+def partial_window() -> list[dict]:
+    """``moving_texture`` frame 0 (sensor running, mismatch 0.03) with only the events of a centred
+    fraction of its exposure (the exposure passed whole): what the single-frame estimate does when
+    the events do not cover the blur."""
+    out = []
+    for frac in PARTIAL_FRACTIONS:
+        for seed in PARTIAL_SEEDS:
+            c = (0.15, 0.2, 0.3)[seed % 3]
+            s = edi.moving_texture(num_frames=1, seed=seed, c=c, sigma_c=0.03, lead=TEXTURE_LEAD)
+            t0, t1 = s.exposures[0]
+            mid, half = 0.5 * (t0 + t1), 0.5 * frac * (t1 - t0)
+            i0, i1 = edi.events_in_window(s.events, mid - half, mid + half)
+            est, rep = edi.estimate_c(s.frames[0], s.exposures[0], s.events[i0:i1], return_report=True)
+            out.append({"fraction": frac, "seed": seed, "ratio": est / c, "at_bound": rep.at_bound})
+    return out
+
+
 def ni_rows() -> list[dict]:
     from PIL import Image
 
@@ -368,11 +472,16 @@ def ni_rows() -> list[dict]:
         ev = edi.read_events(ni / f"{name}.mat", width=B.shape[1], height=B.shape[0])
         ex = (ev.t[0] * 1e-6, (ev.t[-1] + 1) * 1e-6)
         s_b, n_b = sharpness_and_noise(B / 255.0)
-        row = {"name": name}
+        cnt = np.bincount(ev.y.astype(np.int64) * ev.width + ev.x, minlength=ev.width * ev.height)
+        row = {"name": name, "window_ms": (ex[1] - ex[0]) * 1e3, "events": len(ev),
+               "positive_fraction": float(np.mean(ev.p > 0)), "events_per_fired_pixel": float(cnt[cnt > 0].mean()),
+               "max_events_per_pixel": int(cnt.max()), "events_motion": events_displacement(ev),
+               "frame_blur": frame_blur_against_events(B, ev)}
         for energy in ("flow", "paper"):
             c, rep = edi.estimate_c(B, ex, ev, energy=energy, return_report=True)
             s_l, n_l = sharpness_and_noise(edi.deblur(B, ex, ev, c=c))
-            row[energy] = {"c": c, "at_bound": rep.at_bound, "sharpness_gain": s_l / s_b, "noise_gain": n_l / n_b}
+            row[energy] = {"c": c, "at_bound": rep.at_bound, "sharpness_gain": s_l / s_b, "noise_gain": n_l / n_b,
+                           "evals": sorted(rep.evals)}
         for g in NI_GAMMAS:  # is a non-linear response why the estimate ends at the bracket?
             c, rep = edi.estimate_c(B, ex, ev, gamma=g, return_report=True)
             s_l, n_l = sharpness_and_noise(edi.deblur(B, ex, ev, c=c, gamma=g))
@@ -439,8 +548,26 @@ def main(argv: list[str] | None = None) -> None:
                       f"{e['sharpness_gain']:8.2f} {e['noise_gain']:8.2f}")
             print(f"{r['name']:18s} {'c=1.5':15s} {'':7s} {'':6s} {r['bracket_top']['sharpness_gain']:8.2f} "
                   f"{r['bracket_top']['noise_gain']:8.2f}")
+    if ni:
+        print("\nni_joint: the events' motion over their window against the frame's blur")
+        for r in ni:
+            m, b = r["events_motion"], r["frame_blur"]
+            print(f"  {r['name']:18s} window {r['window_ms']:5.1f} ms, {r['events']:6d} events, {100 * r['positive_fraction']:.0f}% "
+                  f"positive, {r['events_per_fired_pixel']:.2f} per fired pixel (max {r['max_events_per_pixel']}); "
+                  f"events moved ({m['dx']:+.1f}, {m['dy']:+.1f}) px (warp variance gain {m['variance_gain']:.3f}); "
+                  f"frame blur {b['length_px']:.0f} px at {b['angle_deg']:.0f} deg (ncc {b['ncc']:.2f}, unblurred "
+                  f"{b['ncc_unblurred']:.2f})")
+            ev_f = r["flow"]["evals"]
+            print(f"  {'':18s} flow energy {ev_f[0][1]:.4f} at c {ev_f[0][0]:.3f} .. {ev_f[-1][1]:.4f} at c {ev_f[-1][0]:.3f}, "
+                  f"increasing: {all(b2 >= a2 for (_, a2), (_, b2) in zip(ev_f, ev_f[1:]))}")
+    partial = partial_window()
+    print("\nmoving texture, events of a centred fraction of the exposure only: c / c_true per seed (* bracket end)")
+    for frac in PARTIAL_FRACTIONS:
+        rs = [r for r in partial if r["fraction"] == frac]
+        print(f"  {frac:4.0%}: " + " ".join(f"{r['ratio']:.2f}{'*' if r['at_bound'] else ''}" for r in rs))
     path = write_json("calibration_quick" if args.quick else "calibration",
                       {"seeds": len(seeds), "table": table, "rows": rows, "street": street, "ni_joint": ni,
+                       "partial_window": partial,
                        "prediction_metric_check": check, "gamma_scan": scan,
                        "seconds": time.perf_counter() - t0})
     print(f"\nwrote {path} ({time.perf_counter() - t0:.0f} s)")

@@ -81,6 +81,13 @@ CONSISTENCY_ITERS = 20
 CONSISTENCY_GRID = 10
 CONSISTENCY_RTOL = 1e-4
 
+#: what a single-frame estimate at the low end of the bracket means (appended to the report's message):
+#: measured on the real ni_joint frames keyboard, toy and text_cambridge (benchmarks/calibration.py),
+#: whose events moved the scene by 1.4 to 1.6 px while the frame's blur spans 24 to 40 px
+LOW_END_HINT = ("; at the low end the events account for the frame's blur at no c (the energy grows from the "
+                "smallest c: what the events add to the latent does not move with the frame's blur): check that the "
+                "events cover the whole exposure and that the exposure times are right")
+
 SingleEnergy = Literal["flow", "paper"]
 
 
@@ -620,6 +627,8 @@ def estimate_c(
         message = (f"estimate_c: {what} ({used} estimator, {name} energy): the energy has no interior minimum, so "
                    "this estimate is unreliable; give c (ebad deblur --c C or --c C_POS,C_NEG) or more frames "
                    "(two or more use the consistency estimator)")
+        if name == "flow" and mean_c < lo * BOUND_FACTOR:
+            message += LOW_END_HINT
         log.warning(message)
     out: float | Contrast = est if pair else mean_c
     if return_report:

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from edi import Contrast, EbadError, InputError, LOG_EPS, deblur, estimate_c, events_in_window, moving_texture
+from edi import Contrast, EbadError, EventStream, InputError, LOG_EPS, deblur, estimate_c, events_in_window, moving_texture
 
 C_BY_SEED = (0.15, 0.2, 0.3)
 
@@ -291,8 +291,8 @@ def test_consistency_pair_on_blurry_texture_with_a_running_sensor():
 @pytest.mark.slow
 def test_single_frame_with_a_running_sensor():
     """The first frame of a sensor started 0.1 s before it (the others as in the benchmark):
-    9 of 10 seeds within 10% (the tenth at 1.10x); started at the exposure, 8 of 10 (every
-    pixel starts a whole threshold from firing, so the frame gets too few events)."""
+    9 of 10 seeds within 10% (the tenth at 1.10x); started at the exposure, 8 of 10, from the
+    per-pixel mismatch rather than the start (``test_single_frame_low_reads_come_from_the_mismatch``)."""
     ratios = []
     for seed in range(10):
         c = C_BY_SEED[seed % 3]
@@ -302,6 +302,54 @@ def test_single_frame_with_a_running_sensor():
         ratios.append(est / c)
     ratios = np.array(ratios)
     assert (np.abs(ratios - 1) <= 0.1).sum() >= 9 and (np.abs(ratios - 1) <= 0.15).all(), np.round(ratios, 3)
+
+
+@pytest.mark.slow
+def test_single_frame_low_reads_come_from_the_mismatch():
+    """Sensor started at the exposure (the benchmark's texture_no_lead), seeds 0-9: the same
+    scenes without per-pixel mismatch read 1.025-1.053x, all within 10%; with sigma_c 0.03 each
+    seed reads lower or the same (measured 0 to 0.24 lower, mean 0.083; seeds 0 and 7, 0.81x and
+    0.90x, fall outside 10%). The mismatch's noise (the pixel's threshold error times its count)
+    is in the latent's gradients as well as in the event-driven change, and the flow fit explains
+    less of the change as that noise grows with c."""
+    ideal, mismatch = [], []
+    for seed in range(10):
+        c = C_BY_SEED[seed % 3]
+        for sigma, out in ((0.0, ideal), (0.03, mismatch)):
+            s = moving_texture(num_frames=1, seed=seed, c=c, sigma_c=sigma)
+            out.append(estimate_c(s.frames[0], s.exposures[0], s.events) / c)
+    ideal, mismatch = np.array(ideal), np.array(mismatch)
+    assert (np.abs(ideal - 1) <= 0.1).all(), np.round(ideal, 3)
+    assert (mismatch <= ideal + 0.01).all() and (ideal - mismatch).mean() > 0.04, np.round(ideal - mismatch, 3)
+
+
+def test_low_end_message_says_the_events_do_not_explain_the_blur():
+    """Events that have nothing to do with the frame: uniform random ones (as many as the frame's
+    own) leave the flow energy's minimum at the low end in 3 of seeds 0-4 (seeds 2 and 4 stop
+    inside, at 0.56 and 0.051: an interior estimate does not prove that the events explain the
+    blur), and the report then says what the low end means; another texture's events drive it to
+    the top end, whose message does not say it, nor does the paper energy's low end (its own bias)."""
+    low = 0
+    for seed in range(5):
+        s = moving_texture(num_frames=1, seed=seed, c=C_BY_SEED[seed % 3], sigma_c=0.03)
+        ex = s.exposures[0]
+        rng = np.random.default_rng(seed)
+        n = int(np.diff(events_in_window(s.events, *ex))[0])
+        t = np.sort(rng.integers(round(ex[0] * 1e6), round(ex[1] * 1e6), n))
+        ev = EventStream(t, rng.integers(0, 56, n), rng.integers(0, 40, n),
+                         np.where(rng.random(n) < 0.5, 1, -1).astype(np.int8), 56, 40)
+        est, rep = estimate_c(s.frames[0], ex, ev, return_report=True)
+        if rep.at_bound and est < rep.bracket[0] * 1.02:
+            low += 1
+            assert "no interior minimum" in rep.message and "cover the whole exposure" in rep.message
+        else:
+            assert "cover the whole exposure" not in rep.message
+    assert low >= 3
+    other = moving_texture(num_frames=1, seed=100, c=0.2, sigma_c=0.03)
+    est, rep = estimate_c(s.frames[0], ex, other.events, return_report=True)
+    assert rep.at_bound and est > rep.bracket[1] / 1.02 and "cover the whole exposure" not in rep.message
+    _, rep = estimate_c(s.frames[0], ex, s.events, energy="paper", return_report=True)
+    assert rep.at_bound and "cover the whole exposure" not in rep.message
 
 
 # --- a power response (gamma) ---------------------------------------------------------------------
