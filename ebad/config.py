@@ -99,6 +99,7 @@ class TrajectoryConfig:
     init_noise: float = 1e-3  # std of the initial start/end perturbation (radians; x scene scale for translation) that breaks the zero-motion symmetry of the blur loss
     lr: float = 5e-4  # Adam learning rate of the knots (radians; translations in scene-scale units); 2e-3 before, whose jitter kept noisy poses 4 dB (deblurred) from the truth (benchmarks/results/pose_lr_*.json)
     lr_final: float = 1.0  # the knots' learning rate decays exponentially to this fraction of lr over the run (1: constant)
+    average_from: float = 0.7  # from this fraction of the run on, the knots' running mean is kept, and the run's trajectories (deblurred frames, exports) are that mean: it removes Adam's step-to-step jitter from the final poses (1: the last step's knots)
     anchor_mid: Literal["auto", "yes", "no"] = "auto"  # keep the mid-exposure poses fixed and learn only the motion; auto: yes when the capture states its poses are exact (pose_trust), no for approximate poses and after SfM, which then optimise every frame's whole trajectory (a sharp frame's pose too)
     pose_source: PoseSource = "auto"  # auto: capture poses when present and not marked pose_trust none, else pycolmap SfM; static: a camera on a tripod (every frame at the identity pose)
 
@@ -112,6 +113,7 @@ class TrajectoryConfig:
         _require(self.init_noise >= 0, "trajectory.init_noise", f"must be >= 0, got {self.init_noise}")
         _require(self.lr >= 0, "trajectory.lr", f"must be >= 0, got {self.lr}")
         _require(0 < self.lr_final <= 1, "trajectory.lr_final", f"must be in (0, 1], got {self.lr_final}")
+        _require(0 <= self.average_from <= 1, "trajectory.average_from", f"must be in [0, 1] (1: off), got {self.average_from}")
 
 
 @dataclass

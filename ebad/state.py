@@ -157,6 +157,8 @@ class TrainState:
     order: list[int] = field(default_factory=list)  # frames still to visit in the current pass
     history: list[StepStats] = field(default_factory=list)
     elapsed: float = 0.0  # training seconds so far (over every resume)
+    knots_sum: Tensor | None = None  # running sum of the knots since trajectory.average_from (None: not started)
+    knots_count: int = 0  # steps in knots_sum
 
     @property
     def num_gaussians(self) -> int:
@@ -176,6 +178,16 @@ class TrainState:
                    strategy_state=strategy_state or StrategyState(torch.zeros(num_gaussians(params)),
                                                                   torch.zeros(num_gaussians(params))),
                    order_rng=np.random.default_rng(seed), generator=generator)
+
+    def accumulate_knots(self) -> None:
+        """Add the knots of this step to their running sum (``trajectory.average_from``)."""
+        k = self.trajectories.knots.detach()
+        self.knots_sum = k.clone() if self.knots_sum is None else self.knots_sum + k
+        self.knots_count += 1
+
+    def knots_mean(self) -> Tensor | None:
+        """The mean of the accumulated knots (None before any)."""
+        return None if self.knots_sum is None else self.knots_sum / self.knots_count
 
     def next_frame(self) -> int:
         """The next training frame: a fresh random permutation of the frames every pass."""
@@ -204,6 +216,8 @@ class TrainState:
             "generator": self.generator.get_state(),
             "torch_rng": torch.get_rng_state(),
             "history": [h.to_dict() for h in self.history],
+            "knots_sum": None if self.knots_sum is None else self.knots_sum.clone(),
+            "knots_count": self.knots_count,
         }
         try:
             try:
@@ -247,7 +261,8 @@ class TrainState:
         return cls(params=params, optimizers=optimizers, trajectories=traj, log_c=log_c, response=response,
                    strategy_state=StrategyState.from_dict(doc["strategy_state"]), order_rng=order_rng,
                    generator=generator, step=int(doc["step"]), order=[int(i) for i in doc["order"]],
-                   history=[StepStats.from_dict(h) for h in doc["history"]], elapsed=float(doc["elapsed"]))
+                   history=[StepStats.from_dict(h) for h in doc["history"]], elapsed=float(doc["elapsed"]),
+                   knots_sum=doc.get("knots_sum"), knots_count=int(doc.get("knots_count", 0)))
 
 
 def read_checkpoint(path: str | Path, fingerprint: dict[str, Any] | None = None) -> dict[str, Any]:

@@ -360,11 +360,13 @@ def train(data: TrainingData, state: TrainState, strategy: Strategy, cfg: Config
     The first ``train.coarse_until`` of the run trains on ``coarse_data``; where that phase ends,
     ``trajectory.view_spacing`` > 0 gives each frame its V from the trajectories learnt so far
     (``views_from_trajectories``, ``data.set_views``: ``data`` changes in place; a resumed run
-    past that point chooses again at its first step)."""
+    past that point chooses again at its first step). From ``trajectory.average_from`` on, every
+    step's knots are added to ``state.knots_sum`` (``reconstruct`` gives the run their mean)."""
     started = time.perf_counter() - state.elapsed
     reason = "iters"
     coarse = coarse_data(data, cfg)
     views_due = cfg.trajectory.view_spacing > 0 and bool((data.V > 1).any())
+    averaging = cfg.trajectory.average_from < 1 and "poses" in state.optimizers
     with _Interrupts() as interrupts, _torch_threads_that_sleep():
         try:
             while state.step < cfg.train.iters:
@@ -377,6 +379,8 @@ def train(data: TrainingData, state: TrainState, strategy: Strategy, cfg: Config
                 level = data if fine or coarse is None else coarse
                 stats = train_step(level, state, strategy, f, cfg, elapsed)
                 state.elapsed = stats.time = time.perf_counter() - started
+                if averaging and _budget_fraction(state, cfg, state.elapsed) >= cfg.trajectory.average_from:
+                    state.accumulate_knots()
                 state.history.append(stats)
                 for cb in callbacks:
                     cb.on_step(state, stats)
@@ -414,6 +418,7 @@ class RunMetrics:
     c_final: list[float] | None = None  # (c_pos, c_neg) at the end (learnt or not)
     response: dict[str, float] | None = None  # the learnt response curve (black, gain, gamma)
     resumed_from: int | None = None  # the step a resumed run continued from
+    averaged_steps: int = 0  # steps whose knots the run's trajectories are the mean of (trajectory.average_from)
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -544,6 +549,10 @@ def reconstruct(capture, config: Config | str | None = None, out_dir: str | Path
     if ckpt is not None:
         callbacks.append(Checkpointer(ckpt, cfg.train.checkpoint_every, fingerprint))
     stop_reason = train(data, state, strategy, cfg, [*callbacks, *extra])
+    mean = state.knots_mean()
+    if mean is not None:  # the checkpoint keeps the last step's knots and the sum, to resume from
+        with torch.no_grad():
+            state.trajectories.knots.copy_(mean)
     run = Run(params=state.params, trajectories=state.trajectories, config=cfg, K=data.K.double().numpy(),
               width=data.width, height=data.height, names=data.names, exposures=data.exposures, V=data.V,
               pose_source=data.report.pose_source, test_c2w=data.test_c2w, response=state.response,
@@ -555,6 +564,6 @@ def reconstruct(capture, config: Config | str | None = None, out_dir: str | Path
         final_loss=state.history[-1].loss if state.history else None, test=evaluator.final(state),
         test_initial=init_eval, prepare=data.report, anchored_mid_poses=state.trajectories.anchored,
         c_final=None if state.log_c is None else torch.exp(state.log_c.detach()).tolist(), resumed_from=resumed_from,
-        response=state.response.values() if state.response.learnable else None,
+        response=state.response.values() if state.response.learnable else None, averaged_steps=state.knots_count,
     )
     return run

@@ -41,10 +41,14 @@ def _steps(cfg, data, state, strategy, n):
 def test_save_load_then_one_step_equals_one_step(tiny, tmp_path):
     cfg, data, state, strategy = _setup(tiny.capture)
     _steps(cfg, data, state, strategy, 5)  # mid-pass: the frame order is half used
+    state.accumulate_knots()
+    state.accumulate_knots()  # trajectory.average_from's running sum goes with the checkpoint
     path = tmp_path / "ck" / "last.pt"
     state.save(path)
     loaded = TrainState.load(path, data, cfg)
     assert loaded.step == state.step == 5 and loaded.order == state.order
+    assert loaded.knots_count == 2 and torch.equal(loaded.knots_sum, state.knots_sum)
+    assert torch.allclose(loaded.knots_mean(), state.trajectories.knots)
     strategy2 = make_strategy(cfg.strategy, data.scale, max_gaussians(cfg, data), loaded.generator)
     torch_rng = torch.get_rng_state()
     _steps(cfg, data, state, strategy, 2)
@@ -93,3 +97,29 @@ def test_learning_rates_decay_over_the_run_to_their_final_fractions(tiny):
     _steps(cfg, data, state, strategy, 2)  # step 2 of 4
     assert lr("poses") == pytest.approx(cfg.trajectory.lr * 0.5)
     assert lr("means") == pytest.approx(cfg.train.lr_means * data.scale * 0.1)
+
+
+def test_the_run_s_trajectories_are_the_mean_of_the_knots_since_average_from(tiny):
+    from ebad.trainer import reconstruct
+
+    cfg = preset("ebad")
+    cfg.train.iters, cfg.train.progress, cfg.train.eval_every = 10, False, 0
+    seen = []
+
+    class Knots:
+        def on_step(self, state, stats):
+            seen.append((state.step, state.trajectories.knots.detach().clone()))
+
+        def on_end(self, state, reason):
+            pass
+
+    cfg.trajectory.average_from = 0.5
+    run = reconstruct(tiny.capture, cfg, callbacks=[Knots()])
+    tail = [k for step, k in seen if step >= 5]  # steps 5 to 10 of 10
+    assert run.metrics.averaged_steps == len(tail) == 6
+    assert torch.allclose(run.trajectories.knots, torch.stack(tail).mean(0), atol=1e-7)
+    assert not torch.allclose(run.trajectories.knots, seen[-1][1])  # the knots moved over the tail
+    seen.clear()
+    cfg.trajectory.average_from = 1.0
+    run = reconstruct(tiny.capture, cfg, callbacks=[Knots()])
+    assert run.metrics.averaged_steps == 0 and torch.equal(run.trajectories.knots, seen[-1][1])
