@@ -81,7 +81,8 @@ class TrainingData:
         counted again for the frames that have counts, and the report follows."""
         V = np.asarray(V, dtype=np.int64)
         if V.shape != self.V.shape or (V < 1).any() or ((V > 1) != (self.V > 1)).any():
-            raise ValueError(f"new V {V.tolist()} must keep each frame's sharp (1) or blurry (> 1) status of {self.V.tolist()}")
+            raise ValueError(f"new V {V.tolist()} must keep each frame's sharp (1) or blurry (> 1) status "
+                             f"of {self.V.tolist()}")
         changed = np.flatnonzero(V != self.V)
         if len(changed) and any(self.ev_counts[f] is not None for f in changed) and self.events is None:
             raise ValueError("the event counts cannot follow a new V: the data keep no events")

@@ -35,8 +35,8 @@ from .trajectory import ExposureTrajectories, virtual_instants
 from .virtual_views import path_lengths_px, random_window, views_from_blur, window_counts
 
 __all__ = ["Run", "RunMetrics", "ViewScores", "with_poses", "frame_losses", "train_step", "train", "should_stop",
-           "reconstruct", "evaluate_views", "coarse_data", "views_from_trajectories", "render_images", "Callback", "Evaluator", "ProgressBar",
-           "Checkpointer", "StepHook"]
+           "reconstruct", "evaluate_views", "coarse_data", "views_from_trajectories", "render_images", "Callback",
+           "Evaluator", "ProgressBar", "Checkpointer", "StepHook"]
 
 
 # --------------------------------------------------------------------------- one step

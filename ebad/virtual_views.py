@@ -18,8 +18,8 @@ from torch import Tensor
 
 from edi import EventStream, seconds_to_us
 
-__all__ = ["events_per_pixel", "choose_num_views", "path_lengths_px", "views_from_blur", "event_counts", "random_window",
-           "window_counts"]
+__all__ = ["events_per_pixel", "choose_num_views", "path_lengths_px", "views_from_blur", "event_counts",
+           "random_window", "window_counts"]
 
 
 def events_per_pixel(events: EventStream, exposures: np.ndarray) -> np.ndarray:  # [F, 2] -> [F]
