@@ -12,7 +12,9 @@ parameters costs milliseconds and is inside the measured time), and every snapsh
 afterwards with the evaluation protocol (``ebad.evaluate``: test poses refined against their
 images where the capture's poses are not exact; deblurred frames against the truth). Prints a
 table, writes JSON and a plot (PSNR against seconds and against steps). Also records the start-up
-(prepare) time, the mean step time, the Gaussian count and the process's peak resident memory. Timings are noisy on a shared machine: compare within one
+(prepare) time, the mean step time, the Gaussian count, the process's peak resident memory and
+the mean profile of the full-resolution steps (``ebad.trainer.step_profile``: the rasteriser
+against everything else). Timings are noisy on a shared machine: compare within one
 run.
 
 ``--baseline CHECKOUT`` also trains the ``ebad`` preset of another checkout of the project (the
@@ -123,7 +125,7 @@ def plateau_points(history, cfg, points: list[dict]) -> list[dict]:
 
 def run_one(scene, name: str, seconds: float, marks: int, exact: bool, refine_iters: int) -> dict:
     from ebad.evaluate import evaluate
-    from ebad.trainer import reconstruct
+    from ebad.trainer import reconstruct, step_profile
 
     cfg = config_spec(name)
     cfg.train.iters = 1_000_000
@@ -151,6 +153,7 @@ def run_one(scene, name: str, seconds: float, marks: int, exact: bool, refine_it
             "wall_seconds": wall, "step_ms": 1000 * m.train_seconds / max(m.steps, 1), "points": points,
             "cpu_seconds": points[-1]["cpu_seconds"], "final_psnr": points[-1]["test_psnr"],
             "plateau": plateau_points(run.history, cfg, points),
+            "profile": step_profile([h for h in run.history if h.width == run.width]),  # full-resolution steps
             "poses_refined": not exact}, run
 
 
@@ -305,6 +308,11 @@ def main(argv=None) -> int:
             print(f"{mode:9s} {name:5s} prepare {r['prepare_seconds']:.1f} s, {r['step_ms']:.0f} ms/step, "
                   f"{r['steps']} steps, {r['gaussians']} Gaussians, peak RSS so far {r['peak_rss_mb_so_far']:.0f} MB "
                   f"-> {r['final_psnr']:.2f} dB   [{pts}]", flush=True)
+            if r["profile"]:
+                p = r["profile"]
+                print(f"{mode:9s} {name:5s} full-resolution step {p['step']:.0f} ms: rasteriser forward "
+                      f"{p['raster_forward']:.0f} + backward {p['raster_backward']:.0f}, outside it "
+                      f"{100 * p['outside_share']:.0f}%", flush=True)
     if args.baseline_only:
         print(f"wrote {RESULTS / (args.name + '_baseline.pt')}")
         return 0

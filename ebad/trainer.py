@@ -35,8 +35,8 @@ from .trajectory import ExposureTrajectories, virtual_instants
 from .virtual_views import path_lengths_px, random_window, views_from_blur, window_counts
 
 __all__ = ["Run", "RunMetrics", "ViewScores", "with_poses", "frame_losses", "train_step", "train", "should_stop",
-           "reconstruct", "evaluate_views", "coarse_data", "views_from_trajectories", "render_images", "Callback",
-           "Evaluator", "ProgressBar", "Checkpointer", "StepHook"]
+           "reconstruct", "evaluate_views", "coarse_data", "views_from_trajectories", "step_profile", "render_images",
+           "Callback", "Evaluator", "ProgressBar", "Checkpointer", "StepHook"]
 
 
 # --------------------------------------------------------------------------- one step
@@ -51,6 +51,7 @@ class FrameLosses:
     edi: Tensor | None
     info: RenderInfo
     mean_render: Tensor  # [H, W, D] detached: what the camera would record of the exposure (response of the mean)
+    raster_timings: dict = field(default_factory=dict)  # the rasteriser's ms per stage (its backward's once it ran)
 
 
 def frame_losses(data: TrainingData, state: TrainState, f: int, cfg: Config) -> FrameLosses:
@@ -82,7 +83,8 @@ def frame_losses(data: TrainingData, state: TrainState, f: int, cfg: Config) -> 
         edi = edi_loss(state.response(mid), data.latents[f], lc.ssim_weight, lc.ssim_window)
         total = total + lc.w_edi * edi
     info = RenderInfo(means2d=meta.get("means2d"), radii=meta.get("radii"), width=data.width, height=data.height)
-    return FrameLosses(total=total, blur=blur, ev=ev, edi=edi, info=info, mean_render=recorded_blur.detach()[0])
+    return FrameLosses(total=total, blur=blur, ev=ev, edi=edi, info=info, mean_render=recorded_blur.detach()[0],
+                       raster_timings=meta.get("timings", {}))
 
 
 def _budget_fraction(state: TrainState, cfg: Config, elapsed: float) -> float:
@@ -95,7 +97,9 @@ def _budget_fraction(state: TrainState, cfg: Config, elapsed: float) -> float:
 
 def train_step(data: TrainingData, state: TrainState, strategy: Strategy, f: int, cfg: Config,
                elapsed: float = 0.0) -> StepStats:
-    """Forward, backward, Adam steps, densification of frame ``f``; advances ``state.step``."""
+    """Forward, backward, Adam steps, densification of frame ``f``; advances ``state.step``.
+    ``StepStats.profile`` says where the step's time went (``step_profile``)."""
+    t0 = time.perf_counter()
     for opt in state.optimizers.values():
         opt.zero_grad(set_to_none=True)
     out = frame_losses(data, state, f, cfg)
@@ -103,8 +107,11 @@ def train_step(data: TrainingData, state: TrainState, strategy: Strategy, f: int
         raise FloatingPointError(f"non-finite loss at step {state.step} (frame {data.names[f]})")
     frac = _budget_fraction(state, cfg, elapsed)
     out.info.progress = frac
+    t1 = time.perf_counter()
     strategy.step_pre_backward(state.params, state.optimizers, state.strategy_state, state.step, out.info)
+    t2 = time.perf_counter()
     out.total.backward()
+    t3 = time.perf_counter()
     state.optimizers["means"].param_groups[0]["lr"] = cfg.train.lr_means * data.scale * cfg.train.lr_means_final ** frac
     if "poses" in state.optimizers:
         state.optimizers["poses"].param_groups[0]["lr"] = cfg.trajectory.lr * cfg.trajectory.lr_final ** frac
@@ -115,15 +122,39 @@ def train_step(data: TrainingData, state: TrainState, strategy: Strategy, f: int
     with torch.no_grad():
         q = state.params["quats"]
         q.data = q.data / q.data.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    t4 = time.perf_counter()
     refine = strategy.step_post_backward(state.params, state.optimizers, state.strategy_state, state.step, out.info)
     state.step += 1
+    t5 = time.perf_counter()
+    rt = out.raster_timings
     return StepStats(
         step=state.step, frame=data.names[f], loss=float(out.total.detach()), blur=float(out.blur.detach()),
         train_psnr=psnr(out.mean_render, data.targets[f]), gaussians=num_gaussians(state.params), time=elapsed,
         ev=None if out.ev is None else float(out.ev.detach()), edi=None if out.edi is None else float(out.edi.detach()),
         c=None if state.log_c is None or not state.log_c.requires_grad else torch.exp(state.log_c.detach()).tolist(),
         refine=refine, width=data.width,
+        profile={"forward": 1e3 * (t1 - t0), "raster_forward": sum(rt.get(k, 0.0) for k in RASTER_FORWARD),
+                 "backward": 1e3 * (t3 - t2), "raster_backward": sum(rt.get(k, 0.0) for k in RASTER_BACKWARD),
+                 "adam": 1e3 * (t4 - t3), "densify": 1e3 * ((t2 - t1) + (t5 - t4)),
+                 "step": 1e3 * (time.perf_counter() - t0)},
     )
+
+
+RASTER_FORWARD = ("project_ms", "bin_ms", "composite_ms")  # splat_cpu's meta["timings"] of its forward
+RASTER_BACKWARD = ("backward_project_ms", "backward_composite_ms")  # and of its backward
+
+
+def step_profile(history: Sequence[StepStats]) -> dict[str, float] | None:
+    """Mean ms per step of each part of ``StepStats.profile`` over ``history``, and ``outside_share``:
+    the fraction of the step spent outside the rasteriser (the losses and SSIM, the trajectory
+    poses, the autograd of both, Adam, densification). None when no step has a profile."""
+    profiles = [h.profile for h in history if h.profile]
+    if not profiles:
+        return None
+    mean = {k: float(np.mean([p[k] for p in profiles])) for k in profiles[0]}
+    mean["outside_share"] = 1.0 - (mean["raster_forward"] + mean["raster_backward"]) / max(mean["step"], 1e-9)
+    mean["steps"] = len(profiles)
+    return mean
 
 
 # --------------------------------------------------------------------------- evaluation

@@ -68,3 +68,21 @@ def test_medi_prior_gives_the_latents_of_edi_medi(scene):
     assert np.allclose(data.latents.numpy(), np.asarray(ref).reshape(data.latents.shape), atol=1e-6)
     per_frame = prepare(scene.capture, _config())
     assert not torch.allclose(per_frame.latents, data.latents, atol=1e-3)  # a different prior, not a copy
+
+
+def test_every_step_says_where_its_time_went():
+    from ebad.trainer import reconstruct, step_profile
+
+    sc = scenes.make_scene("boxes", size="tiny", seed=0, n_frames=4, n_test=1)
+    cfg = preset("ebad")
+    cfg.train.iters, cfg.train.progress, cfg.train.eval_every = 6, False, 0
+    run = reconstruct(sc.capture, cfg)
+    for h in run.history:
+        p = h.profile
+        assert 0 < p["raster_forward"] <= p["forward"] and 0 < p["raster_backward"] <= p["backward"]
+        parts = p["forward"] + p["backward"] + p["adam"] + p["densify"]
+        assert 0.5 * p["step"] <= parts <= p["step"] + 1e-6  # the parts are inside the step and cover most of it
+    mean = step_profile(run.history)
+    assert mean["steps"] == 6 and 0 < mean["outside_share"] < 1
+    assert mean["step"] == pytest.approx(sum(h.profile["step"] for h in run.history) / 6)
+    assert step_profile([]) is None
