@@ -25,7 +25,7 @@ import numpy as np
 
 from ._common import seed_all, write_json
 from .paper_departures import prior_psnr
-from .time_to_quality import MODES
+from .time_to_quality import MODES, parse_modes
 
 
 def pixel_subset(frames: np.ndarray, events, stride: int):
@@ -87,10 +87,7 @@ def main(argv=None) -> int:
     strides = [int(s) for s in args.strides.split(",")]
     if strides[0] != 1:
         ap.error("--strides must start with 1 (the full estimate the others are compared with)")
-    modes = [m for m in args.modes.split(",") if m]
-    for m in modes:
-        if m not in MODES:
-            ap.error(f"--modes: unknown mode {m!r} (choose from {', '.join(MODES)})")
+    modes = parse_modes(ap, args.modes)
     measure(scenes.make_scene("boxes", "tiny", seed=0), [1, 2])  # compile the numba kernels outside the timings
     results = {}
     print(f"start-up at size {size}: contrast estimate on every stride-th pixel, plane-sweep initialisation")

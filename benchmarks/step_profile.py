@@ -19,7 +19,7 @@ import argparse
 import sys
 
 from ._common import config_spec, seed_all, write_json
-from .time_to_quality import MODES
+from .time_to_quality import MODES, parse_modes
 
 WARMUP_STEPS = 20
 PARTS = ("step", "forward", "raster_forward", "backward", "raster_backward", "adam", "densify")
@@ -53,10 +53,7 @@ def main(argv=None) -> int:
 
     size = args.size or ("tiny" if args.quick else "davis")
     iters = args.iters or (60 if args.quick else 400)
-    modes = [m for m in args.modes.split(",") if m]
-    for m in modes:
-        if m not in MODES:
-            ap.error(f"--modes: unknown mode {m!r} (choose from {', '.join(MODES)})")
+    modes = parse_modes(ap, args.modes)
     results = {}
     print(f"step profile at size {size}, {iters} steps per run (the first {WARMUP_STEPS} left out), seed {args.seed}; "
           "ms per step")

@@ -76,6 +76,15 @@ torch.save({"snaps": snaps, "wall_seconds": wall, "steps": m["steps"], "stop_rea
 MODES = {"ideal": {"sensor": "ideal", "poses": "exact"}, "realistic": {"sensor": "realistic", "poses": "noisy"}}
 
 
+def parse_modes(ap: argparse.ArgumentParser, text: str) -> list[str]:
+    """The comma-separated ``--modes``, each a key of ``MODES`` (else the parser's one-line error)."""
+    modes = [m for m in text.split(",") if m]
+    for m in modes:
+        if m not in MODES:
+            ap.error(f"--modes: unknown mode {m!r} (choose from {', '.join(MODES)})")
+    return modes
+
+
 class Snapshots:
     """A ``Callback`` keeping copies of the scene at given training times."""
 
@@ -276,7 +285,7 @@ def main(argv=None) -> int:
 
         baselines = torch.load(args.baseline_file, weights_only=False)
     results: dict[str, list[dict]] = {}
-    for mode in [m for m in args.modes.split(",") if m]:
+    for mode in parse_modes(ap, args.modes):
         scene = scenes.make_scene("boxes", size, seed=args.seed, **MODES[mode])
         exact = MODES[mode]["poses"] == "exact"
         results[mode] = []
