@@ -30,7 +30,7 @@ import time
 
 import numpy as np
 
-from ._common import seed_all, write_json
+from ._common import config_spec, seed_all, write_json
 
 PRESETS = ["3dgs", "3dgs-po", "bad", "edi-3dgs", "ebad", "3dgs-sharp"]
 SETTINGS = {
@@ -41,9 +41,10 @@ SETTINGS = {
 
 
 def make_config(name: str, iters: int, seconds: float | None, seed: int):
+    """A preset, ``3dgs-po``, or a preset with options (``_common.config_spec``: ``ebad+trajectory.kind=cubic``)."""
     from ebad.config import preset
 
-    cfg = preset("3dgs" if name == "3dgs-po" else name)
+    cfg = preset("3dgs" if name == "3dgs-po" else name) if "+" not in name else config_spec(name)
     if name == "3dgs":
         cfg.trajectory.anchor_mid = "yes"  # poses held as given (the baseline without pose freedom)
     if name == "3dgs-po":
@@ -116,7 +117,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="tiny scenes, one seed, short budget")
     ap.add_argument("--settings", default="ideal,noisy,sfm")
-    ap.add_argument("--presets", default=",".join(PRESETS))
+    ap.add_argument("--presets", default=",".join(PRESETS),
+                    help="presets, or a preset with options (ebad+loss.w_edi=2), comma-separated")
     ap.add_argument("--seeds", default="0,1,2")
     ap.add_argument("--size", default=None, help="scene size (default small; quick tiny)")
     ap.add_argument("--seconds", type=float, default=None, help="wall-time budget per run (default 60; quick 15)")
@@ -132,6 +134,8 @@ def main(argv=None) -> int:
     seeds = [0] if args.quick else [int(s) for s in args.seeds.split(",")]
     settings = [s for s in args.settings.split(",") if s]
     presets = [p for p in args.presets.split(",") if p]
+    for name in presets:
+        make_config(name, iters, seconds, 0).check()  # a typo fails before any training
     seed_all(0)
     warm_up()
     rows = []

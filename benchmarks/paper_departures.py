@@ -31,7 +31,7 @@ import numpy as np
 from ._common import config_spec, seed_all, write_json
 from .ablation import SETTINGS, summarise, warm_up
 
-SPECS = ["ebad", "ebad+loss.event_windows=random", "ebad+loss.event_norm=l2", "ebad+loss.edi_prior=medi"]
+SPECS = ["ebad", "ebad+loss.event_windows=random", "ebad+loss.event_norm=l2", "ebad+loss.edi_prior=medi+loss.edi_instants=mid"]
 KEYS = ("test_refined_psnr", "test_refined_ssim", "deblur_psnr", "deblur_ssim", "ms_per_step", "prior_psnr",
         "prepare_seconds")
 

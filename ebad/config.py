@@ -33,6 +33,7 @@ StrategyKind = Literal["default", "none"]
 EventWindows = Literal["consecutive", "random"]
 EventNorm = Literal["l1", "l2"]
 EdiPrior = Literal["edi", "medi"]
+EdiInstants = Literal["mid", "views"]
 
 
 def _require(ok: bool, option: str, problem: str) -> None:
@@ -90,7 +91,7 @@ class ModelConfig:
 class TrajectoryConfig:
     """Camera motion inside each exposure."""
 
-    kind: TrajectoryKind = "linear"  # trajectory model (ebad.trajectory.TRAJECTORIES): linear | cubic | fixed (fixed with untrusted poses: one pose correction per frame)
+    kind: TrajectoryKind = "cubic"  # trajectory model (ebad.trajectory.TRAJECTORIES): linear | cubic | fixed (fixed with untrusted poses: one pose correction per frame); cubic since the EDI prior compares every view (benchmarks/results/edi_views.json)
     num_views: int = 5  # V, virtual views per blurry exposure (uniform instants)
     adaptive_views: bool = True  # V from event activity: a frame with few events renders V = 1
     sharp_events_per_pixel: float = 0.05  # below this many events per pixel an exposure is sharp
@@ -123,7 +124,7 @@ class LossConfig:
     target: Target = "blurry"  # what L_blur compares to: the blurry frames or their EDI latents
     w_blur: float = 1.0  # weight of L_blur (0.8 L1 + 0.2 (1 - SSIM) of the mean of V renders)
     w_event: float = 0.1  # weight of L_ev (log-render differences vs c x events); 0 disables
-    w_edi: float = 1.0  # weight of L_EDI (mid-exposure render vs EDI latent); 0 disables
+    w_edi: float = 1.0  # weight of L_EDI (renders vs EDI latents at their instants, loss.edi_instants); 0 disables
     ssim_weight: float = 0.2  # the 0.2 in 0.8 L1 + 0.2 (1 - SSIM)
     ssim_window: int = 7  # SSIM window (odd; small images need a small one)
     contrast: tuple[float, float] | None = None  # event contrast thresholds (c_pos, c_neg) in natural-log units; None: estimated from the data (edi.estimate_c, one per polarity)
@@ -136,10 +137,12 @@ class LossConfig:
     event_windows: EventWindows = "consecutive"  # L_ev windows: every pair of consecutive virtual instants, or one random pair of them per step (the paper samples its window start t_s at random)
     event_norm: EventNorm = "l1"  # L_ev residual norm: l1 (mean |r|, robust to noise events) or l2 (mean r^2, the paper's)
     edi_prior: EdiPrior = "edi"  # the latents of L_EDI: per-frame EDI, or mEDI (all training frames jointly, linked by the events between their centres)
+    edi_instants: EdiInstants = "views"  # where L_EDI compares: every virtual view with the EDI latent at its own instant (mean over the views), or only the mid-exposure render with the latent at mid-exposure (views needs edi_prior edi; benchmarks/results/edi_views.json)
 
     def check(self) -> None:
         _finite(self, "loss")
-        for name, kind in (("event_windows", EventWindows), ("event_norm", EventNorm), ("edi_prior", EdiPrior)):
+        for name, kind in (("event_windows", EventWindows), ("event_norm", EventNorm), ("edi_prior", EdiPrior),
+                           ("edi_instants", EdiInstants)):
             _require(getattr(self, name) in typing.get_args(kind), f"loss.{name}",
                      f"must be one of {', '.join(typing.get_args(kind))}, got {getattr(self, name)!r}")
         for name in ("w_blur", "w_event", "w_edi"):
@@ -150,6 +153,9 @@ class LossConfig:
         _require(self.contrast is None or (len(self.contrast) == 2 and min(self.contrast) > 0), "loss.contrast",
                  f"must be two thresholds > 0 (c_pos c_neg), got {self.contrast}")
         _require(self.lr_contrast >= 0, "loss.lr_contrast", f"must be >= 0, got {self.lr_contrast}")
+        _require(self.edi_instants == "mid" or self.edi_prior == "edi", "loss.edi_instants",
+                 "views needs loss.edi_prior edi (mEDI gives latents at the exposure centres only): "
+                 "with edi_prior medi give --loss.edi_instants mid")
 
 
 @dataclass
@@ -253,6 +259,7 @@ def _bad() -> Config:
     c.loss.w_event = 0.0
     c.loss.w_edi = 0.0
     c.trajectory.adaptive_views = False
+    c.trajectory.kind = "linear"  # BAD-Gaussians' default; with the blur alone cubic measured lower (benchmarks/results/ablation_noisy.json)
     return c
 
 

@@ -19,6 +19,7 @@ from edi import EventStream
 from .config import Config
 from .errors import UserError
 from .gaussians import scene_scale
+from .trajectory import virtual_instants
 from .virtual_views import choose_num_views, event_counts, events_per_pixel
 
 __all__ = ["TrainingData", "PrepareReport", "prepare", "downscale", "focus_depth", "depth_range", "align_poses", "test_poses",
@@ -74,7 +75,8 @@ class TrainingData:
     point_colors: Tensor | None = None  # [P, D]
     test_views: list = field(default_factory=list)  # the capture's test views that carry an image
     test_c2w: dict[str, np.ndarray] = field(default_factory=dict)  # their poses in this run's frame, by name
-    events: EventStream | None = None  # the events L_ev counts (kept to count them again when V changes)
+    events: EventStream | None = None  # the events of L_ev and of the views' latents (kept to count them again when V changes)
+    view_latents: list[Tensor | None] | None = None  # per frame [V, H, W, D] EDI latents at its virtual instants (loss.edi_instants views; None for a sharp frame), else None
 
     def set_views(self, V: np.ndarray) -> None:
         """New V per frame, in place: the event counts between the new virtual instants are
@@ -84,13 +86,18 @@ class TrainingData:
             raise ValueError(f"new V {V.tolist()} must keep each frame's sharp (1) or blurry (> 1) status "
                              f"of {self.V.tolist()}")
         changed = np.flatnonzero(V != self.V)
-        if len(changed) and any(self.ev_counts[f] is not None for f in changed) and self.events is None:
-            raise ValueError("the event counts cannot follow a new V: the data keep no events")
+        needs_events = any(self.ev_counts[f] is not None or (self.view_latents is not None and self.view_latents[f] is not None)
+                           for f in changed)
+        if needs_events and self.events is None:
+            raise ValueError("the event counts and latents cannot follow a new V: the data keep no events")
         counts = list(self.ev_counts)
+        views = None if self.view_latents is None else list(self.view_latents)
         for f in changed:
             if counts[f] is not None:
                 counts[f] = event_counts(self.events, self.exposures[f], int(V[f]))
-        self.V, self.ev_counts = V, counts
+            if views is not None and views[f] is not None:
+                views[f] = view_latents(self.frames[f].numpy(), self.exposures[f], self.events, int(V[f]), self.c)
+        self.V, self.ev_counts, self.view_latents = V, counts, views
         self.report.views, self.report.renders_per_pass = V.tolist(), int(V.sum())
 
     @property
@@ -134,7 +141,20 @@ def downscale(data: TrainingData, factor: int) -> TrainingData:
     return dataclasses.replace(
         data, frames=_pool_hwd(data.frames, factor), targets=_pool_hwd(data.targets, factor),
         latents=None if data.latents is None else _pool_hwd(data.latents, factor), K=K,
+        view_latents=None if data.view_latents is None else [None if v is None else _pool_hwd(v, factor)
+                                                             for v in data.view_latents],
         ev_counts=[None if e is None else _pool(e, factor) for e in data.ev_counts])
+
+
+def view_latents(frame: np.ndarray,  # [H, W, D] one blurry frame
+                 exposure: np.ndarray, events: EventStream, V: int, c: tuple[float, float]) -> Tensor:  # [V, H, W, D]
+    """EDI latents of one frame at its V virtual instants (``virtual_instants``), in [0, 1]."""
+    import edi
+
+    t0, t1 = float(exposure[0]), float(exposure[1])
+    times = (t0 + virtual_instants(V, dtype=torch.float64) * (t1 - t0)).tolist()
+    lat = np.asarray(edi.deblur(frame, (t0, t1), events, times=times, c=c), dtype=np.float32)
+    return torch.from_numpy(np.clip(lat.reshape(V, *frame.shape), 0, 1))
 
 
 def _train_indices(capture) -> list[int]:
@@ -315,6 +335,10 @@ def prepare(capture, cfg: Config) -> TrainingData:
     targets = latents if (lc.target == "edi" and latents is not None) else frames_t
     ev = [event_counts(events, exposures[f], int(V[f])) if (use_events and lc.w_event > 0 and V[f] > 1) else None
           for f in range(len(idx))]
+    views = None
+    if latents is not None and lc.w_edi > 0 and lc.edi_instants == "views" and lc.edi_prior == "edi":
+        views = [view_latents(frames_np[f], exposures[f], events, int(V[f]), c) if V[f] > 1 else None
+                 for f in range(len(idx))]
     d_range = depth_range(cfg, c2w, points)
     return TrainingData(
         frames=frames_t, targets=targets, latents=latents if lc.w_edi > 0 else None,
@@ -323,5 +347,5 @@ def prepare(capture, cfg: Config) -> TrainingData:
         V=V, ev_counts=ev, c=c, scale=scene_scale(c2w, d_range), depth_range=d_range, report=report,
         points=points, point_colors=point_colors, test_views=[v for v in capture.test_views if v.image is not None],
         test_c2w=test_poses(capture, pose_src, idx, c2w, registered),
-        events=events if use_events and lc.w_event > 0 else None,
+        events=events if use_events and (lc.w_event > 0 or views is not None) else None, view_latents=views,
     )

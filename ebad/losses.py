@@ -137,8 +137,9 @@ def event_loss(renders: Tensor,  # [V, H, W, D]
     return r.abs().mean() if norm == "l1" else r.square().mean()
 
 
-def edi_loss(render_mid: Tensor,  # [H, W, D]
-             latent: Tensor,  # [H, W, D]
+def edi_loss(renders: Tensor,  # [H, W, D] or [V, H, W, D]
+             latents: Tensor,  # the same shape
              ssim_weight: float = 0.2, window: int = 7) -> Tensor:
-    """L_EDI: the mid-exposure render against the EDI latent of the frame."""
-    return l1_ssim(render_mid, latent, ssim_weight, window)
+    """L_EDI: renders against the EDI latents of the frame at the same instants (the mid-exposure
+    render and latent, or every virtual view's), averaged over them."""
+    return l1_ssim(renders, latents, ssim_weight, window)

@@ -56,11 +56,12 @@ class FrameLosses:
 
 def frame_losses(data: TrainingData, state: TrainState, f: int, cfg: Config) -> FrameLosses:
     """Losses of frame ``f``: its V virtual views (plus the mid view when V is even and L_EDI
-    is on) rendered in one batched call."""
+    compares at mid-exposure only) rendered in one batched call."""
     lc = cfg.loss
     V = int(data.V[f])
     u = virtual_instants(V)
-    need_mid = data.latents is not None and V % 2 == 0
+    views = data.view_latents[f] if data.view_latents is not None else None  # latents at the V instants
+    need_mid = data.latents is not None and V % 2 == 0 and views is None
     if need_mid:
         u = torch.cat([u, torch.tensor([0.5])])
     poses = state.trajectories(torch.tensor([f]), u)[0]  # [V', 4, 4]
@@ -78,7 +79,10 @@ def frame_losses(data: TrainingData, state: TrainState, f: int, cfg: Config) -> 
         else:
             ev = event_loss(renders, data.ev_counts[f], c, norm=lc.event_norm)
         total = total + lc.w_event * ev
-    if data.latents is not None and lc.w_edi > 0:
+    if views is not None and lc.w_edi > 0:
+        edi = edi_loss(state.response(renders), views, lc.ssim_weight, lc.ssim_window)
+        total = total + lc.w_edi * edi
+    elif data.latents is not None and lc.w_edi > 0:
         mid = images[V] if need_mid else images[V // 2]
         edi = edi_loss(state.response(mid), data.latents[f], lc.ssim_weight, lc.ssim_window)
         total = total + lc.w_edi * edi

@@ -13,6 +13,7 @@ def test_presets_registry_and_json_roundtrip(tmp_path):
     assert (e.loss.w_blur, e.loss.w_event, e.loss.w_edi) == (1.0, 0.1, 1.0)
     assert C.preset("bad").loss.w_event == 0 and C.preset("bad").trajectory.kind == "linear"
     assert C.preset("3dgs").trajectory.kind == "fixed"
+    assert (e.trajectory.kind, e.loss.edi_instants) == ("cubic", "views")
     assert C.preset("edi-3dgs").loss.target == "edi"
     e.model.init_depth = (1.0, 3.0)
     C.save_config(e, tmp_path / "c.json")

@@ -101,6 +101,7 @@ def test_views_from_the_blur_length_take_effect_where_the_coarse_phase_ends(monk
     cfg = preset("ebad")
     cfg.train.iters, cfg.train.progress, cfg.train.eval_every = 8, False, 0
     cfg.train.coarse_until = 0.5
+    cfg.loss.edi_instants = "mid"  # an even V then renders the mid view as well
     cameras, in_step = [], []  # cameras of each training step's render
     inner_render, inner_losses = T.render, T.frame_losses
 
@@ -129,6 +130,10 @@ def test_views_from_the_blur_length_take_effect_where_the_coarse_phase_ends(monk
     assert runs[1e6].metrics.prepare.views == [2] * 4
     # 4 steps at the configured V = 5, then V = 2 (+ the mid view L_EDI needs when V is even) or 9
     assert per_step[1e6] == [5] * 4 + [3] * 4 and per_step[1e-6] == [5] * 4 + [9] * 4
+    cfg.loss.edi_instants, cfg.trajectory.view_spacing = "views", 1e6  # every view has its latent: no extra mid view
+    cameras.clear()
+    reconstruct(sc.capture, cfg)
+    assert cameras == [5] * 4 + [2] * 4
     cfg.train.coarse_until = 0.0
     with pytest.raises(ConfigError, match="view_spacing"):
         cfg.check()

@@ -86,3 +86,40 @@ def test_every_step_says_where_its_time_went():
     assert mean["steps"] == 6 and 0 < mean["outside_share"] < 1
     assert mean["step"] == pytest.approx(sum(h.profile["step"] for h in run.history) / 6)
     assert step_profile([]) is None
+
+
+def test_edi_at_every_view_compares_each_virtual_view_with_the_latent_at_its_instant(scene):
+    from ebad.config import ConfigError
+    from ebad.data import downscale
+    from ebad.losses import edi_loss
+
+    cfg = _config(edi_instants="views")
+    data = prepare(scene.capture, cfg)
+    cap = scene.capture
+    idx = _train_indices(cap)
+    f = int(np.argmax(data.V))
+    V = int(data.V[f])
+    assert V >= 3 and data.view_latents[f].shape == (V, data.height, data.width, data.latents.shape[-1])
+    assert all((v is None) == (n == 1) for v, n in zip(data.view_latents, data.V))
+    t0, t1 = cap.exposures[idx[f]]
+    for i, u in enumerate(virtual_instants(V).tolist()):  # each view's latent is EDI at its own instant
+        ref = np.clip(edi.deblur(np.asarray(cap.frames[idx[f]], np.float32), (t0, t1), cap.events,
+                                 times=t0 + u * (t1 - t0), c=data.c), 0, 1)
+        assert np.allclose(data.view_latents[f][i].numpy(), np.asarray(ref).reshape(data.latents.shape[1:]), atol=1e-5)
+    assert torch.allclose(data.view_latents[f][V // 2], data.latents[f], atol=1e-5)  # odd V: the middle one is mid
+    assert not torch.allclose(data.view_latents[f][0], data.latents[f], atol=1e-3)  # the others are not copies of it
+    state = TrainState.create(data, cfg)
+    with torch.no_grad():
+        out = frame_losses(data, state, f, cfg).edi
+        ref = edi_loss(state.response(_renders(data, state, f)), data.view_latents[f])
+    assert float(out) == pytest.approx(float(ref), rel=1e-5)
+    half = downscale(data, 2)
+    assert half.view_latents[f].shape == (V, data.height // 2, data.width // 2, data.latents.shape[-1])
+    new_V = data.V.copy()
+    new_V[f] = 3
+    data.set_views(new_V)  # the latents follow a new V
+    assert data.view_latents[f].shape[0] == 3
+    assert torch.allclose(data.view_latents[f][1], data.latents[f], atol=1e-5)
+    bad = _config(edi_instants="views", edi_prior="medi")
+    with pytest.raises(ConfigError, match="loss.edi_instants"):
+        bad.check()
