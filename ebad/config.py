@@ -91,7 +91,7 @@ class ModelConfig:
 class TrajectoryConfig:
     """Camera motion inside each exposure."""
 
-    kind: TrajectoryKind = "cubic"  # trajectory model (ebad.trajectory.TRAJECTORIES): linear | cubic | fixed (fixed with untrusted poses: one pose correction per frame); cubic since the EDI prior compares every view (benchmarks/results/edi_views.json)
+    kind: TrajectoryKind = "cubic"  # trajectory model (ebad.trajectory.TRAJECTORIES): linear | cubic | fixed (fixed with untrusted poses: one pose correction per frame)
     num_views: int = 5  # V, virtual views per blurry exposure (uniform instants)
     adaptive_views: bool = True  # V from event activity: a frame with few events renders V = 1
     sharp_events_per_pixel: float = 0.05  # below this many events per pixel an exposure is sharp
