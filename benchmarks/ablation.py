@@ -42,9 +42,7 @@ SETTINGS = {
 
 def make_config(name: str, iters: int, seconds: float | None, seed: int):
     """A preset, ``3dgs-po``, or a preset with options (``_common.config_spec``: ``ebad+trajectory.kind=cubic``)."""
-    from ebad.config import preset
-
-    cfg = preset("3dgs" if name == "3dgs-po" else name) if "+" not in name else config_spec(name)
+    cfg = config_spec("3dgs" if name == "3dgs-po" else name)
     if name == "3dgs":
         cfg.trajectory.anchor_mid = "yes"  # poses held as given (the baseline without pose freedom)
     if name == "3dgs-po":

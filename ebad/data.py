@@ -146,15 +146,24 @@ def downscale(data: TrainingData, factor: int) -> TrainingData:
         ev_counts=[None if e is None else _pool(e, factor) for e in data.ev_counts])
 
 
+def _edi_at(frame: np.ndarray,  # [H, W, D] one blurry frame
+            exposure: np.ndarray, events: EventStream, c: tuple[float, float], times: list[float]) -> np.ndarray:
+    """EDI latents of one frame at ``times`` (seconds), in one pass: [len(times), H, W, D], in [0, 1]."""
+    import edi
+
+    lat = edi.deblur(frame, (float(exposure[0]), float(exposure[1])), events, times=times, c=c)
+    return np.clip(np.asarray(lat, dtype=np.float32).reshape(len(times), *frame.shape), 0, 1)
+
+
+def _view_times(exposure: np.ndarray, V: int) -> list[float]:  # the V virtual instants in seconds
+    t0, t1 = float(exposure[0]), float(exposure[1])
+    return (t0 + virtual_instants(V, dtype=torch.float64) * (t1 - t0)).tolist()
+
+
 def view_latents(frame: np.ndarray,  # [H, W, D] one blurry frame
                  exposure: np.ndarray, events: EventStream, V: int, c: tuple[float, float]) -> Tensor:  # [V, H, W, D]
     """EDI latents of one frame at its V virtual instants (``virtual_instants``), in [0, 1]."""
-    import edi
-
-    t0, t1 = float(exposure[0]), float(exposure[1])
-    times = (t0 + virtual_instants(V, dtype=torch.float64) * (t1 - t0)).tolist()
-    lat = np.asarray(edi.deblur(frame, (t0, t1), events, times=times, c=c), dtype=np.float32)
-    return torch.from_numpy(np.clip(lat.reshape(V, *frame.shape), 0, 1))
+    return torch.from_numpy(_edi_at(frame, exposure, events, c, _view_times(exposure, V)))
 
 
 def _train_indices(capture) -> list[int]:
@@ -318,27 +327,26 @@ def prepare(capture, cfg: Config) -> TrainingData:
         events_per_pixel=([round(float(v), 4) for v in events_per_pixel(events, exposures)] if has_events else None),
     )
 
-    latents = None
+    latents = views = None
     if use_events and (lc.w_edi > 0 or lc.target == "edi"):
         import edi
 
         if lc.edi_prior == "medi":  # all training frames jointly, at their exposure centres
             lat = np.asarray(edi.medi(frames_np, exposures, events, c=c), dtype=np.float32).reshape(frames_np.shape)
-        else:
-            lat = []
+        else:  # per frame, one EDI pass for the mid-exposure latent and (loss.edi_instants views) the views'
+            lat, views = [], ([] if lc.w_edi > 0 and lc.edi_instants == "views" else None)
             for f in range(len(idx)):
                 t0, t1 = exposures[f]
-                lat.append(np.asarray(edi.deblur(frames_np[f], (t0, t1), events, times=0.5 * (t0 + t1), c=c),
-                                      dtype=np.float32).reshape(frames_np.shape[1:]))
-        latents = torch.from_numpy(np.clip(np.stack(lat), 0, 1))
+                extra = _view_times(exposures[f], int(V[f])) if views is not None and V[f] > 1 else []
+                out = _edi_at(frames_np[f], exposures[f], events, c, [0.5 * (t0 + t1)] + extra)
+                lat.append(out[0])
+                if views is not None:
+                    views.append(torch.from_numpy(out[1:]) if extra else None)
+        latents = torch.from_numpy(np.clip(np.stack(lat), 0, 1))  # mEDI's are not clipped yet
     frames_t = torch.from_numpy(frames_np)
     targets = latents if (lc.target == "edi" and latents is not None) else frames_t
     ev = [event_counts(events, exposures[f], int(V[f])) if (use_events and lc.w_event > 0 and V[f] > 1) else None
           for f in range(len(idx))]
-    views = None
-    if latents is not None and lc.w_edi > 0 and lc.edi_instants == "views" and lc.edi_prior == "edi":
-        views = [view_latents(frames_np[f], exposures[f], events, int(V[f]), c) if V[f] > 1 else None
-                 for f in range(len(idx))]
     d_range = depth_range(cfg, c2w, points)
     return TrainingData(
         frames=frames_t, targets=targets, latents=latents if lc.w_edi > 0 else None,
