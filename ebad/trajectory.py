@@ -48,8 +48,8 @@ def linear_poses(
 ) -> Tensor:  # [F, V, 4, 4]
     """Linear SE(3) interpolation between the start and end poses (see module docstring)."""
     R_mid, t_mid = _split(c2w_mid)
-    R0 = R_mid @ so3_exp(knots[:, 0, :3])
-    R1 = R_mid @ so3_exp(knots[:, 1, :3])
+    R01 = R_mid[:, None] @ so3_exp(knots[:, :, :3])  # [F, 2, 3, 3]: start and end in one call
+    R0, R1 = R01[:, 0], R01[:, 1]
     t0 = t_mid + scale * knots[:, 0, 3:]
     t1 = t_mid + scale * knots[:, 1, 3:]
     rel = so3_log(R0.transpose(-1, -2) @ R1)  # [F, 3]
@@ -170,11 +170,11 @@ class ExposureTrajectories(nn.Module):
         """Poses of ``frames`` at normalised instants ``u``."""
         knots = self.knots[frames] * self.moving[frames, None, None]
         mid = self.c2w_mid[frames]
-        poses = self.model.poses(mid, knots, u, self.scale)
-        if self.anchored and self.model.num_knots > 0:
-            at_half = self.model.poses(mid, knots, u.new_tensor([0.5]), self.scale)[:, 0]  # [B, 4, 4]
-            poses = (mid @ rigid_inverse(at_half))[:, None] @ poses
-        return poses
+        if not (self.anchored and self.model.num_knots > 0):
+            return self.model.poses(mid, knots, u, self.scale)
+        both = self.model.poses(mid, knots, torch.cat([u, u.new_tensor([0.5])]), self.scale)  # u and mid-exposure in one call
+        poses, at_half = both[:, :-1], both[:, -1]  # [B, V, 4, 4], [B, 4, 4]
+        return (mid @ rigid_inverse(at_half))[:, None] @ poses
 
     def mid_poses(self) -> Tensor:  # [F, 4, 4]
         """Every frame's pose at mid-exposure (u = 0.5)."""

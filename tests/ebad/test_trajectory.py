@@ -74,3 +74,9 @@ def test_anchored_trajectory_keeps_mid_pose(kind):
     with torch.no_grad():
         free.knots.copy_(traj.knots)
     assert not torch.allclose(free(torch.arange(3), torch.tensor([0.5]))[:, 0], c2w, atol=1e-3)
+    # the docstring's formula: the free poses left-multiplied by c2w_mid T(0.5)^-1, at every instant
+    u = torch.tensor([0.1, 0.3, 0.5, 0.7, 0.9])
+    with torch.no_grad():
+        at_half = free(torch.arange(3), torch.tensor([0.5]))[:, 0]
+        expected = (c2w @ torch.linalg.inv(at_half))[:, None] @ free(torch.arange(3), u)
+        assert torch.allclose(traj(torch.arange(3), u), expected, atol=1e-5)
