@@ -57,8 +57,8 @@ class _FusedSSIM(torch.autograd.Function):
     def forward(ctx, ap: Tensor, bp: Tensor, win: int) -> Tensor:
         from . import _ssim_kernels as K
 
-        g = K.gauss_taps(win).astype(_numpy_dtype(ap))
         A, B = ap.detach().contiguous().numpy(), bp.detach().contiguous().numpy()
+        g = K.gauss_taps(win).astype(A.dtype)
         N, H, W = A.shape[0], A.shape[1] - win + 1, A.shape[2] - win + 1
         want = ctx.needs_input_grad[0] or ctx.needs_input_grad[1]
         s = np.empty((N, H, W), A.dtype)
@@ -80,10 +80,6 @@ class _FusedSSIM(torch.autograd.Function):
         K.ssim_backward(A, B, ctx.g, ctx.coef, grad_s.detach().to(ap.dtype).contiguous().numpy(), ga, gb,
                         want_a, want_b)
         return (torch.from_numpy(ga) if want_a else None), (torch.from_numpy(gb) if want_b else None), None
-
-
-def _numpy_dtype(t: Tensor):
-    return np.float64 if t.dtype == torch.float64 else np.float32
 
 
 def ssim_map(a: Tensor, b: Tensor, window: int = 7) -> Tensor:  # [B,H,W,D] x2 -> [B,H,W,D]
