@@ -24,8 +24,9 @@ DEN_EPS = 1e-12  # kornia's: added to the denominator
 
 @njit(cache=True, parallel=True, fastmath=_FASTMATH)
 def ssim_forward(ap, bp, g, s_map, coef, want_grad):  # pragma: no cover - jit
-    """SSIM map into ``s_map`` [N, H, W]; with ``want_grad``, dS/d(mu_a, mu_b, s_aa, s_bb, s_ab)
-    into ``coef`` [5, N, H, W] (the moments' raw second moments, before subtracting mu^2)."""
+    """SSIM map into ``s_map`` [N, H, W]; with ``want_grad``, dS/d(mu_a, mu_b, s_aa = s_bb, s_ab)
+    into ``coef`` [4, N, H, W] (the moments' raw second moments, before subtracting mu^2; S has
+    the same derivative with respect to s_aa and s_bb, so one plane serves both)."""
     N, H, W = s_map.shape
     win = g.shape[0]
     Hp = H + win - 1
@@ -81,9 +82,8 @@ def ssim_forward(ap, bp, g, s_map, coef, want_grad):  # pragma: no cover - jit
                 # S = a1 a2 / den: d/dmu1 = (2 mu2 (a2 - a1) - S 2 mu1 (b2 - b1)) / den, and so on
                 coef[0, n, i, j] = (2.0 * mu2 * (a2 - a1) - s * 2.0 * mu1 * (b2 - b1)) / den
                 coef[1, n, i, j] = (2.0 * mu1 * (a2 - a1) - s * 2.0 * mu2 * (b2 - b1)) / den
-                coef[2, n, i, j] = -s * b1 / den
-                coef[3, n, i, j] = -s * b1 / den
-                coef[4, n, i, j] = 2.0 * a1 / den
+                coef[2, n, i, j] = -s * b1 / den  # d/ds_aa and d/ds_bb alike
+                coef[3, n, i, j] = 2.0 * a1 / den
 
 
 @njit(cache=True, parallel=True, fastmath=_FASTMATH)
@@ -94,8 +94,9 @@ def ssim_backward(ap, bp, g, coef, grad_s, grad_ap, grad_bp, want_a, want_b):  #
     win = g.shape[0]
     Hp = H + win - 1
     Wp = W + win - 1
-    # the moments each input needs: a: mu_a (0), s_aa (2), s_ab (4); b: mu_b (1), s_bb (3), s_ab (4)
-    cols = np.zeros((5, N, Hp, W), ap.dtype)  # adjoint of the column pass, on the padded rows
+    # coef's planes: mu_a (0), mu_b (1), s_aa and s_bb (2, the same derivative), s_ab (3);
+    # a needs 0, 2 and 3, b needs 1, 2 and 3
+    cols = np.zeros((4, N, Hp, W), ap.dtype)  # adjoint of the column pass, on the padded rows
     for r in prange(N * Hp):
         n = r // Hp
         q = r % Hp
@@ -105,10 +106,8 @@ def ssim_backward(ap, bp, g, coef, grad_s, grad_ap, grad_bp, want_a, want_b):  #
                 continue
             w = g[k]
             gs = grad_s[n, i]
-            for c in range(5):
-                if (c == 0 or c == 2) and not want_a:
-                    continue
-                if (c == 1 or c == 3) and not want_b:
+            for c in range(4):
+                if (c == 0 and not want_a) or (c == 1 and not want_b):
                     continue
                 src = coef[c, n, i]
                 dst = cols[c, n, q]
@@ -117,10 +116,10 @@ def ssim_backward(ap, bp, g, coef, grad_s, grad_ap, grad_bp, want_a, want_b):  #
     for r in prange(N * Hp):  # adjoint of the row pass, and the product rule onto a and b
         n = r // Hp
         q = r % Hp
-        t = np.zeros((5, Wp), ap.dtype)
+        t = np.zeros((4, Wp), ap.dtype)
         for k in range(win):
             w = g[k]
-            for c in range(5):
+            for c in range(4):
                 src = cols[c, n, q]
                 tc = t[c]
                 for j in range(W):
@@ -129,9 +128,9 @@ def ssim_backward(ap, bp, g, coef, grad_s, grad_ap, grad_bp, want_a, want_b):  #
             av = ap[n, q, x]
             bv = bp[n, q, x]
             if want_a:
-                grad_ap[n, q, x] = t[0, x] + 2.0 * av * t[2, x] + bv * t[4, x]
+                grad_ap[n, q, x] = t[0, x] + 2.0 * av * t[2, x] + bv * t[3, x]
             if want_b:
-                grad_bp[n, q, x] = t[1, x] + 2.0 * bv * t[3, x] + av * t[4, x]
+                grad_bp[n, q, x] = t[1, x] + 2.0 * bv * t[2, x] + av * t[3, x]
 
 
 def gauss_taps(win: int, sigma: float = 1.5) -> np.ndarray:

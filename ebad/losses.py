@@ -62,7 +62,7 @@ class _FusedSSIM(torch.autograd.Function):
         N, H, W = A.shape[0], A.shape[1] - win + 1, A.shape[2] - win + 1
         want = ctx.needs_input_grad[0] or ctx.needs_input_grad[1]
         s = np.empty((N, H, W), A.dtype)
-        coef = np.empty((5, N, H, W) if want else (5, 0, 0, 0), A.dtype)
+        coef = np.empty((4, N, H, W) if want else (4, 0, 0, 0), A.dtype)
         K.ssim_forward(A, B, g, s, coef, want)
         ctx.save_for_backward(ap, bp)
         ctx.coef, ctx.g = coef, g
