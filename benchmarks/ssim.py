@@ -1,4 +1,4 @@
-"""The SSIM of the training losses: the fused numba passes against torch implementations, in one run.
+"""The SSIM of the training losses: the fused numba kernels against torch implementations, in one run.
 
     python -m benchmarks.ssim [--quick] [--repeats 20]
 
@@ -8,13 +8,17 @@ render) and five (L_EDI at V = 5 views), grey and colour, at full and half resol
 implementations, each timed in this process, alternately, median of ``--repeats`` calls after
 a warm-up:
 
-- ``fused``: ``ebad.losses.ssim_map`` (``ebad._ssim_kernels``: two separable passes and their
-  adjoint, in numba);
+- ``fused loss``: ``ebad.losses.l1_ssim`` with the SSIM weight 1, what the training losses call
+  (``ebad._ssim_kernels``: one kernel pass over both separable directions that sums the map
+  without storing it, one for its adjoint with a constant upstream gradient);
+- ``fused``: ``ebad.losses.ssim_map`` (the same kernels, writing the map, and the adjoint of a
+  map of upstream gradients), what the metrics call;
 - ``grouped conv``: the previous implementation, kept here as the baseline: one grouped
   ``conv2d`` of the five moments with the 7x7 window in torch (autograd for the backward);
 - ``kornia``: ``kornia.metrics.ssim``, the reference the fused passes are tested against.
 
-Also the largest difference of the fused map from kornia's (float32). Prints a table, writes
+Also the largest difference of the fused map from kornia's and of the fused loss from kornia's
+1 - mean SSIM (float32). Prints a table, writes
 ``benchmarks/results/ssim[_quick].json``.
 """
 from __future__ import annotations
@@ -59,15 +63,18 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     import torch
 
-    from ebad.losses import ssim_map, ssim_map_kornia
+    from ebad.losses import l1_ssim, ssim_map, ssim_map_kornia
 
-    impls = {"fused": ssim_map, "grouped conv": grouped_conv_ssim, "kornia": ssim_map_kornia}
+    def fused_loss(a, b, window):  # 1 - mean SSIM (the timing takes the mean of this scalar)
+        return l1_ssim(a, b, 1.0, window)
+
+    impls = {"fused loss": fused_loss, "fused": ssim_map, "grouped conv": grouped_conv_ssim, "kornia": ssim_map_kornia}
     shapes = QUICK_SHAPES if args.quick else SHAPES
     repeats = args.repeats or (5 if args.quick else 20)
     rows = []
     print(f"mean SSIM forward + backward, 7-tap window, float32, median of {repeats} calls (ms)")
     print(f"{'shape [B, H, W, D]':>20s} " + " ".join(f"{k:>13s}" for k in impls)
-          + f" {'conv / fused':>12s} {'kornia / fused':>14s} {'max |fused - kornia|':>20s}")
+          + f" {'conv / fused loss':>17s} {'kornia / fused loss':>19s} {'max |fused - kornia|':>20s}")
     for shape in shapes:
         g = torch.Generator().manual_seed(0)
         a = torch.rand(shape, generator=g).requires_grad_()
@@ -88,10 +95,14 @@ def main(argv=None) -> int:
         med = {k: statistics.median(v) for k, v in times.items()}
         with torch.no_grad():
             err = float((ssim_map(a, b) - ssim_map_kornia(a, b)).abs().max())
-        rows.append({"shape": list(shape), "median_ms": med, "conv_over_fused": med["grouped conv"] / med["fused"],
-                     "kornia_over_fused": med["kornia"] / med["fused"], "max_abs_diff_vs_kornia": err})
+            loss_err = abs(float(l1_ssim(a, b, 1.0, 7)) - float(1 - ssim_map_kornia(a, b).mean()))
+        rows.append({"shape": list(shape), "median_ms": med,
+                     "conv_over_fused_loss": med["grouped conv"] / med["fused loss"],
+                     "kornia_over_fused_loss": med["kornia"] / med["fused loss"],
+                     "max_abs_diff_vs_kornia": err, "loss_abs_diff_vs_kornia": loss_err})
         print(f"{str(list(shape)):>20s} " + " ".join(f"{med[k]:13.2f}" for k in impls)
-              + f" {rows[-1]['conv_over_fused']:12.2f} {rows[-1]['kornia_over_fused']:14.2f} {err:20.1e}", flush=True)
+              + f" {rows[-1]['conv_over_fused_loss']:17.2f} {rows[-1]['kornia_over_fused_loss']:19.2f} {err:20.1e}",
+              flush=True)
     write_json("ssim_quick" if args.quick else "ssim",
                {"repeats": repeats, "window": 7, "dtype": "float32", "rows": rows,
                 "torch_threads": torch.get_num_threads(), "argv": sys.argv[1:] if argv is None else list(argv)})

@@ -104,9 +104,11 @@ def make_optimizers(params: dict[str, nn.Parameter], traj: ExposureTrajectories,
     tc = cfg.train
     lrs = {"means": tc.lr_means * scale, "scales": tc.lr_scales, "quats": tc.lr_quats,
            "opacities": tc.lr_opacities, "colors": tc.lr_colors}
-    opts = {k: torch.optim.Adam([params[k]], lr=lrs[k], eps=1e-15) for k in lrs}
+    # fused: one pass per parameter instead of a dozen torch operations (0.17 against 0.29 ms for
+    # the five Gaussian parameters of 3k Gaussians, 0.50 against 1.79 ms for 60k)
+    opts = {k: torch.optim.Adam([params[k]], lr=lrs[k], eps=1e-15, fused=True) for k in lrs}
     if traj.knots.numel() > 0 and bool(traj.moving.any()):
-        opts["poses"] = torch.optim.Adam([traj.knots], lr=cfg.trajectory.lr)
+        opts["poses"] = torch.optim.Adam([traj.knots], lr=cfg.trajectory.lr, fused=True)
     if log_c is not None and log_c.requires_grad:
         opts["contrast"] = torch.optim.Adam([log_c], lr=cfg.loss.lr_contrast)
     if response is not None and response.learnable:

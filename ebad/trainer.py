@@ -26,7 +26,7 @@ from .config import Config, preset
 from .data import MIN_DOWNSCALED_SIDE, PrepareReport, TrainingData, downscale, prepare
 from .errors import ConfigError
 from .gaussians import num_gaussians, render
-from .losses import blur_loss, edi_loss, event_loss
+from .losses import event_loss, l1_ssim_each
 from .metrics import psnr, ssim
 from .response import Response
 from .state import StepStats, TrainState, capture_fingerprint, max_gaussians
@@ -68,9 +68,16 @@ def frame_losses(data: TrainingData, state: TrainState, f: int, cfg: Config) -> 
     images, _, meta = render(state.params, poses, data.K, data.width, data.height, cfg.model.background)
     renders = images[:V]  # irradiance: blur averages it, events see its log
     recorded_blur = state.response(renders.mean(0, keepdim=True))  # what the APS records of the exposure
-    blur = blur_loss(recorded_blur, data.targets[f], lc.ssim_weight, lc.ssim_window)
+    # L_blur and L_EDI (each l1_ssim: blur_loss and edi_loss) from one kernel call
+    pairs = [(recorded_blur, data.targets[f])]
+    if views is not None and lc.w_edi > 0:  # the renders against the latents at the same instants
+        pairs.append((state.response(renders), views))
+    elif data.latents is not None and lc.w_edi > 0:  # the mid-exposure render against the mid latent
+        pairs.append((state.response(images[V] if need_mid else images[V // 2]), data.latents[f]))
+    blur, *edi_or_none = l1_ssim_each(pairs, lc.ssim_weight, lc.ssim_window)
+    edi = edi_or_none[0] if edi_or_none else None
     total = lc.w_blur * blur
-    ev = edi = None
+    ev = None
     if lc.w_event > 0 and data.ev_counts[f] is not None:
         c = torch.exp(state.log_c) if state.log_c is not None else data.c
         if lc.event_windows == "random":  # one random pair of virtual instants (virtual_views docstring)
@@ -79,12 +86,7 @@ def frame_losses(data: TrainingData, state: TrainState, f: int, cfg: Config) -> 
         else:
             ev = event_loss(renders, data.ev_counts[f], c, norm=lc.event_norm)
         total = total + lc.w_event * ev
-    if views is not None and lc.w_edi > 0:
-        edi = edi_loss(state.response(renders), views, lc.ssim_weight, lc.ssim_window)
-        total = total + lc.w_edi * edi
-    elif data.latents is not None and lc.w_edi > 0:
-        mid = images[V] if need_mid else images[V // 2]
-        edi = edi_loss(state.response(mid), data.latents[f], lc.ssim_weight, lc.ssim_window)
+    if edi is not None:
         total = total + lc.w_edi * edi
     info = RenderInfo(means2d=meta.get("means2d"), radii=meta.get("radii"), width=data.width, height=data.height)
     return FrameLosses(total=total, blur=blur, ev=ev, edi=edi, info=info, mean_render=recorded_blur.detach()[0],

@@ -46,7 +46,8 @@ def test_luminance_grey_passthrough_and_rgb():
         luminance(torch.ones(2, 2, 2))
 
 
-@pytest.mark.parametrize("shape,window", [((2, 20, 24, 1), 7), ((1, 12, 9, 3), 11), ((1, 5, 6, 1), 11)])
+@pytest.mark.parametrize("shape,window", [((2, 20, 24, 1), 7), ((1, 12, 9, 3), 11), ((1, 5, 6, 1), 11),
+                                          ((1, 61, 30, 1), 7), ((2, 49, 8, 3), 11)])  # several bands of rows
 def test_ssim_matches_kornia_reference(shape, window):
     from ebad.losses import ssim_map, ssim_map_kornia
     g = torch.Generator().manual_seed(0)
@@ -109,6 +110,47 @@ def test_ssim_dark_and_saturated_images_give_finite_values_and_gradients():
         # 3e-5 of error in both implementations here): float32 must be no worse than kornia's own
         err, err_kornia = ((m.double() - truth).abs().max() for m in (s, ssim_map_kornia(x, y)))
         assert err <= 1.25 * err_kornia + 1e-6
+
+
+def _l1_ssim_reference(pred, target, w, window):
+    from ebad.losses import ssim_map_kornia
+    return (1 - w) * (pred - target).abs().mean() + w * (1 - ssim_map_kornia(pred, target, window).mean())
+
+
+@pytest.mark.parametrize("shape,window,w", [((1, 20, 24, 1), 7, 0.2), ((2, 53, 17, 1), 7, 0.5),
+                                            ((1, 30, 26, 3), 11, 0.8), ((3, 4, 5, 1), 7, 0.2)])
+def test_l1_ssim_in_one_kernel_equals_l1_plus_kornia_ssim_in_value_and_gradient(shape, window, w):
+    # the fused loss (no SSIM map, the L1 term inside the kernel, a constant upstream gradient in
+    # the adjoint) against torch's L1 plus kornia's SSIM, for both inputs, across several bands of
+    # rows (the kernels' tasks) and a window wider than a tiny image allows
+    g = torch.Generator().manual_seed(5)
+    a = torch.rand(shape, generator=g, dtype=torch.float64)
+    b = (a + 0.3 * torch.randn(shape, generator=g, dtype=torch.float64)).clamp(0, 1)
+    b[..., :2, :3, :] = a[..., :2, :3, :]  # some pixels equal: the L1 gradient there is 0, as torch's
+    x, y = a.clone().requires_grad_(), b.clone().requires_grad_()
+    xr, yr = a.clone().requires_grad_(), b.clone().requires_grad_()
+    loss, ref = l1_ssim(x, y, w, window), _l1_ssim_reference(xr, yr, w, window)
+    assert float(loss.detach()) == pytest.approx(float(ref.detach()), abs=1e-12)
+    (3.0 * loss).backward()
+    (3.0 * ref).backward()
+    assert torch.allclose(x.grad, xr.grad, atol=1e-12) and torch.allclose(y.grad, yr.grad, atol=1e-12)
+    small = (a[:, :9, :7].clone().requires_grad_(), b[:, :9, :7].clone().requires_grad_())
+    torch.autograd.gradcheck(lambda p, t: l1_ssim(p, t, w, window), small)
+
+
+def test_l1_ssim_float32_matches_the_float64_loss():
+    g = torch.Generator().manual_seed(6)
+    a = torch.rand(5, 65, 87, 1, generator=g, dtype=torch.float64)
+    b = (a + 0.2 * torch.randn(5, 65, 87, 1, generator=g, dtype=torch.float64)).clamp(0, 1)
+    x = a.float().requires_grad_()
+    loss = l1_ssim(x, b.float())
+    assert loss.dtype == torch.float32
+    loss.backward()
+    xr = a.clone().requires_grad_()
+    ref = _l1_ssim_reference(xr, b, 0.2, 7)
+    ref.backward()
+    assert abs(float(loss.detach()) - float(ref.detach())) < 1e-6
+    assert (x.grad.double() - xr.grad).abs().max() < 1e-5 * xr.grad.abs().max()
 
 
 def test_ssim_takes_non_contiguous_views_and_refuses_shape_mismatch():
