@@ -1,6 +1,6 @@
 """The SSIM of the training losses: the fused numba kernels against torch implementations, in one run.
 
-    python -m benchmarks.ssim [--quick] [--repeats 20]
+    python -m benchmarks.ssim [--quick] [--repeats 20] [--name NAME]
 
 Forward + backward (gradient to the render; the target needs none, as in training) of the
 mean SSIM, 7-tap window, at the shapes of a 346x260 training step: one image (L_blur's mean
@@ -19,7 +19,7 @@ a warm-up:
 
 Also the largest difference of the fused map from kornia's and of the fused loss from kornia's
 1 - mean SSIM (float32). Prints a table, writes
-``benchmarks/results/ssim[_quick].json``.
+``benchmarks/results/ssim[_quick].json`` (or ``NAME.json``).
 """
 from __future__ import annotations
 
@@ -60,6 +60,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m benchmarks.ssim", description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="small shapes, 5 repeats")
     ap.add_argument("--repeats", type=int, default=None, help="timed calls per implementation and shape (default 20)")
+    ap.add_argument("--name", default=None, help="results file benchmarks/results/NAME.json (default ssim[_quick])")
     args = ap.parse_args(argv)
     import torch
 
@@ -103,7 +104,7 @@ def main(argv=None) -> int:
         print(f"{str(list(shape)):>20s} " + " ".join(f"{med[k]:13.2f}" for k in impls)
               + f" {rows[-1]['conv_over_fused_loss']:17.2f} {rows[-1]['kornia_over_fused_loss']:19.2f} {err:20.1e}",
               flush=True)
-    write_json("ssim_quick" if args.quick else "ssim",
+    write_json(args.name or ("ssim_quick" if args.quick else "ssim"),
                {"repeats": repeats, "window": 7, "dtype": "float32", "rows": rows,
                 "torch_threads": torch.get_num_threads(), "argv": sys.argv[1:] if argv is None else list(argv)})
     return 0

@@ -18,7 +18,7 @@ from edi import LOG_EPS
 
 from .config import EventNorm  # the norm of the L_ev residual: l1, mean |r| (ebad's default), or l2, mean r^2 (the paper's)
 
-__all__ = ["luminance", "ssim_map", "ssim_map_kornia", "l1_ssim", "l1_ssim_terms", "l1_ssim_each", "blur_loss",
+__all__ = ["luminance", "ssim_map", "ssim_map_kornia", "l1_ssim", "l1_ssim_each", "blur_loss",
            "event_loss", "edi_loss", "LUMA"]
 
 LUMA = (1 / 3, 1 / 3, 1 / 3)  # the intensity a colour event pixel sees: the channel mean, as scenes.simulate_events
@@ -108,38 +108,43 @@ class _FusedSSIM(torch.autograd.Function):
 
 
 class _FusedL1SSIM(torch.autograd.Function):
-    """Per image of two stacks [N, H, W]: the sums of |a - b| and of the SSIM map, [N, 2], in one
-    kernel pass each way (``ebad._ssim_kernels``): no SSIM map and no L1 graph for autograd."""
+    """``l1_ssim`` of groups of images of two stacks [N, H, W] (``group[n]`` in 0 .. P - 1 is image
+    n's group) -> [P], in one kernel pass each way (``ebad._ssim_kernels``): no SSIM map, no L1
+    graph, and no torch operation between the kernel and the losses for autograd to undo."""
 
     @staticmethod
-    def forward(ctx, a: Tensor, b: Tensor, win: int) -> Tensor:
+    def forward(ctx, a: Tensor, b: Tensor, win: int, w: float, group: np.ndarray, P: int) -> Tensor:
         from . import _ssim_kernels as K
 
         A, B = _kernel_inputs(a, b)
-        N = A.shape[0]
+        N, H, W = A.shape
         g = K.gauss_taps(win).astype(A.dtype)
         want = ctx.needs_input_grad[0] or ctx.needs_input_grad[1]
         coef = np.empty((4,) + A.shape if want else (4, 0, 0, 0), A.dtype)
-        sums = np.empty((K.num_tasks(N, A.shape[1]), 2))
+        sums = np.empty((K.num_tasks(N, H), 2))
         _run(K.ssim_forward, A, B, g, np.empty((0, 0, 0), A.dtype), coef, want, sums)
+        s_img, l1_img = sums.reshape(N, -1, 2).sum(1).T  # per image: the sums of S and of |a - b|
+        count = np.bincount(group, minlength=P) * float(H * W)  # the values each group's means run over
+        s_mean = np.bincount(group, weights=s_img, minlength=P) / count
+        l1_mean = np.bincount(group, weights=l1_img, minlength=P) / count
         ctx.save_for_backward(a, b)
-        ctx.coef, ctx.g = coef, g
-        s_sum, l1_sum = sums.reshape(N, -1, 2).sum(1).T  # the kernel's order: S, then |a - b|
-        return torch.from_numpy(np.stack([l1_sum, s_sum], 1).astype(A.dtype))
+        ctx.coef, ctx.g, ctx.w, ctx.group, ctx.inv_count = coef, g, w, group, 1.0 / count
+        return torch.from_numpy(((1 - w) * l1_mean + w * (1 - s_mean)).astype(A.dtype))
 
     @staticmethod
-    def backward(ctx, grad: Tensor):  # [N, 2]
+    def backward(ctx, grad: Tensor):  # [P]
         from . import _ssim_kernels as K
 
         a, b = ctx.saved_tensors
         want_a, want_b = ctx.needs_input_grad[0], ctx.needs_input_grad[1]
         A, B = _kernel_inputs(a, b)
-        G = grad.detach().to(torch.float64).numpy()
+        G = (grad.detach().to(torch.float64).numpy() * ctx.inv_count)[ctx.group]  # per image
         ga = np.empty_like(A) if want_a else np.empty((0, 0, 0), A.dtype)
         gb = np.empty_like(B) if want_b else np.empty((0, 0, 0), A.dtype)
-        _run(K.ssim_backward, A, B, ctx.g, ctx.coef, np.empty((0, 0, 0), A.dtype), np.ascontiguousarray(G[:, 1]),
-             np.ascontiguousarray(G[:, 0]), ga, gb, want_a, want_b)
-        return (torch.from_numpy(ga) if want_a else None), (torch.from_numpy(gb) if want_b else None), None
+        _run(K.ssim_backward, A, B, ctx.g, ctx.coef, np.empty((0, 0, 0), A.dtype), -ctx.w * G, (1 - ctx.w) * G,
+             ga, gb, want_a, want_b)
+        return (torch.from_numpy(ga) if want_a else None), (torch.from_numpy(gb) if want_b else None), None, None, \
+            None, None
 
 
 def _pair(a: Tensor, b: Tensor, names: tuple[str, str]) -> tuple[Tensor, Tensor, torch.dtype]:
@@ -172,39 +177,29 @@ def ssim_map_kornia(a: Tensor, b: Tensor, window: int = 7) -> Tensor:  # [B,H,W,
     return _kornia_ssim(a, b, win).permute(0, 2, 3, 1)
 
 
-def l1_ssim_terms(pred: Tensor, target: Tensor, window: int = 7) -> Tensor:  # [B,H,W,D] x2 -> [B, 2]
-    """Per image: the mean of |pred - target| and the mean of the SSIM map (``ssim_map``), over
-    its pixels and channels, differentiable, from one kernel pass each way."""
-    pred, target, dtype = _pair(pred, target, ("pred", "target"))
-    B, H, W, D = pred.shape
-    win = _window_for(H, W, window)
-    sums = _FusedL1SSIM.apply(_stack(pred, dtype), _stack(target, dtype), win)  # [B * D, 2]
-    return sums.reshape(B, D, 2).sum(1) / (H * W * D)
-
-
-def _mix(terms: Tensor, ssim_weight: float) -> Tensor:  # [B, 2] -> scalar: (1 - w) L1 + w (1 - SSIM)
-    l1, s = terms.mean(0)
-    return (1 - ssim_weight) * l1 + ssim_weight * (1 - s)
-
-
 def l1_ssim(pred: Tensor, target: Tensor, ssim_weight: float = 0.2, window: int = 7) -> Tensor:
     """(1 - w) L1 + w (1 - SSIM), averaged over everything; [B,H,W,D] or [H,W,D] inputs. Both
     terms come from one kernel pass (and one for the gradient) when ``w`` > 0."""
-    if ssim_weight == 0:
-        pred, target, _ = _pair(pred, target, ("pred", "target"))
-        return (pred - target).abs().mean()
-    return _mix(l1_ssim_terms(pred, target, window), ssim_weight)
+    return l1_ssim_each([(pred, target)], ssim_weight, window)[0]
 
 
 def l1_ssim_each(pairs: Sequence[tuple[Tensor, Tensor]], ssim_weight: float = 0.2, window: int = 7) -> list[Tensor]:
     """``l1_ssim`` of each (pred, target) pair, [B_i,H,W,D] or [H,W,D], all of one image size:
     one kernel call for all of them (a call has a fixed cost of about 0.1 ms per direction)."""
-    pairs = [_pair(p, t, (f"pred {i}", f"target {i}"))[:2] for i, (p, t) in enumerate(pairs)]
+    checked = [_pair(p, t, (f"pred {i}", f"target {i}")) for i, (p, t) in enumerate(pairs)]
     if ssim_weight == 0:
-        return [(p - t).abs().mean() for p, t in pairs]
-    terms = l1_ssim_terms(torch.cat([p for p, _ in pairs]), torch.cat([t for _, t in pairs]), window)
-    ends = np.cumsum([0] + [p.shape[0] for p, _ in pairs])
-    return [_mix(terms[i0:i1], ssim_weight) for i0, i1 in zip(ends[:-1], ends[1:])]
+        return [(p - t).abs().mean() for p, t, _ in checked]
+    sizes = {p.shape[1:] for p, _, _ in checked}
+    if len(sizes) > 1:
+        raise ValueError(f"pairs must share one image size [H, W, D], got {sorted(tuple(x) for x in sizes)}")
+    dtype = checked[0][2]
+    pred = torch.cat([p for p, _, _ in checked]) if len(checked) > 1 else checked[0][0]
+    target = torch.cat([t for _, t, _ in checked]) if len(checked) > 1 else checked[0][1]
+    _, H, W, D = pred.shape
+    group = np.repeat(np.arange(len(checked)), [p.shape[0] * D for p, _, _ in checked])  # per image of the stack
+    losses = _FusedL1SSIM.apply(_stack(pred, dtype), _stack(target, dtype), _window_for(H, W, window),
+                                float(ssim_weight), group, len(checked))
+    return list(losses.unbind())
 
 
 def blur_loss(renders: Tensor,  # [V, H, W, D]

@@ -153,6 +153,28 @@ def test_l1_ssim_float32_matches_the_float64_loss():
     assert (x.grad.double() - xr.grad).abs().max() < 1e-5 * xr.grad.abs().max()
 
 
+def test_l1_ssim_each_in_one_call_equals_each_pair_alone():
+    # the trainer's L_blur and L_EDI come from one kernel call: each loss and its gradients must be
+    # what the pair gives alone (colour, [H, W, D] and [B, H, W, D] pairs, different weights)
+    from ebad.losses import l1_ssim_each
+    g = torch.Generator().manual_seed(7)
+    shapes = [(30, 26, 3), (4, 30, 26, 3), (2, 30, 26, 3)]
+    preds = [torch.rand(sh, generator=g, dtype=torch.float64, requires_grad=True) for sh in shapes]
+    targets = [torch.rand(sh, generator=g, dtype=torch.float64) for sh in shapes]
+    weights = torch.tensor([1.0, 0.3, 2.0], dtype=torch.float64)
+    together = l1_ssim_each(list(zip(preds, targets)), 0.2, 7)
+    (torch.stack(together) * weights).sum().backward()
+    grads = [p.grad.clone() for p in preds]
+    for i, (p, t) in enumerate(zip(preds, targets)):
+        p.grad = None
+        alone = l1_ssim(p, t, 0.2, 7)
+        (weights[i] * alone).backward()
+        assert float(together[i].detach()) == pytest.approx(float(alone.detach()), abs=1e-13)
+        assert torch.allclose(grads[i], p.grad, atol=1e-14)
+    with pytest.raises(ValueError, match="one image size"):
+        l1_ssim_each([(preds[0], targets[0]), (preds[1][:, :20], targets[1][:, :20])])
+
+
 def test_ssim_takes_non_contiguous_views_and_refuses_shape_mismatch():
     from ebad.losses import ssim_map, ssim_map_kornia
     g = torch.Generator().manual_seed(4)
