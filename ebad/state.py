@@ -96,6 +96,16 @@ def init_gaussians(data: TrainingData, cfg: Config) -> dict[str, nn.Parameter]:
     return init_params(pts, cols, scales, opacity=mc.init_opacity)
 
 
+def _adam(params: list[Tensor], **kw) -> torch.optim.Adam:
+    """Adam, fused where torch has it for the CPU (torch >= 2.4): one pass per parameter instead of
+    a dozen torch operations (0.17 against 0.29 ms for the five Gaussian parameters of 3k
+    Gaussians, 0.50 against 1.79 ms for 60k); the same update either way."""
+    try:
+        return torch.optim.Adam(params, fused=True, **kw)
+    except RuntimeError:  # torch < 2.4: fused Adam only on GPUs
+        return torch.optim.Adam(params, **kw)
+
+
 def make_optimizers(params: dict[str, nn.Parameter], traj: ExposureTrajectories, cfg: Config,
                     scale: float, log_c: nn.Parameter | None = None,
                     response: Response | None = None) -> dict[str, torch.optim.Optimizer]:
@@ -104,11 +114,9 @@ def make_optimizers(params: dict[str, nn.Parameter], traj: ExposureTrajectories,
     tc = cfg.train
     lrs = {"means": tc.lr_means * scale, "scales": tc.lr_scales, "quats": tc.lr_quats,
            "opacities": tc.lr_opacities, "colors": tc.lr_colors}
-    # fused: one pass per parameter instead of a dozen torch operations (0.17 against 0.29 ms for
-    # the five Gaussian parameters of 3k Gaussians, 0.50 against 1.79 ms for 60k)
-    opts = {k: torch.optim.Adam([params[k]], lr=lrs[k], eps=1e-15, fused=True) for k in lrs}
+    opts = {k: _adam([params[k]], lr=lrs[k], eps=1e-15) for k in lrs}
     if traj.knots.numel() > 0 and bool(traj.moving.any()):
-        opts["poses"] = torch.optim.Adam([traj.knots], lr=cfg.trajectory.lr, fused=True)
+        opts["poses"] = _adam([traj.knots], lr=cfg.trajectory.lr)
     if log_c is not None and log_c.requires_grad:
         opts["contrast"] = torch.optim.Adam([log_c], lr=cfg.loss.lr_contrast)
     if response is not None and response.learnable:

@@ -123,3 +123,33 @@ def test_the_run_s_trajectories_are_the_mean_of_the_knots_since_average_from(tin
     cfg.trajectory.average_from = 1.0
     run = reconstruct(tiny.capture, cfg, callbacks=[Knots()])
     assert run.metrics.averaged_steps == 0 and torch.equal(run.trajectories.knots, seen[-1][1])
+
+
+def test_adam_is_fused_where_torch_has_it_and_falls_back_to_the_same_update(monkeypatch):
+    from ebad import state as S
+    g = torch.Generator().manual_seed(0)
+    start = torch.randn(50, 3, generator=g)
+    grads = [torch.randn(50, 3, generator=g) for _ in range(5)]
+
+    def run(opt_factory):
+        p = torch.nn.Parameter(start.clone())
+        opt = opt_factory([p])
+        for gr in grads:
+            p.grad = gr.clone()
+            opt.step()
+        return opt, p.detach()
+
+    fused, p_fused = run(lambda ps: S._adam(ps, lr=1e-2, eps=1e-15))
+    assert fused.defaults["fused"]
+    real_adam = torch.optim.Adam
+
+    def adam_without_fused(params, fused=None, **kw):  # what torch < 2.4 does on the CPU
+        if fused:
+            raise RuntimeError("`fused=True` requires all the params to be floating point Tensors of supported devices")
+        return real_adam(params, **kw)
+
+    monkeypatch.setattr(torch.optim, "Adam", adam_without_fused)
+    plain, p_plain = run(lambda ps: S._adam(ps, lr=1e-2, eps=1e-15))
+    assert not plain.defaults.get("fused")
+    assert torch.allclose(p_fused, p_plain, rtol=0, atol=1e-7)  # float32 rounding: 1.5e-8 here, the updates 0.05
+    assert not torch.equal(p_plain, start)
