@@ -70,6 +70,7 @@ def _run(kernel, *args) -> None:
     starts first takes more of them instead of waiting for one woken late (in a training step
     the kernels on 173x130 images ran 1.4 to 1.8 times faster than with numba's static split)."""
     import numba
+    import splat_cpu._numba_impl  # noqa: F401  (the threading layer the rasteriser chooses, if nothing ran yet)
 
     with numba.parallel_chunksize(1):
         kernel(*args)

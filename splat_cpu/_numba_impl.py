@@ -1,12 +1,18 @@
 """The fast CPU path: numba projection and numba tile compositing, each with a hand-written backward.
 
 Threads (issue 8). torch loads its libgomp into the process's global symbol scope, so numba's
-default "omp" threading layer runs on that same OpenMP runtime, whose threads spin-wait
-after every parallel region unless OMP_WAIT_POLICY=PASSIVE was set before torch started; on
-a machine with more busy threads than cores every spin steals a core (serial work between
-two kernels took 3-5x longer). So that the library does not depend on the caller's
-environment: numba's "workqueue" layer is selected here, before the first parallel kernel,
-unless the user chose a layer (NUMBA_THREADING_LAYER or numba.config.THREADING_LAYER); and
+"omp" threading layer runs on that same OpenMP runtime, whose threads spin-wait after every
+parallel region unless OMP_WAIT_POLICY=PASSIVE was set before torch started; on a machine
+with more busy threads than cores every spin steals a core (serial work between two kernels
+took 3-5x longer). So that the library does not depend on the caller's environment, the
+layer is chosen here, before the first parallel kernel, unless the user chose one
+(NUMBA_THREADING_LAYER or numba.config.THREADING_LAYER): "omp" when OMP_WAIT_POLICY=PASSIVE
+is in the environment (idle threads sleep; ``import ebad`` before torch and the ``ebad``
+command set it), numba's own "workqueue" otherwise. The omp layer is preferred where it is
+safe because it wakes its threads sooner: after a few milliseconds of single-threaded work,
+as between the kernels of a training step, a workqueue region ran at about serial speed (the
+SSIM of six 173x130 images 1.26 ms forward against 0.67 with omp), and a half-resolution
+ebad step took 14 to 16 ms on omp against 21 to 23 on workqueue (346x260 capture, seed 0).
 torch only carries tensors in and out (conversions by numpy), so no torch parallel region
 runs inside `rasterize` or its backward. Measured by `python -m benchmarks.rasterize --omp-check`.
 """
@@ -29,10 +35,20 @@ _CHUNK = 2  # tiles per scheduling chunk: tiles cost very different amounts, sma
 _THREADING_LAYER = "workqueue"  # numba's own pool: idle workers block on a condition variable, never spin
 
 
+def openmp_threads_sleep() -> bool:
+    """OMP_WAIT_POLICY=PASSIVE is in the environment: idle OpenMP threads sleep instead of spinning
+    (in force when it was set before torch loaded its OpenMP runtime, as ``ebad`` does)."""
+    return os.environ.get("OMP_WAIT_POLICY", "").strip().upper() == "PASSIVE"
+
+
 def _choose_threading_layer() -> None:
-    """Select `_THREADING_LAYER` unless the user chose a numba threading layer (no effect once launched)."""
+    """Unless the user chose a numba threading layer: "omp" first when OpenMP threads sleep (then
+    "workqueue" if numba has no omp layer), "workqueue" otherwise. No effect once launched."""
     if "NUMBA_THREADING_LAYER" not in os.environ and numba.config.THREADING_LAYER == "default":
-        numba.config.THREADING_LAYER = _THREADING_LAYER
+        if openmp_threads_sleep():
+            numba.config.THREADING_LAYER_PRIORITY = ["omp", _THREADING_LAYER, "tbb"]
+        else:
+            numba.config.THREADING_LAYER = _THREADING_LAYER
 
 
 _choose_threading_layer()

@@ -1,4 +1,4 @@
-"""torch's OpenMP threads and the rasteriser's: ``ebad.OMP_PASSIVE`` and the trainer's fallback."""
+"""torch's OpenMP threads and the rasteriser's: ``ebad.OMP_PASSIVE``, and training with torch on one thread."""
 from __future__ import annotations
 
 import os
@@ -28,8 +28,8 @@ def _probe(first: str, second: str) -> str:
     return out.stdout.strip().splitlines()[-1]
 
 
-def test_importing_ebad_first_makes_torch_threads_sleep_and_training_keeps_them():
-    assert _probe("ebad", "torch") == "True PASSIVE [2, 2] 2"
+def test_importing_ebad_first_makes_torch_threads_sleep_and_trains_single_threaded_and_restores():
+    assert _probe("ebad", "torch") == "True PASSIVE [1, 1] 2"
 
 
 def test_torch_imported_first_without_the_policy_trains_single_threaded_and_restores():

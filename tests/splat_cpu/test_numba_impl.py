@@ -2,8 +2,8 @@
 
 Two properties make `import torch; import splat_cpu` fast without OMP_WAIT_POLICY=PASSIVE
 (measured by `python -m benchmarks.rasterize --omp-check`): numba runs on its own
-"workqueue" pool unless the user chose a layer, and no torch kernel (hence no torch OpenMP
-region) runs inside `rasterize` or its backward.
+"workqueue" pool unless the user chose a layer or OpenMP's threads sleep (then on "omp"),
+and no torch kernel (hence no torch OpenMP region) runs inside `rasterize` or its backward.
 """
 
 from __future__ import annotations
@@ -52,6 +52,14 @@ def test_workqueue_layer_without_the_caller_setting_anything():
 
 def test_a_layer_the_user_chose_is_kept():
     assert _layer_in_subprocess({"NUMBA_THREADING_LAYER": "omp"}) == "omp"
+    assert _layer_in_subprocess({"NUMBA_THREADING_LAYER": "workqueue", "OMP_WAIT_POLICY": "PASSIVE"}) == "workqueue"
+
+
+def test_omp_layer_when_openmp_threads_sleep():
+    # OMP_WAIT_POLICY=PASSIVE before torch loads (as `import ebad` first and the ebad command set
+    # it): OpenMP's idle threads sleep, so its layer is safe, and it wakes its threads sooner
+    assert _layer_in_subprocess({"OMP_WAIT_POLICY": "PASSIVE"}) == "omp"
+    assert _layer_in_subprocess({"OMP_WAIT_POLICY": "active"}) == "workqueue"
 
 
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
