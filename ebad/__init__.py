@@ -7,11 +7,12 @@ The heavy parts (torch, the trainer) are imported on first use, so ``ebad --help
 
 Importing ``ebad`` before torch sets ``OMP_WAIT_POLICY=PASSIVE`` (unless the environment says
 otherwise): torch's OpenMP threads otherwise spin between parallel regions and take the cores
-from the rasteriser's numba threads and from other work. When torch was imported first without
-it, ``ebad.trainer.train`` runs torch single-threaded instead (``OMP_PASSIVE`` tells which).
-On a loaded 2-core machine (load 5 to 9) a 346x260 ebad step took 1116 and 2219 ms with the
-spinning default, 78 and 305 ms with PASSIVE, 227 and 390 ms single-threaded (about 75 ms of
-CPU time per step in the last two, 600 to 830 ms with spinning).
+from the rasteriser's numba threads and from other work. On a loaded 2-core machine (load 5 to
+9) a 346x260 ebad step took 1116 and 2219 ms with the spinning default, 78 and 305 ms with
+PASSIVE, 227 and 390 ms single-threaded (about 75 ms of CPU time per step in the last two, 600
+to 830 ms with spinning). With PASSIVE in force the numba kernels run on OpenMP too
+(``splat_cpu._numba_impl``), and ``ebad.trainer.train`` runs torch single-threaded either way
+(``OMP_PASSIVE`` tells whether torch's threads sleep).
 """
 import os as _os
 import sys as _sys

@@ -19,10 +19,10 @@ from __future__ import annotations
 
 import os
 
-# splat_cpu does not need this (its kernels run on numba's workqueue layer with no torch
-# kernel inside, see benchmarks.rasterize --omp-check); the command sets it for torch's own
-# work on a shared machine, where spinning OpenMP threads waste the cores between parallel
-# regions. Only effective before torch is imported; a user's own setting wins.
+# Idle OpenMP threads sleep: torch's own work on a shared machine no longer wastes the cores
+# between parallel regions, and splat_cpu runs its numba kernels on OpenMP too, which wakes
+# its threads sooner than numba's workqueue layer (splat_cpu._numba_impl). Only effective
+# before torch is imported; a user's own setting wins.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 import argparse  # noqa: E402
