@@ -9,11 +9,12 @@ those derivatives times the upstream gradient (a map, or one constant per image 
 folds the reflect padding back onto the image and adds the L1 term's gradient.
 
 Each kernel is ONE parallel region over bands of rows: waking numba's worker threads costs
-about 0.1 ms per region on the 2-core machine (workqueue layer, see ``splat_cpu._numba_impl``),
-about half of what the SSIM of one 173x130 image costs forward and backward. A forward band
-recomputes the ``win - 1`` padded rows it shares with the next one (about a fifth more row
-sums); the backward's bands share nothing, because each padded row belongs to one image row. The reflect padding (torch's
-"reflect": the edge pixel is not repeated) is an index map, so no padded copy is made.
+about 0.1 ms per region on the 2-core machine on numba's workqueue layer (see
+``splat_cpu._numba_impl`` for the layers), about half of what the SSIM of one 173x130 image
+costs forward and backward. A forward band recomputes the ``win - 1`` padded rows it shares
+with the next one (about a fifth more row sums); the backward's bands share nothing, because
+each padded row belongs to one image row. The reflect padding (torch's "reflect": the edge
+pixel is not repeated) is an index map, so no padded copy is made.
 ``ebad.losses`` wraps the kernels in autograd Functions; ``ebad.losses.ssim_map_kornia`` is the
 reference they are tested against.
 
