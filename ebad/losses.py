@@ -61,8 +61,38 @@ def _unstack(x: Tensor, shape: torch.Size) -> Tensor:  # [B*D, H, W] -> [B, H, W
     return x.reshape(B, D, H, W).permute(0, 2, 3, 1)
 
 
-def _kernel_inputs(a: Tensor, b: Tensor) -> tuple[np.ndarray, np.ndarray]:
-    return a.detach().numpy(), b.detach().numpy()
+_EMPTY = (0, 0, 0)  # the kernels' "not wanted" array shape
+
+
+def _kernel_forward(ctx, a: Tensor, b: Tensor, win: int, s_map: bool) -> tuple[np.ndarray | None, np.ndarray]:
+    """``ebad._ssim_kernels.ssim_forward`` on stacks [N, H, W]; what the backward needs goes on
+    ``ctx``. -> the SSIM map (when ``s_map``) and the per-task sums of S and |a - b|."""
+    from . import _ssim_kernels as K
+
+    A, B = a.detach().numpy(), b.detach().numpy()
+    g = K.gauss_taps(win).astype(A.dtype)
+    want = ctx.needs_input_grad[0] or ctx.needs_input_grad[1]
+    s = np.empty(A.shape if s_map else _EMPTY, A.dtype)
+    coef = np.empty((4,) + A.shape if want else (4,) + _EMPTY, A.dtype)
+    sums = np.empty((K.num_tasks(A.shape[0], A.shape[1]), 2))
+    _run(K.ssim_forward, A, B, g, s, coef, want, sums)
+    ctx.save_for_backward(a, b)
+    ctx.coef, ctx.g = coef, g
+    return (s if s_map else None), sums
+
+
+def _kernel_backward(ctx, grad_s: np.ndarray, gs_const: np.ndarray, l1_coef: np.ndarray) -> tuple:
+    """``ebad._ssim_kernels.ssim_backward`` after ``_kernel_forward`` -> the gradients of a and b
+    (None where not wanted)."""
+    from . import _ssim_kernels as K
+
+    a, b = ctx.saved_tensors
+    want_a, want_b = ctx.needs_input_grad[0], ctx.needs_input_grad[1]
+    A, B = a.detach().numpy(), b.detach().numpy()
+    ga = np.empty_like(A) if want_a else np.empty(_EMPTY, A.dtype)
+    gb = np.empty_like(B) if want_b else np.empty(_EMPTY, A.dtype)
+    _run(K.ssim_backward, A, B, ctx.g, ctx.coef, grad_s, gs_const, l1_coef, ga, gb, want_a, want_b)
+    return (torch.from_numpy(ga) if want_a else None), (torch.from_numpy(gb) if want_b else None)
 
 
 def _run(kernel, *args) -> None:
@@ -70,7 +100,6 @@ def _run(kernel, *args) -> None:
     starts first takes more of them instead of waiting for one woken late (in a training step
     the kernels on 173x130 images ran 1.4 to 1.8 times faster than with numba's static split)."""
     import numba
-    import splat_cpu._numba_impl  # noqa: F401  (the threading layer the rasteriser chooses, if nothing ran yet)
 
     with numba.parallel_chunksize(1):
         kernel(*args)
@@ -81,31 +110,14 @@ class _FusedSSIM(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, a: Tensor, b: Tensor, win: int) -> Tensor:
-        from . import _ssim_kernels as K
-
-        A, B = _kernel_inputs(a, b)
-        g = K.gauss_taps(win).astype(A.dtype)
-        want = ctx.needs_input_grad[0] or ctx.needs_input_grad[1]
-        s = np.empty(A.shape, A.dtype)
-        coef = np.empty((4,) + A.shape if want else (4, 0, 0, 0), A.dtype)
-        _run(K.ssim_forward, A, B, g, s, coef, want, np.empty((K.num_tasks(A.shape[0], A.shape[1]), 2)))
-        ctx.save_for_backward(a, b)
-        ctx.coef, ctx.g = coef, g
+        s, _ = _kernel_forward(ctx, a, b, win, s_map=True)
         return torch.from_numpy(s)
 
     @staticmethod
     def backward(ctx, grad_s: Tensor):
-        from . import _ssim_kernels as K
-
-        a, b = ctx.saved_tensors
-        want_a, want_b = ctx.needs_input_grad[0], ctx.needs_input_grad[1]
-        A, B = _kernel_inputs(a, b)
-        ga = np.empty_like(A) if want_a else np.empty((0, 0, 0), A.dtype)
-        gb = np.empty_like(B) if want_b else np.empty((0, 0, 0), A.dtype)
-        none = np.zeros(A.shape[0])  # no constant upstream gradient, no L1 term
-        _run(K.ssim_backward, A, B, ctx.g, ctx.coef, grad_s.detach().to(a.dtype).contiguous().numpy(), none, none, ga,
-             gb, want_a, want_b)
-        return (torch.from_numpy(ga) if want_a else None), (torch.from_numpy(gb) if want_b else None), None
+        a = ctx.saved_tensors[0]
+        none = np.zeros(a.shape[0])  # no constant upstream gradient, no L1 term
+        return *_kernel_backward(ctx, grad_s.detach().to(a.dtype).contiguous().numpy(), none, none), None
 
 
 class _FusedL1SSIM(torch.autograd.Function):
@@ -115,36 +127,19 @@ class _FusedL1SSIM(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, a: Tensor, b: Tensor, win: int, w: float, group: np.ndarray, P: int) -> Tensor:
-        from . import _ssim_kernels as K
-
-        A, B = _kernel_inputs(a, b)
-        N, H, W = A.shape
-        g = K.gauss_taps(win).astype(A.dtype)
-        want = ctx.needs_input_grad[0] or ctx.needs_input_grad[1]
-        coef = np.empty((4,) + A.shape if want else (4, 0, 0, 0), A.dtype)
-        sums = np.empty((K.num_tasks(N, H), 2))
-        _run(K.ssim_forward, A, B, g, np.empty((0, 0, 0), A.dtype), coef, want, sums)
+        N, H, W = a.shape
+        _, sums = _kernel_forward(ctx, a, b, win, s_map=False)
         s_img, l1_img = sums.reshape(N, -1, 2).sum(1).T  # per image: the sums of S and of |a - b|
         count = np.bincount(group, minlength=P) * float(H * W)  # the values each group's means run over
         s_mean = np.bincount(group, weights=s_img, minlength=P) / count
         l1_mean = np.bincount(group, weights=l1_img, minlength=P) / count
-        ctx.save_for_backward(a, b)
-        ctx.coef, ctx.g, ctx.w, ctx.group, ctx.inv_count = coef, g, w, group, 1.0 / count
-        return torch.from_numpy(((1 - w) * l1_mean + w * (1 - s_mean)).astype(A.dtype))
+        ctx.w, ctx.group, ctx.inv_count = w, group, 1.0 / count
+        return torch.from_numpy((1 - w) * l1_mean + w * (1 - s_mean)).to(a.dtype)
 
     @staticmethod
     def backward(ctx, grad: Tensor):  # [P]
-        from . import _ssim_kernels as K
-
-        a, b = ctx.saved_tensors
-        want_a, want_b = ctx.needs_input_grad[0], ctx.needs_input_grad[1]
-        A, B = _kernel_inputs(a, b)
         G = (grad.detach().to(torch.float64).numpy() * ctx.inv_count)[ctx.group]  # per image
-        ga = np.empty_like(A) if want_a else np.empty((0, 0, 0), A.dtype)
-        gb = np.empty_like(B) if want_b else np.empty((0, 0, 0), A.dtype)
-        _run(K.ssim_backward, A, B, ctx.g, ctx.coef, np.empty((0, 0, 0), A.dtype), -ctx.w * G, (1 - ctx.w) * G,
-             ga, gb, want_a, want_b)
-        return (torch.from_numpy(ga) if want_a else None), (torch.from_numpy(gb) if want_b else None), None, None, \
+        return *_kernel_backward(ctx, np.empty(_EMPTY, ctx.coef.dtype), -ctx.w * G, (1 - ctx.w) * G), None, None, \
             None, None
 
 
