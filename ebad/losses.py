@@ -228,13 +228,47 @@ def event_loss(renders: Tensor,  # [V, H, W, D]
     if V < 2:
         return renders.sum() * 0.0
     eps = LOG_EPS if eps is None else eps
-    logL = torch.log(luminance(renders)[..., 0].clamp_min(0) + eps)  # [V, H, W]
-    diff = logL[1:] - logL[:-1]
-    cc = torch.as_tensor(c, dtype=diff.dtype).reshape(-1)
-    c_pos, c_neg = cc[0], cc[-1]
-    counts = counts.to(diff.dtype)
-    r = diff - (c_pos * counts[:, 0] - c_neg * counts[:, 1])
-    return r.abs().mean() if norm == "l1" else r.square().mean()
+    L = luminance(renders)[..., 0]  # [V, H, W]
+    if L.dtype not in (torch.float32, torch.float64):
+        L = L.float()
+    cc = torch.as_tensor(c, dtype=L.dtype).reshape(-1)
+    return _EventLoss.apply(L, counts.to(L.dtype), cc[0], cc[-1], float(eps), norm == "l2")
+
+
+class _EventLoss(torch.autograd.Function):
+    """``event_loss`` of luminances L [V, H, W] in one kernel pass each way (``ebad._event_kernels``);
+    gradients to L and to both thresholds."""
+
+    @staticmethod
+    def forward(ctx, L: Tensor, counts: Tensor, c_pos: Tensor, c_neg: Tensor, eps: float, l2: bool) -> Tensor:
+        from . import _event_kernels as K
+
+        V, H, W = L.shape
+        Ln = np.ascontiguousarray(L.detach().numpy())
+        log_L = np.log(np.maximum(Ln, 0) + Ln.dtype.type(eps))
+        g = np.empty((V - 1, H, W), Ln.dtype)
+        sums = np.empty((K.num_tasks(H), 3))
+        _run(K.event_forward, log_L, np.ascontiguousarray(counts.detach().numpy()), float(c_pos), float(c_neg), l2,
+             g, sums)
+        loss, s_on, s_off = sums.sum(0)
+        ctx.Ln, ctx.g, ctx.eps, ctx.inv_count = Ln, g, eps, 1.0 / g.size
+        ctx.s_on, ctx.s_off = s_on, s_off
+        return torch.tensor(loss / g.size, dtype=L.dtype)
+
+    @staticmethod
+    def backward(ctx, grad: Tensor):
+        from . import _event_kernels as K
+
+        scale = float(grad) * ctx.inv_count
+        grad_L = None
+        if ctx.needs_input_grad[0]:
+            out = np.empty_like(ctx.Ln)
+            _run(K.event_backward, ctx.Ln, ctx.g, scale, ctx.eps, out)
+            grad_L = torch.from_numpy(out)
+        dt = grad.dtype
+        g_pos = torch.tensor(-scale * ctx.s_on, dtype=dt) if ctx.needs_input_grad[2] else None  # r falls with c_pos
+        g_neg = torch.tensor(scale * ctx.s_off, dtype=dt) if ctx.needs_input_grad[3] else None
+        return grad_L, None, g_pos, g_neg, None, None
 
 
 def edi_loss(renders: Tensor,  # [H, W, D] or [V, H, W, D]

@@ -79,7 +79,7 @@ def cubic_poses(
     """Cubic B-spline in the tangent space at the mid pose (see module docstring)."""
     R_mid, t_mid = _split(c2w_mid)
     B = bspline_weights(u).to(knots.dtype)  # [V, 4]
-    xi = torch.einsum("vk,fkj->fvj", B, knots)  # [F, V, 6]
+    xi = B @ knots  # [F, V, 6]
     R = R_mid[:, None] @ so3_exp(xi[..., :3])
     t = t_mid[:, None] + scale * xi[..., 3:]
     return compose_pose(R, t)

@@ -217,3 +217,61 @@ def test_event_loss_of_one_window_compares_its_two_instants_with_the_summed_coun
     short[1, 0] = 1.0
     assert float(event_loss(renders[[0, 3]], window_counts(short, 0, 3), c, eps, norm="l1")) == pytest.approx(c, abs=1e-5)
     assert float(event_loss(renders[[0, 3]], window_counts(short, 0, 3), c, eps, norm="l2")) == pytest.approx(c * c, abs=1e-5)
+
+
+def _event_loss_torch(renders, counts, c, eps, norm):
+    """L_ev written out in torch operations (the kernels' reference)."""
+    logL = torch.log(luminance(renders)[..., 0].clamp_min(0) + eps)
+    cc = torch.as_tensor(c, dtype=logL.dtype).reshape(-1)
+    r = logL[1:] - logL[:-1] - (cc[0] * counts[:, 0] - cc[-1] * counts[:, 1]).to(logL.dtype)
+    return r.abs().mean() if norm == "l1" else r.square().mean()
+
+
+@pytest.mark.parametrize("norm", ["l1", "l2"])
+@pytest.mark.parametrize("D,H,W", [(1, 37, 23), (3, 5, 9)])
+def test_event_loss_kernel_equals_torch_in_value_and_gradient_of_renders_and_both_thresholds(norm, D, H, W):
+    # more rows than one band of the kernel; negative render values (the clamp: no gradient) and a
+    # residual of exactly zero (abs has gradient 0 there) included
+    g = torch.Generator().manual_seed(3)
+    renders = torch.rand(5, H, W, D, generator=g, dtype=torch.float64) * 1.2 - 0.1
+    counts = torch.randint(0, 4, (4, 2, H, W), generator=g).double()
+    renders[1, 0, 0] = 0.3
+    renders[2, 0, 0] = (0.3 + 1e-3) * math.exp(0.25 * 2) - 1e-3
+    counts[1, :, 0, 0] = torch.tensor([2.0, 0.0])
+    grads = []
+    for fn in (event_loss, _event_loss_torch):
+        x = renders.clone().requires_grad_(True)
+        log_c = torch.log(torch.tensor([0.25, 0.18], dtype=torch.float64)).requires_grad_(True)
+        loss = fn(x, counts, torch.exp(log_c), 1e-3, norm)
+        loss.backward()
+        grads.append((loss.detach(), x.grad, log_c.grad))
+    (l0, gx0, gc0), (l1, gx1, gc1) = grads
+    assert torch.allclose(l0, l1, rtol=1e-12, atol=0)
+    assert torch.allclose(gx0, gx1, rtol=1e-10, atol=1e-14)
+    assert torch.allclose(gc0, gc1, rtol=1e-10, atol=1e-14)
+    dark = luminance(renders)[..., 0] < 0  # clamped: no gradient to any channel there
+    assert dark.any() and (gx0[dark] == 0).all() and (gx0[~dark] != 0).any()
+    # one threshold for both polarities: its gradient is the sum of the two
+    c1 = torch.tensor([0.2], dtype=torch.float64, requires_grad=True)
+    c2 = torch.tensor([0.2], dtype=torch.float64, requires_grad=True)
+    event_loss(renders, counts, c1, 1e-3, norm).backward()
+    _event_loss_torch(renders, counts, c2, 1e-3, norm).backward()
+    assert torch.allclose(c1.grad, c2.grad, rtol=1e-10)
+
+
+def test_event_loss_float32_close_to_float64_and_gradcheck():
+    g = torch.Generator().manual_seed(4)
+    renders = torch.rand(3, 20, 17, 1, generator=g, dtype=torch.float64) * 0.9 + 0.05
+    counts = torch.randint(0, 3, (2, 2, 20, 17), generator=g).double()
+    x32 = renders.float().requires_grad_(True)
+    l32 = event_loss(x32, counts.float(), (0.22, 0.19), norm="l2")
+    l32.backward()
+    x64 = renders.clone().requires_grad_(True)
+    l64 = event_loss(x64, counts, (0.22, 0.19), norm="l2")
+    l64.backward()
+    assert l32.dtype == torch.float32 and x32.grad.dtype == torch.float32
+    assert float(l32) == pytest.approx(float(l64), rel=1e-5)
+    assert torch.allclose(x32.grad.double(), x64.grad, rtol=1e-4, atol=1e-9)
+    c = torch.tensor([0.22, 0.19], dtype=torch.float64, requires_grad=True)
+    x = (renders[:, :6, :5]).clone().requires_grad_(True)
+    torch.autograd.gradcheck(lambda x, c: event_loss(x, counts[:, :, :6, :5], c, norm="l2"), (x, c))

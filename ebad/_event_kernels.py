@@ -1,0 +1,80 @@
+"""L_ev in one numba pass, and its gradient in another (``ebad.losses.event_loss``).
+
+At every pixel, the V log luminances l_k = log(max(L_k, 0) + eps) of consecutive virtual
+instants and the ON / OFF counts between them give the V - 1 residuals
+r_k = l_{k+1} - l_k - (c_pos N_on,k - c_neg N_off,k); the loss is the mean of |r| (l1) or of
+r^2 (l2) over windows and pixels. The logs are numpy's (vectorised; numba's are scalar here);
+the forward sums the loss, keeps g = d|r|/dr = sign(r) (or 2 r) per window and pixel, and sums
+it against the counts for the thresholds' gradients; the backward turns it into the gradient
+of every L_k: (g_{k-1} - g_k) / (L_k + eps), zero where L_k < 0 (the clamp).
+
+Written as torch operations, the loss took a dozen full-image temporaries and their autograd.
+Here each direction is one parallel region over bands of rows. Arrays are float32 or float64:
+L [V, H, W], counts [V - 1, 2, H, W].
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+import splat_cpu._numba_impl  # noqa: F401  (chooses numba's threading layer before any kernel here launches)
+
+_FASTMATH = {"contract", "arcp", "nsz", "reassoc"}  # vectorised sums and divisions; no nan/inf assumptions
+BAND = 16  # image rows per task
+
+
+def num_tasks(H: int) -> int:
+    """The forward's tasks (rows of its ``sums``) for images of H rows."""
+    return -(-H // BAND)
+
+
+@njit(cache=True, parallel=True, fastmath=_FASTMATH)
+def event_forward(log_L, counts, c_pos, c_neg, l2, g, sums):  # pragma: no cover - jit
+    """Per task, into ``sums`` [tasks, 3]: the sum of |r| (or r^2 when ``l2``), of g N_on and of
+    g N_off over its band, with g = dloss/dr before the mean (sign r, or 2 r) written to ``g``
+    [V - 1, H, W]; ``log_L`` [V, H, W] are the log luminances."""
+    V, H, W = log_L.shape
+    for task in prange((H + BAND - 1) // BAND):
+        y0 = task * BAND
+        y1 = min(y0 + BAND, H)
+        s = 0.0
+        s_on = 0.0
+        s_off = 0.0
+        for k in range(V - 1):
+            for y in range(y0, y1):
+                for x in range(W):
+                    on = counts[k, 0, y, x]
+                    off = counts[k, 1, y, x]
+                    r = log_L[k + 1, y, x] - log_L[k, y, x] - (c_pos * on - c_neg * off)
+                    if l2:
+                        s += r * r
+                        gr = 2.0 * r
+                    else:
+                        s += abs(r)
+                        gr = np.sign(r)
+                    g[k, y, x] = gr
+                    s_on += gr * on
+                    s_off += gr * off
+        sums[task, 0] = s
+        sums[task, 1] = s_on
+        sums[task, 2] = s_off
+
+
+@njit(cache=True, parallel=True, fastmath=_FASTMATH)
+def event_backward(L, g, scale, eps, grad_L):  # pragma: no cover - jit
+    """``grad_L`` [V, H, W]: ``scale`` (the upstream gradient over the mean's count) times the
+    gradient of the summed loss with respect to each L_k, from ``event_forward``'s ``g``."""
+    V, H, W = L.shape
+    for task in prange((H + BAND - 1) // BAND):
+        y0 = task * BAND
+        y1 = min(y0 + BAND, H)
+        for k in range(V):
+            for y in range(y0, y1):
+                for x in range(W):
+                    d = 0.0
+                    if k > 0:
+                        d += g[k - 1, y, x]
+                    if k < V - 1:
+                        d -= g[k, y, x]
+                    v = L[k, y, x]
+                    grad_L[k, y, x] = scale * d / (v + eps) if v >= 0 else 0.0
