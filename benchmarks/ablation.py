@@ -80,16 +80,10 @@ def run_one(scene, name: str, iters: int, seconds: float | None, seed: int, refi
 
 
 def warm_up() -> None:
-    """Compile the numba kernels once so that no preset pays for it."""
-    import scenes
-    from ebad.config import preset
-    from ebad.trainer import reconstruct
+    """Compile the numba kernels once so that no preset pays for it (``ebad.trainer.warm_up``)."""
+    from ebad.trainer import warm_up as compile_kernels
 
-    sc = scenes.make_scene("boxes", size="tiny", n_frames=3, n_test=1)
-    cfg = preset("ebad")
-    cfg.train.iters = 3
-    cfg.train.progress = False
-    reconstruct(sc.capture, cfg)
+    compile_kernels()
 
 
 def _ms(values: list[float]) -> str:

@@ -285,6 +285,10 @@ def main(argv=None) -> int:
 
         baselines = torch.load(args.baseline_file, weights_only=False)
     results: dict[str, list[dict]] = {}
+    if not args.baseline_only:
+        from ebad.trainer import warm_up
+
+        warm_up()  # numba compiles outside every run's budget
     for mode in parse_modes(ap, args.modes):
         scene = scenes.make_scene("boxes", size, seed=args.seed, **MODES[mode])
         exact = MODES[mode]["poses"] == "exact"

@@ -59,7 +59,7 @@ def run(args) -> int:
     from ..evaluate import evaluate, score_frames
     from ..export import write_render
     from ..runfolder import json_safe, write_run
-    from ..trainer import reconstruct
+    from ..trainer import reconstruct, warm_up
 
     if args.iters < 1:
         raise ConfigError(f"--iters must be >= 1, got {args.iters}")
@@ -77,6 +77,8 @@ def run(args) -> int:
     blurry_scores = score_frames(cap.frames, scene.gt_frames)
     blurry = {"train_psnr": blurry_scores.psnr, "train_ssim": blurry_scores.ssim}
     refine = cap.effective_pose_trust != "exact"
+    print("  compiling numba's kernels (a first run only), outside both methods' time ...", end=" ", flush=True)
+    print(f"{warm_up():.0f} s", flush=True)
     for name, _ in METHODS:
         cfg = preset(name)
         cfg.train.iters = args.iters
