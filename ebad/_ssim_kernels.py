@@ -118,7 +118,7 @@ def ssim_forward(a, b, g, s_map, coef, want_grad, sums):  # pragma: no cover - j
                     for j in range(W):
                         mc[j] += w * src[j]
             for j in range(W):
-                mu1 = m[0, j]
+                mu1 = m[0, j]  # from here on in float64 (the constants are Python floats): see ssim_backward
                 mu2 = m[1, j]
                 mu11 = mu1 * mu1
                 mu22 = mu2 * mu2
@@ -155,6 +155,14 @@ def ssim_backward(a, b, g, coef, grad_s, gs_const, l1_coef, grad_a, grad_b, want
     cidx = _reflect_map(W, pad)
     const = grad_s.shape[0] == 0
     nb = (H + BAND - 1) // BAND
+    # constants (and gs_const, l1_coef) in the images' dtype: a float64 factor makes numba compute
+    # a float32 loop in float64 (it promotes float32 x float64), which made this backward 1.5x
+    # slower. The forward's per-pixel map stays in float64 on purpose: its variances are
+    # differences of raw moments, which lose digits in float32 (SSIM of two equal flat images
+    # read 1 + 3e-5).
+    two = a.dtype.type(2.0)
+    one = a.dtype.type(1.0)
+    zero = a.dtype.type(0.0)
     # coef's planes: mu_a (0), mu_b (1), s_aa and s_bb (2, the same derivative), s_ab (3);
     # a needs 0, 2 and 3, b needs 1, 2 and 3
     for task in prange(N * nb):
@@ -212,22 +220,22 @@ def ssim_backward(a, b, g, coef, grad_s, gs_const, l1_coef, grad_a, grad_b, want
                 br = b[n, i]
                 if want_a:
                     for j in range(W):
-                        ga[j] += t[0, j + pad] + 2.0 * ar[j] * t[2, j + pad] + br[j] * t[3, j + pad]
+                        ga[j] += t[0, j + pad] + two * ar[j] * t[2, j + pad] + br[j] * t[3, j + pad]
                 if want_b:
                     for j in range(W):
-                        gb[j] += t[1, j + pad] + 2.0 * br[j] * t[2, j + pad] + ar[j] * t[3, j + pad]
+                        gb[j] += t[1, j + pad] + two * br[j] * t[2, j + pad] + ar[j] * t[3, j + pad]
                 for e in range(2 * pad):
                     x = e if e < pad else W + e
                     col = cidx[x]
                     if want_a:
-                        ga[col] += t[0, x] + 2.0 * ar[col] * t[2, x] + br[col] * t[3, x]
+                        ga[col] += t[0, x] + two * ar[col] * t[2, x] + br[col] * t[3, x]
                     if want_b:
-                        gb[col] += t[1, x] + 2.0 * br[col] * t[2, x] + ar[col] * t[3, x]
+                        gb[col] += t[1, x] + two * br[col] * t[2, x] + ar[col] * t[3, x]
             lc = l1_coef[n]
             if lc != 0.0:
                 for j in range(W):
                     d = a[n, i, j] - b[n, i, j]
-                    sg = 1.0 if d > 0 else (-1.0 if d < 0 else 0.0)
+                    sg = one if d > 0 else (-one if d < 0 else zero)
                     ga[j] += lc * sg
                     gb[j] -= lc * sg
             if want_a:

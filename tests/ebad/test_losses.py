@@ -6,7 +6,7 @@ import math
 import pytest
 import torch
 
-from ebad.losses import blur_loss, edi_loss, event_loss, l1_ssim, luminance
+from ebad.losses import blur_loss, edi_loss, event_loss, l1_ssim, luminance, ssim_map
 
 
 def test_losses_known_values():
@@ -151,6 +151,18 @@ def test_l1_ssim_float32_matches_the_float64_loss():
     ref.backward()
     assert abs(float(loss.detach()) - float(ref.detach())) < 1e-6
     assert (x.grad.double() - xr.grad).abs().max() < 1e-5 * xr.grad.abs().max()
+
+
+def test_float32_images_run_the_float32_ssim_backward_only():
+    # a float64 array among a float32 call's arguments makes numba compute the float32 loops in
+    # float64 (the loss's per-image gradient constants once made the backward 1.5x slower)
+    from ebad import _ssim_kernels as K
+    a = torch.rand(2, 20, 24, 1, requires_grad=True)
+    l1_ssim(a, torch.rand(2, 20, 24, 1)).backward()
+    ssim_map(a, torch.rand(2, 20, 24, 1)).sum().backward()
+    arrays = [[str(t.dtype) for t in sig if hasattr(t, "ndim")] for sig in K.ssim_backward.signatures]
+    float32_calls = [dt for dt in arrays if dt[0] == "float32"]
+    assert float32_calls and all(set(dt) == {"float32"} for dt in float32_calls), arrays
 
 
 def test_l1_ssim_each_in_one_call_equals_each_pair_alone():
