@@ -20,7 +20,7 @@ import sys as _sys
 if "torch" not in _sys.modules:
     _os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 #: torch's OpenMP threads sleep when idle (OMP_WAIT_POLICY=PASSIVE was in force when torch loaded)
-OMP_PASSIVE = _os.environ.get("OMP_WAIT_POLICY", "").upper() == "PASSIVE"
+OMP_PASSIVE = _os.environ.get("OMP_WAIT_POLICY", "").strip().upper() == "PASSIVE"  # as splat_cpu reads it
 
 from .errors import ConfigError, EbadError, UserError  # noqa: E402
 

@@ -91,8 +91,8 @@ def _kernel_backward(ctx, grad_s: np.ndarray, gs_const: np.ndarray, l1_coef: np.
     A, B = a.detach().numpy(), b.detach().numpy()
     ga = np.empty_like(A) if want_a else np.empty(_EMPTY, A.dtype)
     gb = np.empty_like(B) if want_b else np.empty(_EMPTY, A.dtype)
-    gs_const, l1_coef = gs_const.astype(A.dtype), l1_coef.astype(A.dtype)  # float64 here would make the kernel's
-    # float32 loops compute in float64
+    # in the images' dtype: float64 ones would make the kernel compute its float32 loops in float64
+    gs_const, l1_coef = gs_const.astype(A.dtype), l1_coef.astype(A.dtype)
     _run(K.ssim_backward, A, B, ctx.g, ctx.coef, grad_s, gs_const, l1_coef, ga, gb, want_a, want_b)
     return (torch.from_numpy(ga) if want_a else None), (torch.from_numpy(gb) if want_b else None)
 
