@@ -29,7 +29,7 @@ import time
 import numpy as np
 
 from ._common import config_spec, seed_all, write_json
-from .ablation import SETTINGS, summarise, warm_up
+from .ablation import SETTINGS, summarise
 
 SPECS = ["ebad", "ebad+loss.event_windows=random", "ebad+loss.event_norm=l2", "ebad+loss.edi_prior=medi+loss.edi_instants=mid"]
 KEYS = ("test_refined_psnr", "test_refined_ssim", "deblur_psnr", "deblur_ssim", "ms_per_step", "prior_psnr",
@@ -154,7 +154,9 @@ def main(argv=None) -> int:
         config_spec(spec).check()  # a typo fails before any training
     name = args.name or ("paper_departures_quick" if args.quick else "paper_departures")
     seed_all(0)
-    warm_up()
+    from ebad.trainer import warm_up
+
+    warm_up()  # numba compiles once, outside every spec's budget
     rows: list[dict] = []
 
     def save():

@@ -118,7 +118,10 @@ def ssim_forward(a, b, g, s_map, coef, want_grad, sums):  # pragma: no cover - j
                     for j in range(W):
                         mc[j] += w * src[j]
             for j in range(W):
-                mu1 = m[0, j]  # from here on in float64 (the constants are Python floats): see ssim_backward
+                # from here on in float64 on purpose (C1, C2 and 2.0 are Python floats): the variances are
+                # differences of raw moments, which lose digits in float32 (SSIM of two equal flat images
+                # read 1 + 3e-5)
+                mu1 = m[0, j]
                 mu2 = m[1, j]
                 mu11 = mu1 * mu1
                 mu22 = mu2 * mu2
@@ -157,9 +160,7 @@ def ssim_backward(a, b, g, coef, grad_s, gs_const, l1_coef, grad_a, grad_b, want
     nb = (H + BAND - 1) // BAND
     # constants (and gs_const, l1_coef) in the images' dtype: a float64 factor makes numba compute
     # a float32 loop in float64 (it promotes float32 x float64), which made this backward 1.5x
-    # slower. The forward's per-pixel map stays in float64 on purpose: its variances are
-    # differences of raw moments, which lose digits in float32 (SSIM of two equal flat images
-    # read 1 + 3e-5).
+    # slower (the forward's per-pixel map is float64 on purpose: see there)
     two = a.dtype.type(2.0)
     one = a.dtype.type(1.0)
     zero = a.dtype.type(0.0)
