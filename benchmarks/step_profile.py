@@ -6,12 +6,13 @@
 Each preset trains ``--iters`` steps on ``scenes.make_scene("boxes", SIZE)`` (settings of
 ``benchmarks.time_to_quality``: ``ideal`` linear sensor, exact poses held; ``realistic`` the
 realistic sensor, noisy given poses optimised), and every step records where its time went
-(``StepStats.profile``, averaged by ``ebad.trainer.step_profile``): the forward (trajectory
-poses, the batched render, the three losses with SSIM), the rasteriser's own forward (project,
-bin, composite) inside it, the backward and the rasteriser's backward inside it, Adam, and
+(``StepStats.profile``, averaged by ``ebad.trainer.step_profile``): the forward, and inside it
+the trajectory poses, the rasteriser's own forward (project, bin, composite) and the losses
+(response, L1 + SSIM, L_ev); the backward and the rasteriser's backward inside it; Adam;
 densification. The share outside the rasteriser is 1 - (rasteriser forward + backward) / step.
-Steps at the coarse phase's half resolution and at full resolution are reported apart; the
-first 20 steps (numba's first calls, torch's warm-up) are left out.
+Steps at the coarse phase's half resolution and at full resolution are reported apart, and
+``run`` is every step together: its share is the fraction of the run's step time outside the
+rasteriser. The first 20 steps (numba's first calls, torch's warm-up) are left out.
 """
 from __future__ import annotations
 
@@ -22,7 +23,8 @@ from ._common import config_spec, seed_all, write_json
 from .time_to_quality import MODES, parse_modes
 
 WARMUP_STEPS = 20
-PARTS = ("step", "forward", "raster_forward", "backward", "raster_backward", "adam", "densify")
+PARTS = ("step", "forward", "poses", "raster_forward", "losses", "backward", "raster_backward", "adam", "densify")
+LEVELS = ("coarse", "full", "run")
 
 
 def profile_run(scene, spec: str, iters: int, seed: int) -> dict:
@@ -34,8 +36,9 @@ def profile_run(scene, spec: str, iters: int, seed: int) -> dict:
     run = reconstruct(scene.capture, cfg)
     steps = run.history[WARMUP_STEPS:]
     out = {"preset": spec, "steps": run.metrics.steps, "gaussians": run.metrics.gaussians, "width": run.width}
-    for level, keep in (("coarse", lambda h: h.width != run.width), ("full", lambda h: h.width == run.width)):
-        out[level] = step_profile([h for h in steps if keep(h)])
+    keep = {"coarse": lambda h: h.width != run.width, "full": lambda h: h.width == run.width, "run": lambda h: True}
+    for level in LEVELS:
+        out[level] = step_profile([h for h in steps if keep[level](h)])
     return out
 
 
@@ -65,7 +68,7 @@ def main(argv=None) -> int:
         for spec in [p for p in args.presets.split(",") if p]:
             r = profile_run(scene, spec, iters, args.seed)
             results.setdefault(mode, []).append(r)
-            for level in ("coarse", "full"):
+            for level in LEVELS:
                 p = r[level]
                 if p is None:
                     continue

@@ -52,6 +52,7 @@ class FrameLosses:
     info: RenderInfo
     mean_render: Tensor  # [H, W, D] detached: what the camera would record of the exposure (response of the mean)
     raster_timings: dict = field(default_factory=dict)  # the rasteriser's ms per stage (its backward's once it ran)
+    timings: dict = field(default_factory=dict)  # ms of the forward's parts outside the rasteriser: "poses", "losses"
 
 
 def frame_losses(data: TrainingData, state: TrainState, f: int, cfg: Config) -> FrameLosses:
@@ -64,8 +65,11 @@ def frame_losses(data: TrainingData, state: TrainState, f: int, cfg: Config) -> 
     need_mid = data.latents is not None and V % 2 == 0 and views is None
     if need_mid:
         u = torch.cat([u, torch.tensor([0.5])])
+    t0 = time.perf_counter()
     poses = state.trajectories(torch.tensor([f]), u)[0]  # [V', 4, 4]
+    t1 = time.perf_counter()
     images, _, meta = render(state.params, poses, data.K, data.width, data.height, cfg.model.background)
+    t2 = time.perf_counter()
     renders = images[:V]  # irradiance: blur averages it, events see its log
     recorded_blur = state.response(renders.mean(0, keepdim=True))  # what the APS records of the exposure
     # L_blur and L_EDI (each l1_ssim: blur_loss and edi_loss) from one kernel call
@@ -90,7 +94,8 @@ def frame_losses(data: TrainingData, state: TrainState, f: int, cfg: Config) -> 
         total = total + lc.w_edi * edi
     info = RenderInfo(means2d=meta.get("means2d"), radii=meta.get("radii"), width=data.width, height=data.height)
     return FrameLosses(total=total, blur=blur, ev=ev, edi=edi, info=info, mean_render=recorded_blur.detach()[0],
-                       raster_timings=meta.get("timings", {}))
+                       raster_timings=meta.get("timings", {}),
+                       timings={"poses": 1e3 * (t1 - t0), "losses": 1e3 * (time.perf_counter() - t2)})
 
 
 def _budget_fraction(state: TrainState, cfg: Config, elapsed: float) -> float:
@@ -140,6 +145,7 @@ def train_step(data: TrainingData, state: TrainState, strategy: Strategy, f: int
         c=None if state.log_c is None or not state.log_c.requires_grad else torch.exp(state.log_c.detach()).tolist(),
         refine=refine, width=data.width,
         profile={"forward": 1e3 * (t1 - t0), "raster_forward": sum(rt.get(k, 0.0) for k in RASTER_FORWARD),
+                 "poses": out.timings["poses"], "losses": out.timings["losses"],
                  "backward": 1e3 * (t3 - t2), "raster_backward": sum(rt.get(k, 0.0) for k in RASTER_BACKWARD),
                  "adam": 1e3 * (t4 - t3), "densify": 1e3 * ((t2 - t1) + (t5 - t4)),
                  "step": 1e3 * (time.perf_counter() - t0)},
@@ -152,12 +158,17 @@ RASTER_BACKWARD = ("backward_project_ms", "backward_composite_ms")  # and of its
 
 def step_profile(history: Sequence[StepStats]) -> dict[str, float] | None:
     """Mean ms per step of each part of ``StepStats.profile`` over ``history``, and ``outside_share``:
-    the fraction of the step spent outside the rasteriser (the losses and SSIM, the trajectory
-    poses, the autograd of both, Adam, densification). None when no step has a profile."""
+    the fraction of the steps' time spent outside the rasteriser (the losses and SSIM, the
+    trajectory poses, the autograd of both, Adam, densification). None when no step has a profile.
+
+    The parts: ``forward`` (its own parts ``poses``, the trajectories' poses; ``raster_forward``;
+    ``losses``, from the renders to the weighted total: the response, L1 + SSIM, L_ev), ``backward``
+    (``raster_backward`` inside it), ``adam``, ``densify`` and the whole ``step``."""
     profiles = [h.profile for h in history if h.profile]
     if not profiles:
         return None
-    mean = {k: float(np.mean([p[k] for p in profiles])) for k in profiles[0]}
+    keys = [k for k in profiles[-1] if all(k in p for p in profiles)]  # a resumed run's history may predate a part
+    mean = {k: float(np.mean([p[k] for p in profiles])) for k in keys}
     mean["outside_share"] = 1.0 - (mean["raster_forward"] + mean["raster_backward"]) / max(mean["step"], 1e-9)
     mean["steps"] = len(profiles)
     return mean

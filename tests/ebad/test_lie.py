@@ -45,3 +45,23 @@ def test_leading_dimensions_and_finite_gradients_at_identity():
     Rl = torch.eye(3).repeat(2, 5, 1, 1).requires_grad_(True)
     (so3_log(Rl) * torch.randn(3)).sum().backward()
     assert torch.isfinite(Rl.grad).all()
+
+
+def test_so3_log_closed_form_matches_kornia_from_tiny_angles_to_near_pi():
+    from kornia.geometry.liegroup import So3
+
+    g = torch.Generator().manual_seed(1)
+    axes = torch.randn(8, 3, generator=g, dtype=torch.float64)
+    axes = axes / axes.norm(dim=-1, keepdim=True)
+    for angle in (1e-9, 1e-6, 1e-4, 0.01, 0.3, 1.5, 2.5, 2.8, 3.1):  # 2.8 and 3.1 take kornia's path
+        w = axes * angle
+        R = so3_exp(w)
+        assert torch.allclose(so3_log(R), w, rtol=1e-9, atol=1e-12), angle
+        R32 = R.float()
+        want = So3.from_matrix(R32).log()
+        assert torch.allclose(so3_log(R32), want, rtol=1e-4, atol=1e-6), angle
+    x = (axes[:3] * 1e-5).clone().requires_grad_(True)  # around the series' threshold in float64
+    torch.autograd.gradcheck(lambda x: so3_log(so3_exp(x)), (x,))
+    both = torch.stack([so3_exp(axes[0] * 3.1), torch.eye(3, dtype=torch.float64)]).requires_grad_(True)
+    (so3_log(both) * torch.randn(2, 3, generator=g, dtype=torch.float64)).sum().backward()  # one row each path
+    assert torch.isfinite(both.grad).all()

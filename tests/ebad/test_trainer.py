@@ -1,6 +1,8 @@
 """ebad.trainer.frame_losses: the L_ev options (windows, norm) and the L_EDI prior."""
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -80,12 +82,17 @@ def test_every_step_says_where_its_time_went():
     for h in run.history:
         p = h.profile
         assert 0 < p["raster_forward"] <= p["forward"] and 0 < p["raster_backward"] <= p["backward"]
+        assert p["poses"] > 0 and p["losses"] > 0 and p["poses"] + p["raster_forward"] + p["losses"] <= p["forward"]
         parts = p["forward"] + p["backward"] + p["adam"] + p["densify"]
         assert 0.5 * p["step"] <= parts <= p["step"] + 1e-6  # the parts are inside the step and cover most of it
     mean = step_profile(run.history)
     assert mean["steps"] == 6 and 0 < mean["outside_share"] < 1
     assert mean["step"] == pytest.approx(sum(h.profile["step"] for h in run.history) / 6)
     assert step_profile([]) is None
+    old = dataclasses.replace(run.history[0], profile={k: v for k, v in run.history[0].profile.items()
+                                                       if k not in ("poses", "losses")})
+    mixed = step_profile([old, *run.history[1:]])  # a resumed run's history from before the forward's parts
+    assert "poses" not in mixed and mixed["step"] == pytest.approx(mean["step"])
 
 
 def test_edi_at_every_view_compares_each_virtual_view_with_the_latent_at_its_instant(scene):
