@@ -10,6 +10,7 @@ import json
 import os
 import platform
 import random
+import subprocess
 from pathlib import Path
 from typing import Any
 
@@ -17,14 +18,30 @@ import numpy as np
 
 import ebad  # noqa: F401  (before torch: OMP_WAIT_POLICY=PASSIVE for torch's threads, see ebad's docstring)
 
-__all__ = ["RESULTS", "environment", "seed_all", "write_json", "config_spec"]
+__all__ = ["RESULTS", "commit", "environment", "seed_all", "write_json", "config_spec"]
 
 #: Where every benchmark writes its JSON.
 RESULTS = Path(__file__).resolve().parent / "results"
 
 
+def commit() -> str | None:
+    """The repository's HEAD commit, with "+dirty" when a tracked file differs from it (new
+    results files do not count), or None outside a git checkout."""
+    root = str(Path(__file__).resolve().parents[1])
+    try:
+        head = subprocess.run(["git", "-C", root, "rev-parse", "--short=12", "HEAD"], capture_output=True, text=True,
+                              timeout=10)
+        if head.returncode != 0:
+            return None
+        status = subprocess.run(["git", "-C", root, "status", "--porcelain", "--untracked-files=no"],
+                                capture_output=True, text=True, timeout=10)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return head.stdout.strip() + ("+dirty" if status.returncode == 0 and status.stdout.strip() else "")
+
+
 def environment() -> dict[str, Any]:
-    """CPU count, library versions, platform and UTC date of this run."""
+    """CPU count, library versions, platform, the code's commit and UTC date of this run."""
     import numba
     import scipy
     import torch
@@ -39,6 +56,7 @@ def environment() -> dict[str, Any]:
         "numba": numba.__version__,
         "torch": torch.__version__,
         "torch_threads": torch.get_num_threads(),
+        "commit": commit(),
     }
 
 
