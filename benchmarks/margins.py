@@ -26,9 +26,10 @@ import numpy as np
 
 from ._common import RESULTS, write_json
 
-__all__ = ["load_rows", "paired_margins", "stronger_3dgs", "main"]
+__all__ = ["load_rows", "paired_margins", "stronger_3dgs", "table", "plot", "main"]
 
 KEYS = ("test_refined_psnr", "deblur_psnr", "test_refined_ssim", "deblur_ssim")
+LABELS = {"ideal": "idealised, exact poses", "noisy": "realistic, noisy poses", "sfm": "realistic, SfM poses"}
 BUDGET = ("size", "seconds", "iters", "refine_iters")  # what must agree for two rows to be paired
 
 
@@ -168,11 +169,45 @@ def table(margins: dict, reference: str) -> str:
     return "\n".join(lines)
 
 
+def plot(margins: dict, reference: str, path, title: str = "") -> None:
+    """One panel per setting: each preset's mean novel and deblurred PSNR with its std over seeds,
+    the reference preset's bars outlined."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    settings = list(margins)
+    fig, axes = plt.subplots(1, len(settings), figsize=(4.2 * len(settings), 3.8), squeeze=False, sharey=True)
+    for ax, setting in zip(axes[0], settings):
+        presets = list(margins[setting])
+        x = np.arange(len(presets))
+        for off, key, label in ((-0.2, "test_refined_psnr", "novel views (refined poses)"),
+                                (0.2, "deblur_psnr", "deblurred training frames")):
+            vals = [margins[setting][p][key] for p in presets]
+            ax.bar(x + off, [v[0] if v else np.nan for v in vals], 0.4, yerr=[v[1] if v else 0 for v in vals],
+                   capsize=3, label=label,
+                   edgecolor=["black" if p == reference else "none" for p in presets], linewidth=1.2)
+        ax.set_xticks(x, presets, rotation=30, ha="right")
+        ax.set_title(LABELS.get(setting, setting))
+        ax.grid(axis="y", alpha=0.3)
+        lo = min(v[0] for p in presets for v in (margins[setting][p]["test_refined_psnr"],
+                                                 margins[setting][p]["deblur_psnr"]) if v)
+        ax.set_ylim(max(0.0, lo - 3.0), None)
+    axes[0, 0].set_ylabel("PSNR dB, mean ± std over seeds")
+    axes[0, 0].legend(loc="lower left", fontsize=8)
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("sources", nargs="+", help="benchmarks.ablation results: names in benchmarks/results or paths")
     ap.add_argument("--reference", default="ebad", help="the preset whose margins are taken (default ebad)")
-    ap.add_argument("--name", default=None, help="also write benchmarks/results/NAME.json")
+    ap.add_argument("--name", default=None, help="also write benchmarks/results/NAME.json and NAME.png (a bar chart)")
     args = ap.parse_args(argv)
     try:
         rows, headers = load_rows(args.sources)
@@ -195,7 +230,10 @@ def main(argv=None) -> int:
     if args.name:
         path = write_json(args.name, {"reference": args.reference, "sources": headers, "margins": margins,
                                       "argv": sys.argv[1:]})
-        print(f"\nwrote {path}")
+        b = headers[0]["budget"]
+        plot(margins, args.reference, path.with_suffix(".png"),
+             f"{b['size']} scene, {b['seconds']:g} s per run, seeds pooled as mean ± std")
+        print(f"\nwrote {path} and {path.with_suffix('.png').name}")
     return 0
 
 

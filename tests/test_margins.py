@@ -39,6 +39,8 @@ def test_margins_are_paired_per_seed_across_files(tmp_path):
     assert "margin" not in out["ebad"]
     text = M.table({"noisy": out}, "ebad")
     assert "`3dgs-po` (the stronger 3dgs)" in text and "+1.25 (+2.00, +0.50)" in text
+    M.plot({"noisy": out}, "ebad", tmp_path / "m.png", "title")
+    assert (tmp_path / "m.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 def test_a_row_found_twice_names_both_files(tmp_path):
