@@ -19,8 +19,11 @@ import sys as _sys
 
 if "torch" not in _sys.modules:
     _os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+from splat_cpu._omp import openmp_threads_sleep as _openmp_threads_sleep  # noqa: E402  (loads no torch)
+
 #: torch's OpenMP threads sleep when idle (OMP_WAIT_POLICY=PASSIVE was in force when torch loaded)
-OMP_PASSIVE = _os.environ.get("OMP_WAIT_POLICY", "").strip().upper() == "PASSIVE"  # as splat_cpu reads it
+OMP_PASSIVE = _openmp_threads_sleep()
 
 from .errors import ConfigError, EbadError, UserError  # noqa: E402
 

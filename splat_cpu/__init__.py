@@ -11,12 +11,12 @@ elsewhere; `rasterize_reference` always uses the reference.
 from __future__ import annotations
 
 import warnings
-
-from torch import Tensor
+from typing import TYPE_CHECKING
 
 from . import constants
-from ._torch_impl import rasterize_reference as _reference
-from ._validate import validate_inputs
+
+if TYPE_CHECKING:  # torch loads on the first call, not on import (``_omp`` is read before torch by ``ebad``)
+    from torch import Tensor
 
 __all__ = ["rasterize", "rasterize_reference", "constants"]
 
@@ -68,6 +68,9 @@ def rasterize(
     Raises ValueError naming the argument for wrong shapes, dtypes, devices, non-finite
     values, non-positive width/height, scales <= 0 or opacities outside [0, 1].
     """
+    from ._torch_impl import rasterize_reference as _reference
+    from ._validate import validate_inputs
+
     validate_inputs(means, quats, scales, opacities, colors, viewmats, Ks, width, height, background)
     if means.device.type == "cpu":
         rasterize_numba = _fast_path()
@@ -89,5 +92,8 @@ def rasterize_reference(
     background: Tensor | None = None,  # [D]
 ) -> tuple[Tensor, Tensor, dict]:
     """The pure-torch path (any device), same contract as `rasterize`; slow but short."""
+    from ._torch_impl import rasterize_reference as _reference
+    from ._validate import validate_inputs
+
     validate_inputs(means, quats, scales, opacities, colors, viewmats, Ks, width, height, background)
     return _reference(means, quats, scales, opacities, colors, viewmats, Ks, width, height, background)

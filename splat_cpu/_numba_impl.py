@@ -29,16 +29,11 @@ from torch import Tensor
 
 from . import _numba_kernels as K
 from . import _numba_project as P
+from ._omp import openmp_threads_sleep
 from .constants import TILE
 
 _CHUNK = 2  # tiles per scheduling chunk: tiles cost very different amounts, small chunks balance them
 _THREADING_LAYER = "workqueue"  # numba's own pool: idle workers block on a condition variable, never spin
-
-
-def openmp_threads_sleep() -> bool:
-    """OMP_WAIT_POLICY=PASSIVE is in the environment: idle OpenMP threads sleep instead of spinning
-    (in force when it was set before torch loaded its OpenMP runtime, as ``ebad`` does)."""
-    return os.environ.get("OMP_WAIT_POLICY", "").strip().upper() == "PASSIVE"
 
 
 def _choose_threading_layer() -> None:

@@ -34,3 +34,21 @@ def test_importing_ebad_first_makes_torch_threads_sleep_and_trains_single_thread
 
 def test_torch_imported_first_without_the_policy_trains_single_threaded_and_restores():
     assert _probe("torch", "ebad") == "False None [1, 1] 2"
+
+
+def _imports(policy: str | None) -> str:
+    env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
+    if policy is not None:
+        env["OMP_WAIT_POLICY"] = policy
+    code = ("import sys, ebad, splat_cpu._omp as o\n"
+            "print('torch' in sys.modules, ebad.OMP_PASSIVE, o.openmp_threads_sleep(), repr(o.os.environ['OMP_WAIT_POLICY']))")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    return out.stdout.strip()
+
+
+def test_importing_ebad_loads_no_torch_and_reads_the_policy_as_the_rasteriser_does():
+    # one reader (splat_cpu._omp) for ebad.OMP_PASSIVE and for the rasteriser's threading layer
+    assert _imports(None) == "False True True 'PASSIVE'"
+    assert _imports(" passive ") == "False True True ' passive '"
+    assert _imports("ACTIVE") == "False False False 'ACTIVE'"
