@@ -33,6 +33,7 @@ import numpy as np
 from ._common import config_spec, seed_all, write_json
 
 PRESETS = ["3dgs", "3dgs-po", "bad", "edi-3dgs", "ebad", "3dgs-sharp"]
+REFINE_ITERS = 300  # test-pose refinement steps at most, unless --refine-iters says otherwise
 SETTINGS = {
     "ideal": {"sensor": "ideal", "poses": "exact"},
     "noisy": {"sensor": "realistic", "poses": "noisy"},
@@ -108,7 +109,7 @@ def main(argv=None) -> int:
     ap.add_argument("--size", default=None, help="scene size (default small; quick tiny)")
     ap.add_argument("--seconds", type=float, default=None, help="wall-time budget per run (default 60; quick 15)")
     ap.add_argument("--iters", type=int, default=None, help="step cap per run (default 3000; quick 300)")
-    ap.add_argument("--refine-iters", type=int, default=300, help="test-pose refinement steps at most")
+    ap.add_argument("--refine-iters", type=int, default=REFINE_ITERS, help="test-pose refinement steps at most")
     ap.add_argument("--name", default="ablation", help="results file benchmarks/results/NAME.json")
     args = ap.parse_args(argv)
     import scenes

@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from ._common import RESULTS, write_json
+from .ablation import REFINE_ITERS
 
 __all__ = ["load_rows", "paired_margins", "stronger_3dgs", "table", "plot", "main"]
 
@@ -54,7 +55,7 @@ def _refine_iters(argv: list[str]) -> int | None:
             return int(argv[i + 1])
         if a.startswith("--refine-iters="):
             return int(a.split("=", 1)[1])
-    return 300  # benchmarks.ablation's default
+    return REFINE_ITERS  # benchmarks.ablation's default
 
 
 def load_rows(sources: list[str]) -> tuple[list[dict], list[dict]]:
