@@ -270,7 +270,7 @@ def run(args) -> int:
                    "gamma_source": "given (--gamma)" if gamma != 1.0 else "assumed linear (default: c in the frames' units)",
                    "frames": per_frame},
                   f, indent=2)
-    unreliable = [f["name"] for f in per_frame if f["c_at_bracket_end"]]
+    unreliable = [fr["name"] for fr in per_frame if fr["c_at_bracket_end"]]
     tail = (f"; {len(unreliable)} of them with c at a bracket end, so not deblurred reliably "
             f"({', '.join(unreliable[:3])}{', ...' if len(unreliable) > 3 else ''}): give --c (c.json has the reports)"
             if unreliable else "")
