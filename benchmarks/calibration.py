@@ -8,7 +8,8 @@ Generators (the truth is read only by this benchmark, never passed to the estima
   mismatch sigma_c 0.03), the sensor running 0.1 s before the first exposure as a camera
   does; ``texture_no_lead`` starts the sensor at the first exposure (every pixel a whole
   threshold from firing: the first frame, the one the single-frame rows use, gets too few
-  events).
+  events); ``texture_uniform`` is ``texture`` with every pixel's threshold exactly c (no
+  mismatch), to tell the single-frame energy's own bias from the mismatch's.
 * ``boxes_grey_strong`` / ``boxes_grey_weak`` / ``spheres_rgb_strong`` / ``spheres_rgb_weak``:
   ray-cast scenes of ``scenes.make_scene`` ("small", 160x120, 3 frames, c 0.2, sigma_c 0.03;
   shake 1.0 and 0.5).
@@ -76,9 +77,9 @@ class Case:
 TEXTURE_LEAD = 0.1
 
 
-def texture_case(seed: int, lead: float = TEXTURE_LEAD, generator: str = "texture") -> Case:
+def texture_case(seed: int, lead: float = TEXTURE_LEAD, generator: str = "texture", sigma_c: float = 0.03) -> Case:
     c = (0.15, 0.2, 0.3)[seed % 3]
-    s = edi.moving_texture(num_frames=4, seed=seed, c=c, sigma_c=0.03, lead=lead)
+    s = edi.moving_texture(num_frames=4, seed=seed, c=c, sigma_c=sigma_c, lead=lead)
     sharp = np.stack([s.sharp(t) for t in s.exposures.mean(axis=1)])
     return Case(generator, seed, s.frames, s.exposures, s.events, Contrast(c, c), sharp)
 
@@ -137,6 +138,7 @@ def realistic_case(seed: int, gamma: float = REAL_GAMMA, generator: str = "reali
 GENERATORS = {
     "texture": texture_case,
     "texture_no_lead": lambda s: texture_case(s, 0.0, "texture_no_lead"),
+    "texture_uniform": lambda s: texture_case(s, TEXTURE_LEAD, "texture_uniform", sigma_c=0.0),
     "boxes_grey_strong": lambda s: scene_case("boxes", False, 1.0, s, "boxes_grey_strong"),
     "boxes_grey_weak": lambda s: scene_case("boxes", False, 0.5, s, "boxes_grey_weak"),
     "spheres_rgb_strong": lambda s: scene_case("spheres", True, 1.0, s, "spheres_rgb_strong"),
