@@ -7,6 +7,7 @@ threshold in natural-log units; log intensities are ``log(I + eps)`` with ``eps 
 from __future__ import annotations
 
 import typing
+from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
@@ -18,7 +19,7 @@ from edi import LOG_EPS
 
 from .config import EventNorm  # the norm of the L_ev residual: l1, mean |r| (ebad's default), or l2, mean r^2 (the paper's)
 
-__all__ = ["luminance", "ssim_map", "ssim_map_kornia", "l1_ssim", "l1_ssim_each", "blur_loss",
+__all__ = ["luminance", "ssim_map", "ssim_map_kornia", "l1_ssim", "l1_ssim_each", "blur_loss", "exposure_losses",
            "event_loss", "edi_loss", "LUMA"]
 
 LUMA = (1 / 3, 1 / 3, 1 / 3)  # the intensity a colour event pixel sees: the channel mean, as scenes.simulate_events
@@ -64,37 +65,61 @@ def _unstack(x: Tensor, shape: torch.Size) -> Tensor:  # [B*D, H, W] -> [B, H, W
 _EMPTY = (0, 0, 0)  # the kernels' "not wanted" array shape
 
 
-def _kernel_forward(ctx, a: Tensor, b: Tensor, win: int, s_map: bool) -> tuple[np.ndarray | None, np.ndarray]:
-    """``ebad._ssim_kernels.ssim_forward`` on stacks [N, H, W]; what the backward needs goes on
-    ``ctx``. -> the SSIM map (when ``s_map``) and the per-task sums of S and |a - b|."""
+@dataclass
+class _SSIMPass:
+    """What ``_ssim_pass`` leaves for ``_ssim_adjoint``: both stacks [N, H, W], the window's taps
+    and dS/d(moments) [4, N, H, W] (empty when no gradient was wanted)."""
+
+    A: np.ndarray
+    B: np.ndarray
+    g: np.ndarray
+    coef: np.ndarray
+
+
+def _ssim_pass(A: np.ndarray, B: np.ndarray, win: int, want: bool,
+               s_map: bool) -> tuple[np.ndarray | None, np.ndarray, _SSIMPass]:
+    """``ebad._ssim_kernels.ssim_forward`` on stacks [N, H, W] of one dtype -> the SSIM map (when
+    ``s_map``), each image's sums of S and of |a - b| [N, 2], and what the adjoint needs."""
     from . import _ssim_kernels as K
 
-    A, B = a.detach().numpy(), b.detach().numpy()
     g = K.gauss_taps(win).astype(A.dtype)
-    want = ctx.needs_input_grad[0] or ctx.needs_input_grad[1]
     s = np.empty(A.shape if s_map else _EMPTY, A.dtype)
     coef = np.empty((4,) + A.shape if want else (4,) + _EMPTY, A.dtype)
     sums = np.empty((K.num_tasks(A.shape[0], A.shape[1]), 2))
     _run(K.ssim_forward, A, B, g, s, coef, want, sums)
-    ctx.save_for_backward(a, b)
-    ctx.coef, ctx.g = coef, g
-    return (s if s_map else None), sums
+    return (s if s_map else None), sums.reshape(A.shape[0], -1, 2).sum(1), _SSIMPass(A, B, g, coef)
 
 
-def _kernel_backward(ctx, grad_s: np.ndarray, gs_const: np.ndarray, l1_coef: np.ndarray) -> tuple:
-    """``ebad._ssim_kernels.ssim_backward`` after ``_kernel_forward`` -> the gradients of a and b
-    (None where not wanted)."""
+def _ssim_adjoint(p: _SSIMPass, grad_s: np.ndarray, gs_const: np.ndarray, l1_coef: np.ndarray, want_a: bool,
+                  want_b: bool) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """``ebad._ssim_kernels.ssim_backward`` after ``_ssim_pass`` -> the gradients of the stacks
+    (None where not wanted). ``grad_s``: the map's upstream gradient [N, H, W] (or empty),
+    ``gs_const`` and ``l1_coef``: each image's constant gradient of its mean S and of its mean
+    |a - b| summed per pixel [N]."""
     from . import _ssim_kernels as K
 
-    a, b = ctx.saved_tensors
-    want_a, want_b = ctx.needs_input_grad[0], ctx.needs_input_grad[1]
-    A, B = a.detach().numpy(), b.detach().numpy()
+    A, B = p.A, p.B
     ga = np.empty_like(A) if want_a else np.empty(_EMPTY, A.dtype)
     gb = np.empty_like(B) if want_b else np.empty(_EMPTY, A.dtype)
     # in the images' dtype: float64 ones would make the kernel compute its float32 loops in float64
     gs_const, l1_coef = gs_const.astype(A.dtype), l1_coef.astype(A.dtype)
-    _run(K.ssim_backward, A, B, ctx.g, ctx.coef, grad_s, gs_const, l1_coef, ga, gb, want_a, want_b)
-    return (torch.from_numpy(ga) if want_a else None), (torch.from_numpy(gb) if want_b else None)
+    _run(K.ssim_backward, A, B, p.g, p.coef, grad_s, gs_const, l1_coef, ga, gb, want_a, want_b)
+    return (ga if want_a else None), (gb if want_b else None)
+
+
+def _kernel_forward(ctx, a: Tensor, b: Tensor, win: int, s_map: bool) -> tuple[np.ndarray | None, np.ndarray]:
+    """``_ssim_pass`` on tensor stacks [N, H, W], what the backward needs on ``ctx`` -> the SSIM
+    map (when ``s_map``) and each image's sums of S and |a - b| [N, 2]."""
+    want = ctx.needs_input_grad[0] or ctx.needs_input_grad[1]
+    s, sums, ctx.ssim = _ssim_pass(a.detach().numpy(), b.detach().numpy(), win, want, s_map)
+    return s, sums
+
+
+def _kernel_backward(ctx, grad_s: np.ndarray, gs_const: np.ndarray, l1_coef: np.ndarray) -> tuple:
+    """``_ssim_adjoint`` after ``_kernel_forward`` -> the gradients of a and b as tensors (None
+    where not wanted)."""
+    ga, gb = _ssim_adjoint(ctx.ssim, grad_s, gs_const, l1_coef, ctx.needs_input_grad[0], ctx.needs_input_grad[1])
+    return (None if ga is None else torch.from_numpy(ga)), (None if gb is None else torch.from_numpy(gb))
 
 
 def _run(kernel, *args) -> None:
@@ -118,9 +143,9 @@ class _FusedSSIM(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, grad_s: Tensor):
-        a = ctx.saved_tensors[0]
-        none = np.zeros(a.shape[0])  # no constant upstream gradient, no L1 term
-        return *_kernel_backward(ctx, grad_s.detach().to(a.dtype).contiguous().numpy(), none, none), None
+        A = ctx.ssim.A
+        none = np.zeros(A.shape[0])  # no constant upstream gradient, no L1 term
+        return *_kernel_backward(ctx, np.ascontiguousarray(grad_s.detach().numpy(), dtype=A.dtype), none, none), None
 
 
 class _FusedL1SSIM(torch.autograd.Function):
@@ -130,20 +155,26 @@ class _FusedL1SSIM(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, a: Tensor, b: Tensor, win: int, w: float, group: np.ndarray, P: int) -> Tensor:
-        N, H, W = a.shape
         _, sums = _kernel_forward(ctx, a, b, win, s_map=False)
-        s_img, l1_img = sums.reshape(N, -1, 2).sum(1).T  # per image: the sums of S and of |a - b|
-        count = np.bincount(group, minlength=P) * float(H * W)  # the values each group's means run over
-        s_mean = np.bincount(group, weights=s_img, minlength=P) / count
-        l1_mean = np.bincount(group, weights=l1_img, minlength=P) / count
-        ctx.w, ctx.group, ctx.inv_count = w, group, 1.0 / count
-        return torch.from_numpy((1 - w) * l1_mean + w * (1 - s_mean)).to(a.dtype)
+        loss, ctx.inv_count = _group_l1_ssim(sums, group, P, a.shape[1] * a.shape[2], w)
+        ctx.w, ctx.group = w, group
+        return torch.from_numpy(loss).to(a.dtype)
 
     @staticmethod
     def backward(ctx, grad: Tensor):  # [P]
         G = (grad.detach().to(torch.float64).numpy() * ctx.inv_count)[ctx.group]  # per image
-        return *_kernel_backward(ctx, np.empty(_EMPTY, ctx.coef.dtype), -ctx.w * G, (1 - ctx.w) * G), None, None, \
+        return *_kernel_backward(ctx, np.empty(_EMPTY, ctx.ssim.A.dtype), -ctx.w * G, (1 - ctx.w) * G), None, None, \
             None, None
+
+
+def _group_l1_ssim(sums: np.ndarray, group: np.ndarray, P: int, pixels: int, w: float) -> tuple[np.ndarray, np.ndarray]:
+    """(1 - w) mean |a - b| + w (1 - mean S) of each of P groups of images, from each image's sums
+    of S and |a - b| [N, 2] (``group[n]``: image n's group, every image ``pixels`` values) -> the
+    losses [P] and 1 / the number of values of each group's means [P]."""
+    count = np.bincount(group, minlength=P) * float(pixels)
+    s_mean = np.bincount(group, weights=sums[:, 0], minlength=P) / count
+    l1_mean = np.bincount(group, weights=sums[:, 1], minlength=P) / count
+    return (1 - w) * l1_mean + w * (1 - s_mean), 1.0 / count
 
 
 def _pair(a: Tensor, b: Tensor, names: tuple[str, str]) -> tuple[Tensor, Tensor, torch.dtype]:
@@ -238,36 +269,48 @@ def event_loss(renders: Tensor,  # [V, H, W, D]
     return _EventLoss.apply(L, counts.to(L.dtype), cc[0], cc[-1], float(eps), norm == "l2")
 
 
+def _event_pass(Ln: np.ndarray, counts: np.ndarray, c_pos: float, c_neg: float, eps: float,
+                l2: bool) -> tuple[float, np.ndarray, float, float]:
+    """``ebad._event_kernels.event_forward`` on luminances [V, H, W] and counts [V - 1, 2, H, W] of
+    one dtype -> the loss (mean over windows and pixels), dloss/dr per window and pixel g
+    [V - 1, H, W] before the mean, and the sums of g N_on and g N_off."""
+    from . import _event_kernels as K
+
+    V, H, W = Ln.shape
+    log_L = np.log(np.maximum(Ln, 0) + Ln.dtype.type(eps))
+    g = np.empty((V - 1, H, W), Ln.dtype)
+    sums = np.empty((K.num_tasks(H), 3))
+    _run(K.event_forward, log_L, counts, float(c_pos), float(c_neg), l2, g, sums)
+    loss, s_on, s_off = sums.sum(0)
+    return float(loss / g.size), g, float(s_on), float(s_off)
+
+
+def _event_adjoint(Ln: np.ndarray, g: np.ndarray, scale: float, eps: float) -> np.ndarray:
+    """``ebad._event_kernels.event_backward`` -> the gradient of the luminances [V, H, W] for an
+    upstream gradient ``scale`` of the sum (the loss's gradient over the number of residuals)."""
+    from . import _event_kernels as K
+
+    out = np.empty_like(Ln)
+    _run(K.event_backward, Ln, g, scale, eps, out)
+    return out
+
+
 class _EventLoss(torch.autograd.Function):
     """``event_loss`` of luminances L [V, H, W] in one kernel pass each way (``ebad._event_kernels``);
     gradients to L and to both thresholds."""
 
     @staticmethod
     def forward(ctx, L: Tensor, counts: Tensor, c_pos: Tensor, c_neg: Tensor, eps: float, l2: bool) -> Tensor:
-        from . import _event_kernels as K
-
-        V, H, W = L.shape
         Ln = np.ascontiguousarray(L.detach().numpy())
-        log_L = np.log(np.maximum(Ln, 0) + Ln.dtype.type(eps))
-        g = np.empty((V - 1, H, W), Ln.dtype)
-        sums = np.empty((K.num_tasks(H), 3))
-        _run(K.event_forward, log_L, np.ascontiguousarray(counts.detach().numpy()), float(c_pos), float(c_neg), l2,
-             g, sums)
-        loss, s_on, s_off = sums.sum(0)
-        ctx.Ln, ctx.g, ctx.eps, ctx.inv_count = Ln, g, eps, 1.0 / g.size
-        ctx.s_on, ctx.s_off = s_on, s_off
-        return torch.tensor(loss / g.size, dtype=L.dtype)
+        loss, ctx.g, ctx.s_on, ctx.s_off = _event_pass(Ln, np.ascontiguousarray(counts.detach().numpy()), c_pos, c_neg,
+                                                       eps, l2)
+        ctx.Ln, ctx.eps, ctx.inv_count = Ln, eps, 1.0 / ctx.g.size
+        return torch.tensor(loss, dtype=L.dtype)
 
     @staticmethod
     def backward(ctx, grad: Tensor):
-        from . import _event_kernels as K
-
         scale = float(grad) * ctx.inv_count
-        grad_L = None
-        if ctx.needs_input_grad[0]:
-            out = np.empty_like(ctx.Ln)
-            _run(K.event_backward, ctx.Ln, ctx.g, scale, ctx.eps, out)
-            grad_L = torch.from_numpy(out)
+        grad_L = torch.from_numpy(_event_adjoint(ctx.Ln, ctx.g, scale, ctx.eps)) if ctx.needs_input_grad[0] else None
         dt = grad.dtype
         g_pos = torch.tensor(-scale * ctx.s_on, dtype=dt) if ctx.needs_input_grad[2] else None  # r falls with c_pos
         g_neg = torch.tensor(scale * ctx.s_off, dtype=dt) if ctx.needs_input_grad[3] else None
@@ -280,3 +323,144 @@ def edi_loss(renders: Tensor,  # [H, W, D] or [V, H, W, D]
     """L_EDI: renders against the EDI latents of the frame at the same instants (the mid-exposure
     render and latent, or every virtual view's), averaged over them."""
     return l1_ssim(renders, latents, ssim_weight, window)
+
+
+def exposure_losses(
+    images: Tensor,  # [V', H, W, D] one exposure's renders (irradiance), its V virtual views first
+    V: int,
+    blurry: Tensor,  # [H, W, D] L_blur's target
+    latents: Tensor | None = None,  # [H, W, D] (against images[mid]) or [V, H, W, D] (against images[:V])
+    mid: int | None = None,  # index in images of the render compared with a [H, W, D] latent
+    counts: Tensor | None = None,  # [E - 1, 2, H, W] ON / OFF counts between consecutive event_views
+    event_views: Sequence[int] = (),  # the E indices in images of L_ev's instants, in time order
+    c: float | tuple[float, float] | Tensor = 0.2,
+    ssim_weight: float = 0.2,
+    window: int = 7,
+    eps: float | None = None,
+    norm: EventNorm = "l1",
+) -> tuple[Tensor, Tensor | None, Tensor | None, Tensor]:
+    """L_blur, L_EDI and L_ev of one exposure's renders in ONE autograd node, for a linear response.
+
+    The same values and gradients as ``blur_loss(images[:V], blurry)``, ``edi_loss(images[mid],
+    latents)`` (or ``edi_loss(images[:V], latents)`` for a latent per view) and
+    ``event_loss(images[event_views], counts, c)``, from one L1 + SSIM kernel pass over every
+    compared image and one L_ev pass, with the gradient of ``images`` written into one array:
+    composed from torch operations, the slices, the mean and the stacks of the renders each added
+    a full-size temporary and its backward to a training step. L_EDI is None without ``latents``,
+    L_ev None with fewer than two ``event_views``; ``c`` as ``event_loss`` (differentiable).
+    Returns (L_blur, L_EDI, L_ev, the mean of the V renders [H, W, D], detached)."""
+    if images.ndim != 4 or images.dtype not in (torch.float32, torch.float64):
+        raise ValueError(f"images must be float32 or float64 [V', H, W, D], got {images.dtype} {tuple(images.shape)}")
+    Vp, H, W, D = images.shape
+    if not 1 <= V <= Vp:
+        raise ValueError(f"V must be in [1, {Vp}] (the renders given), got {V}")
+    if tuple(blurry.shape) != (H, W, D):
+        raise ValueError(f"blurry must be [H, W, D] = {(H, W, D)}, got {tuple(blurry.shape)}")
+    views = latents is not None and latents.ndim == 4
+    if latents is not None:
+        want = (V, H, W, D) if views else (H, W, D)
+        if tuple(latents.shape) != want:
+            raise ValueError(f"latents must be [H, W, D] or [V, H, W, D] = {(V, H, W, D)}, got {tuple(latents.shape)}")
+        if not views and (mid is None or not 0 <= mid < Vp):
+            raise ValueError(f"mid must index one of the {Vp} renders when latents is [H, W, D], got {mid}")
+    event_views = tuple(int(i) for i in event_views)
+    if len(event_views) >= 2:
+        if counts is None or tuple(counts.shape) != (len(event_views) - 1, 2, H, W):
+            raise ValueError(f"counts must be [E - 1, 2, H, W] = {(len(event_views) - 1, 2, H, W)}, "
+                             f"got {None if counts is None else tuple(counts.shape)}")
+        if len(set(event_views)) != len(event_views) or not all(0 <= i < Vp for i in event_views):
+            raise ValueError(f"event_views must be distinct indices of the {Vp} renders, got {event_views}")
+    if norm not in typing.get_args(EventNorm):
+        raise ValueError(f"norm must be one of {typing.get_args(EventNorm)}, got {norm!r}")
+    cc = torch.as_tensor(c, dtype=images.dtype).reshape(-1)
+    spec = _ExposureSpec(V=V, mid=None if latents is None or views else int(mid), views=views,
+                         event_views=event_views if len(event_views) >= 2 else (),
+                         win=_window_for(H, W, window), w=float(ssim_weight),
+                         eps=LOG_EPS if eps is None else float(eps), l2=norm == "l2")
+    losses, mean = _ExposureLosses.apply(images, cc[0], cc[-1], blurry, latents, counts, spec)
+    blur, edi, ev = losses.unbind()
+    return blur, (edi if latents is not None else None), (ev if spec.event_views else None), mean
+
+
+@dataclass(frozen=True)
+class _ExposureSpec:
+    """``exposure_losses``'s choices, as ``_ExposureLosses`` takes them."""
+
+    V: int
+    mid: int | None  # the render compared with a mid-exposure latent (None: no L_EDI, or one latent per view)
+    views: bool  # one latent per virtual view
+    event_views: tuple[int, ...]  # L_ev's renders (empty: no L_ev)
+    win: int
+    w: float
+    eps: float
+    l2: bool
+
+
+def _hwd_stack(x: np.ndarray) -> np.ndarray:  # [B, H, W, D] -> [B*D, H, W] contiguous (a view when D = 1 and contiguous)
+    B, H, W, D = x.shape
+    return np.ascontiguousarray(x.transpose(0, 3, 1, 2)).reshape(B * D, H, W)
+
+
+class _ExposureLosses(torch.autograd.Function):
+    """``exposure_losses``: (L_blur, L_EDI, L_ev) [3] and the mean render; gradients to the renders
+    and to both thresholds."""
+
+    @staticmethod
+    def forward(ctx, images: Tensor, c_pos: Tensor, c_neg: Tensor, blurry: Tensor, latents: Tensor | None,
+                counts: Tensor | None, spec: _ExposureSpec):
+        X = np.ascontiguousarray(images.detach().numpy())
+        dt = X.dtype
+        Vp, H, W, D = X.shape
+        mean = X[:spec.V].mean(0, dtype=dt)  # [H, W, D]
+        preds, targets = [mean[None]], [np.asarray(blurry.detach().numpy(), dt)[None]]
+        if latents is not None:
+            lat = np.asarray(latents.detach().numpy(), dt)
+            preds.append(X[:spec.V] if spec.views else X[spec.mid][None])
+            targets.append(lat if spec.views else lat[None])
+        A = _hwd_stack(np.concatenate(preds))
+        B = _hwd_stack(np.concatenate(targets))
+        group = np.repeat(np.arange(len(preds)), [p.shape[0] * D for p in preds])
+        _, sums, ctx.ssim = _ssim_pass(A, B, spec.win, images.requires_grad, s_map=False)
+        image_losses, ctx.inv_count = _group_l1_ssim(sums, group, len(preds), H * W, spec.w)
+        ev = 0.0
+        if spec.event_views:
+            Xe = X[list(spec.event_views)]
+            Ln = np.ascontiguousarray(Xe[..., 0] if D == 1 else Xe @ np.asarray(LUMA, dt))  # [E, H, W] luminance
+            ev, ctx.g, ctx.s_on, ctx.s_off = _event_pass(Ln, np.ascontiguousarray(counts.detach().numpy(), dtype=dt),
+                                                         c_pos, c_neg, spec.eps, spec.l2)
+            ctx.Ln = Ln
+        ctx.spec, ctx.group, ctx.shape = spec, group, X.shape
+        mean_t = torch.from_numpy(mean)
+        ctx.mark_non_differentiable(mean_t)
+        losses = np.array([image_losses[0], image_losses[1] if latents is not None else 0.0, ev])
+        return torch.from_numpy(losses).to(images.dtype), mean_t
+
+    @staticmethod
+    def backward(ctx, grad: Tensor, _grad_mean):  # [3]
+        spec = ctx.spec
+        Vp, H, W, D = ctx.shape
+        G = grad.detach().to(torch.float64).numpy()
+        grad_images = None
+        g_pos = g_neg = None
+        if ctx.needs_input_grad[0]:
+            per_image = (G[:len(ctx.inv_count)] * ctx.inv_count)[ctx.group]
+            ga, _ = _ssim_adjoint(ctx.ssim, np.empty(_EMPTY, ctx.ssim.A.dtype), -spec.w * per_image,
+                                  (1 - spec.w) * per_image, True, False)
+            ga = ga.reshape(-1, D, H, W).transpose(0, 2, 3, 1)  # [P images, H, W, D]
+            out = np.zeros(ctx.shape, ga.dtype)
+            out[:spec.V] += ga[0] / ga.dtype.type(spec.V)
+            if spec.views:
+                out[:spec.V] += ga[1:]
+            elif spec.mid is not None:
+                out[spec.mid] += ga[1]
+            if spec.event_views:
+                gl = _event_adjoint(ctx.Ln, ctx.g, float(G[2]) / ctx.g.size, spec.eps)  # [E, H, W]
+                idx = list(spec.event_views)
+                out[idx] += gl[..., None] if D == 1 else gl[..., None] * np.asarray(LUMA, gl.dtype)
+            grad_images = torch.from_numpy(out)
+        if spec.event_views:
+            scale = float(G[2]) / ctx.g.size
+            dt = grad.dtype
+            g_pos = torch.tensor(-scale * ctx.s_on, dtype=dt) if ctx.needs_input_grad[1] else None  # r falls with c_pos
+            g_neg = torch.tensor(scale * ctx.s_off, dtype=dt) if ctx.needs_input_grad[2] else None
+        return grad_images, g_pos, g_neg, None, None, None, None

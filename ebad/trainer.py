@@ -26,7 +26,7 @@ from .config import Config, preset
 from .data import MIN_DOWNSCALED_SIDE, PrepareReport, TrainingData, downscale, prepare
 from .errors import ConfigError
 from .gaussians import num_gaussians, render
-from .losses import event_loss, l1_ssim_each
+from .losses import event_loss, exposure_losses, l1_ssim_each
 from .metrics import psnr, ssim
 from .response import Response
 from .state import StepStats, TrainState, capture_fingerprint, max_gaussians
@@ -70,32 +70,52 @@ def frame_losses(data: TrainingData, state: TrainState, f: int, cfg: Config) -> 
     t1 = time.perf_counter()
     images, _, meta = render(state.params, poses, data.K, data.width, data.height, cfg.model.background)
     t2 = time.perf_counter()
-    renders = images[:V]  # irradiance: blur averages it, events see its log
-    recorded_blur = state.response(renders.mean(0, keepdim=True))  # what the APS records of the exposure
-    # L_blur and L_EDI (each l1_ssim: blur_loss and edi_loss) from one kernel call
-    pairs = [(recorded_blur, data.targets[f])]
-    if views is not None and lc.w_edi > 0:  # the renders against the latents at the same instants
-        pairs.append((state.response(renders), views))
-    elif data.latents is not None and lc.w_edi > 0:  # the mid-exposure render against the mid latent
-        pairs.append((state.response(images[V] if need_mid else images[V // 2]), data.latents[f]))
-    blur, *edi_or_none = l1_ssim_each(pairs, lc.ssim_weight, lc.ssim_window)
-    edi = edi_or_none[0] if edi_or_none else None
-    total = lc.w_blur * blur
-    ev = None
+    mid = V if need_mid else V // 2  # the render L_EDI compares with a mid-exposure latent
+    edi_target = None
+    if lc.w_edi > 0:
+        edi_target = views if views is not None else data.latents[f] if data.latents is not None else None
+    counts, event_views, c = None, (), None
     if lc.w_event > 0 and data.ev_counts[f] is not None:
         c = torch.exp(state.log_c) if state.log_c is not None else data.c
         if lc.event_windows == "random":  # one random pair of virtual instants (virtual_views docstring)
             i, j = random_window(V, state.generator)
-            ev = event_loss(renders[[i, j]], window_counts(data.ev_counts[f], i, j), c, norm=lc.event_norm)
+            counts, event_views = window_counts(data.ev_counts[f], i, j), (i, j)
         else:
-            ev = event_loss(renders, data.ev_counts[f], c, norm=lc.event_norm)
+            counts, event_views = data.ev_counts[f], tuple(range(V))
+    if state.response.learnable:
+        blur, edi, ev, mean_render = _losses_through_response(images, V, data.targets[f], edi_target, mid, counts,
+                                                              event_views, c, state.response, cfg)
+    else:  # the three losses in one autograd node (``losses.exposure_losses``)
+        blur, edi, ev, mean_render = exposure_losses(images, V, data.targets[f], edi_target, mid, counts, event_views,
+                                                     0.0 if c is None else c, lc.ssim_weight, lc.ssim_window,
+                                                     norm=lc.event_norm)
+    total = lc.w_blur * blur
+    if ev is not None:
         total = total + lc.w_event * ev
     if edi is not None:
         total = total + lc.w_edi * edi
     info = RenderInfo(means2d=meta.get("means2d"), radii=meta.get("radii"), width=data.width, height=data.height)
-    return FrameLosses(total=total, blur=blur, ev=ev, edi=edi, info=info, mean_render=recorded_blur.detach()[0],
+    return FrameLosses(total=total, blur=blur, ev=ev, edi=edi, info=info, mean_render=mean_render,
                        raster_timings=meta.get("timings", {}),
                        timings={"poses": 1e3 * (t1 - t0), "losses": 1e3 * (time.perf_counter() - t2)})
+
+
+def _losses_through_response(images: Tensor, V: int, blurry: Tensor, edi_target: Tensor | None, mid: int,
+                             counts: Tensor | None, event_views: tuple[int, ...], c, response: Response,
+                             cfg: Config) -> tuple[Tensor, Tensor | None, Tensor | None, Tensor]:
+    """``losses.exposure_losses`` with a learnt camera response, composed from torch operations:
+    L_blur and L_EDI compare the response of the renders (``images`` [V', H, W, D], irradiance)
+    with the recorded frame and latents, L_ev the renders themselves. -> L_blur, L_EDI, L_ev and
+    the recorded mean render [H, W, D] (detached)."""
+    lc = cfg.loss
+    renders = images[:V]
+    recorded_blur = response(renders.mean(0, keepdim=True))  # what the APS records of the exposure
+    pairs = [(recorded_blur, blurry)]  # L_blur and L_EDI (each l1_ssim) from one kernel call
+    if edi_target is not None:
+        pairs.append((response(renders if edi_target.ndim == 4 else images[mid]), edi_target))
+    blur, *edi = l1_ssim_each(pairs, lc.ssim_weight, lc.ssim_window)
+    ev = event_loss(images[list(event_views)], counts, c, norm=lc.event_norm) if event_views else None
+    return blur, (edi[0] if edi else None), ev, recorded_blur.detach()[0]
 
 
 def _budget_fraction(state: TrainState, cfg: Config, elapsed: float) -> float:

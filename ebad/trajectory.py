@@ -13,7 +13,9 @@ poses ``[F, V, 4, 4]``:
   camera whose pose is not trusted (gsplat's ``pose_opt``).
 - ``fixed`` (K = 0): the mid pose at every instant (trusted poses, sharp frames).
 
-``ExposureTrajectories`` is the stateful shell (an ``nn.Module`` holding the knots).
+``ExposureTrajectories`` is the stateful shell (an ``nn.Module`` holding the knots). On the CPU it
+evaluates the same poses in closed form with their derivatives (``ebad._fast_poses``, one autograd
+node instead of a few dozen small ones); these functions are its reference.
 """
 from __future__ import annotations
 
@@ -23,6 +25,7 @@ from typing import Callable
 import torch
 from torch import Tensor, nn
 
+from ._fast_poses import NearPi, TrajectoryPoses, fast_poses_available
 from .lie import compose_pose, rigid_inverse, so3_exp, so3_log
 
 __all__ = ["TrajectoryModel", "TRAJECTORIES", "linear_poses", "cubic_poses", "offset_poses", "fixed_poses",
@@ -170,6 +173,11 @@ class ExposureTrajectories(nn.Module):
         """Poses of ``frames`` at normalised instants ``u``."""
         knots = self.knots[frames] * self.moving[frames, None, None]
         mid = self.c2w_mid[frames]
+        if fast_poses_available(self.kind) and knots.device.type == "cpu":
+            try:  # the same poses in closed form, one autograd node (ebad._fast_poses)
+                return TrajectoryPoses.apply(knots, mid, u, self.kind, self.scale, self.anchored)
+            except NearPi:  # a logarithm near pi: the torch path (so3_log takes kornia's there)
+                pass
         if not (self.anchored and self.model.num_knots > 0):
             return self.model.poses(mid, knots, u, self.scale)
         both = self.model.poses(mid, knots, torch.cat([u, u.new_tensor([0.5])]), self.scale)  # u and mid-exposure in one call

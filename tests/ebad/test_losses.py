@@ -287,3 +287,58 @@ def test_event_loss_float32_close_to_float64_and_gradcheck():
     c = torch.tensor([0.22, 0.19], dtype=torch.float64, requires_grad=True)
     x = (renders[:, :6, :5]).clone().requires_grad_(True)
     torch.autograd.gradcheck(lambda x, c: event_loss(x, counts[:, :, :6, :5], c, norm="l2"), (x, c))
+
+
+@pytest.mark.parametrize("D", [1, 3])
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+@pytest.mark.parametrize("edi", ["views", "mid", "none"])
+@pytest.mark.parametrize("windows", ["consecutive", "pair", "none"])
+def test_exposure_losses_in_one_node_equal_the_three_losses_composed(D, dtype, edi, windows):
+    """exposure_losses against blur_loss + edi_loss + event_loss: values, the gradient of the
+    renders and of both thresholds, and the mean render."""
+    from ebad.losses import exposure_losses
+
+    gen = torch.Generator().manual_seed(3)
+    V, H, W = 4, 17, 23
+    Vp = V + 1 if edi == "mid" else V  # an even V renders its mid-exposure view last
+    img = (torch.rand(Vp, H, W, D, generator=gen, dtype=dtype) * 0.9 + 0.05).requires_grad_()
+    blurry = torch.rand(H, W, D, generator=gen, dtype=dtype)
+    lat = {"views": torch.rand(V, H, W, D, generator=gen, dtype=dtype),
+           "mid": torch.rand(H, W, D, generator=gen, dtype=dtype), "none": None}[edi]
+    ev = {"consecutive": list(range(V)), "pair": [1, 3], "none": []}[windows]
+    counts = torch.randint(0, 3, (len(ev) - 1, 2, H, W), generator=gen).to(dtype) if ev else None
+    c = torch.tensor([0.21, 0.17], dtype=dtype, requires_grad=True)
+    blur, e, v, mean = exposure_losses(img, V, blurry, lat, V if edi == "mid" else None, counts, ev, c)
+    assert (e is None) == (lat is None) and (v is None) == (not ev)
+    total = 0.7 * blur + (1.3 * e if e is not None else 0) + (0.4 * v if v is not None else 0)
+    g_img, g_c = torch.autograd.grad(total, (img, c), allow_unused=True)
+
+    blur2 = blur_loss(img[:V], blurry)
+    e2 = None if lat is None else edi_loss(img[:V] if edi == "views" else img[V], lat)
+    v2 = event_loss(img[ev], counts, c) if ev else None
+    total2 = 0.7 * blur2 + (1.3 * e2 if e2 is not None else 0) + (0.4 * v2 if v2 is not None else 0)
+    g_img2, g_c2 = torch.autograd.grad(total2, (img, c), allow_unused=True)
+    tol = dict(rtol=1e-5, atol=1e-7) if dtype == torch.float32 else dict(rtol=1e-12, atol=1e-14)
+    for a, b in ((blur, blur2), (e, e2), (v, v2)):
+        assert (a is None and b is None) or torch.allclose(a, b, **tol)
+    assert torch.allclose(g_img, g_img2, **tol)
+    assert (g_c is None and g_c2 is None) or torch.allclose(g_c, g_c2, **tol)
+    assert torch.allclose(mean, img[:V].mean(0).detach(), **tol) and not mean.requires_grad
+
+
+def test_exposure_losses_refuse_mismatched_inputs_naming_them():
+    from ebad.losses import exposure_losses
+
+    img = torch.rand(3, 8, 9, 1, requires_grad=True)
+    with pytest.raises(ValueError, match="blurry must be"):
+        exposure_losses(img, 3, torch.rand(8, 9, 3))
+    with pytest.raises(ValueError, match="latents must be"):
+        exposure_losses(img, 3, torch.rand(8, 9, 1), torch.rand(2, 8, 9, 1))
+    with pytest.raises(ValueError, match="mid must index"):
+        exposure_losses(img, 3, torch.rand(8, 9, 1), torch.rand(8, 9, 1), mid=3)
+    with pytest.raises(ValueError, match="counts must be"):
+        exposure_losses(img, 3, torch.rand(8, 9, 1), counts=torch.rand(1, 2, 8, 9), event_views=[0, 1, 2])
+    with pytest.raises(ValueError, match="event_views must be distinct"):
+        exposure_losses(img, 3, torch.rand(8, 9, 1), counts=torch.rand(1, 2, 8, 9), event_views=[1, 1])
+    with pytest.raises(ValueError, match="V must be in"):
+        exposure_losses(img, 4, torch.rand(8, 9, 1))

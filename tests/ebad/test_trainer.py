@@ -130,3 +130,44 @@ def test_edi_at_every_view_compares_each_virtual_view_with_the_latent_at_its_ins
     bad = _config(edi_instants="views", edi_prior="medi")
     with pytest.raises(ConfigError, match="loss.edi_instants"):
         bad.check()
+
+
+@pytest.mark.parametrize("instants,views", [("views", 5), ("mid", 4), ("mid", 5)])
+def test_frame_losses_in_one_node_equal_the_response_path_with_a_linear_response(scene, instants, views):
+    """A linear response takes ``losses.exposure_losses``; the composed path a learnt response takes
+    (``_losses_through_response``) gives the same losses and parameter gradients with it, with
+    L_EDI at every view or at mid-exposure (an even V renders its mid view last)."""
+    from ebad.trainer import _losses_through_response, frame_losses
+
+    cfg = _config(edi_instants=instants)
+    cfg.trajectory.num_views = views
+    data = prepare(scene.capture, cfg)
+    state = TrainState.create(data, cfg)
+    f = int(np.argmax(data.V))
+    assert int(data.V[f]) == views and data.ev_counts[f] is not None
+    assert not state.response.learnable
+    out = frame_losses(data, state, f, cfg)
+    out.total.backward()
+    grads = {k: p.grad.clone() for k, p in state.params.items()}
+    knots_grad = state.trajectories.knots.grad.clone()
+    for p in [*state.params.values(), state.trajectories.knots]:
+        p.grad = None
+
+    import ebad.trainer as trainer
+
+    def composed(images, V, blurry, latents, mid, counts, event_views, c, w, window, norm):
+        return _losses_through_response(images, V, blurry, latents, mid, counts, event_views, c, state.response, cfg)
+
+    original = trainer.exposure_losses
+    trainer.exposure_losses = composed
+    try:
+        ref = frame_losses(data, state, f, cfg)
+    finally:
+        trainer.exposure_losses = original
+    ref.total.backward()
+    for name in ("blur", "edi", "ev"):
+        assert float(getattr(out, name)) == pytest.approx(float(getattr(ref, name)), rel=1e-5)
+    assert torch.allclose(out.mean_render, ref.mean_render, atol=1e-6)
+    for k, p in state.params.items():
+        assert torch.allclose(grads[k], p.grad, rtol=1e-4, atol=1e-7 * float(p.grad.abs().max())), k
+    assert torch.allclose(knots_grad, state.trajectories.knots.grad, rtol=1e-4, atol=1e-6 * float(knots_grad.abs().max()))
