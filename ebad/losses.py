@@ -82,7 +82,7 @@ def _ssim_pass(A: np.ndarray, B: np.ndarray, win: int, want: bool,
     ``s_map``), each image's sums of S and of |a - b| [N, 2], and what the adjoint needs."""
     from . import _ssim_kernels as K
 
-    g = K.gauss_taps(win).astype(A.dtype)
+    g = K.window_taps(win).astype(A.dtype)
     s = np.empty(A.shape if s_map else _EMPTY, A.dtype)
     coef = np.empty((4,) + A.shape if want else (4,) + _EMPTY, A.dtype)
     sums = np.empty((K.num_tasks(A.shape[0], A.shape[1]), 2))

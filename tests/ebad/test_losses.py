@@ -47,7 +47,8 @@ def test_luminance_grey_passthrough_and_rgb():
 
 
 @pytest.mark.parametrize("shape,window", [((2, 20, 24, 1), 7), ((1, 12, 9, 3), 11), ((1, 5, 6, 1), 11),
-                                          ((1, 61, 30, 1), 7), ((2, 49, 8, 3), 11)])  # several bands of rows
+                                          ((1, 61, 30, 1), 7), ((2, 49, 8, 3), 11),  # several bands of rows
+                                          ((1, 3, 8, 1), 7), ((1, 40, 33, 1), 9)])  # windows 5 and 9 inside blocks of 7 taps
 def test_ssim_matches_kornia_reference(shape, window):
     from ebad.losses import ssim_map, ssim_map_kornia
     g = torch.Generator().manual_seed(0)
