@@ -25,7 +25,7 @@ from torch import Tensor
 from .config import Config, preset
 from .data import MIN_DOWNSCALED_SIDE, PrepareReport, TrainingData, downscale, prepare
 from .errors import ConfigError
-from .gaussians import num_gaussians, render
+from .gaussians import normalise_quats_, num_gaussians, render
 from .losses import event_loss, exposure_losses, l1_ssim_each
 from .metrics import psnr, ssim
 from .response import Response
@@ -131,8 +131,10 @@ def train_step(data: TrainingData, state: TrainState, strategy: Strategy, f: int
     """Forward, backward, Adam steps, densification of frame ``f``; advances ``state.step``.
     ``StepStats.profile`` says where the step's time went (``step_profile``)."""
     t0 = time.perf_counter()
-    for opt in state.optimizers.values():
-        opt.zero_grad(set_to_none=True)
+    for opt in state.optimizers.values():  # zero_grad(set_to_none=True), without its per-optimizer hooks
+        for group in opt.param_groups:
+            for p in group["params"]:
+                p.grad = None
     out = frame_losses(data, state, f, cfg)
     if not torch.isfinite(out.total):
         raise FloatingPointError(f"non-finite loss at step {state.step} (frame {data.names[f]})")
@@ -150,9 +152,7 @@ def train_step(data: TrainingData, state: TrainState, strategy: Strategy, f: int
         if name == "poses" and state.step < cfg.train.pose_warmup:
             continue
         opt.step()
-    with torch.no_grad():
-        q = state.params["quats"]
-        q.data = q.data / q.data.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    normalise_quats_(state.params["quats"])
     t4 = time.perf_counter()
     refine = strategy.step_post_backward(state.params, state.optimizers, state.strategy_state, state.step, out.info)
     state.step += 1

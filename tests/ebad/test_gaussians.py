@@ -45,3 +45,19 @@ def test_knn_scale_matches_brute_force():
     ref = d.topk(3, largest=False).values.mean(-1)
     assert torch.allclose(knn_scale(pts), ref, atol=1e-5)
     assert knn_scale(pts[:1]).shape == (1,) and knn_scale(pts[:2]).shape == (2,)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_normalise_quats_in_place_equals_dividing_by_the_clamped_norm(dtype):
+    from ebad.gaussians import normalise_quats_
+
+    q = torch.randn(50, 4, generator=torch.Generator().manual_seed(0), dtype=dtype) * 3
+    q[7] = 0.0  # clamped: stays zero, no nan
+    ref = q / q.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    p = torch.nn.Parameter(q.clone())
+    normalise_quats_(p)
+    assert torch.allclose(p.data, ref, rtol=2e-7 if dtype == torch.float32 else 1e-15, atol=0)
+    assert torch.isfinite(p.data).all() and not p.data[7].any()
+    t = q.clone().t().contiguous().t()  # a non-contiguous view takes the torch expression
+    normalise_quats_(t)
+    assert torch.allclose(t, ref)

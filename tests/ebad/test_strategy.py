@@ -149,3 +149,28 @@ def test_no_opacity_reset_after_reset_until_of_the_run():
     assert strat.step_post_backward(params, opts, state, 8, early).reset is True
     with pytest.raises(Exception, match="strategy.reset_until"):
         C.StrategyConfig(reset_until=1.5).check()
+
+
+@pytest.mark.parametrize("radii_dims", [2, 3])
+def test_accumulate_equals_the_screen_gradients_summed_over_cameras(radii_dims):
+    """The one-pass accumulation against ``screen_grads`` summed over the cameras (its reference),
+    with Gaussians invisible in some cameras, for [C, N] and [C, N, 2] radii."""
+    from ebad.strategy import screen_grads
+
+    gen = torch.Generator().manual_seed(4)
+    C_, N = 6, 300
+    means2d = torch.zeros(C_, N, 2, requires_grad=True)
+    means2d.grad = torch.randn(C_, N, 2, generator=gen)
+    radii = torch.randint(0, 3, (C_, N, 2), generator=gen, dtype=torch.int32)
+    if radii_dims == 2:
+        radii = radii[..., 0]
+    info = RenderInfo(means2d=means2d, radii=radii, width=173, height=130)
+    strat = DefaultStrategy(C.StrategyConfig())
+    state = strat.initialize_state(N)
+    state.grad2d += 0.5  # it adds to what is there
+    strat.accumulate(state, info)
+    strat.accumulate(state, info)
+    norms, visible = screen_grads(info)
+    assert 0 < int(visible.sum()) < C_ * N
+    assert torch.allclose(state.grad2d, 0.5 + 2 * norms.sum(0), rtol=1e-6)
+    assert torch.equal(state.count, 2 * visible.sum(0).float())
