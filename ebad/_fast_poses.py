@@ -4,190 +4,259 @@
 (``so3_exp`` through ``matrix_exp``, ``so3_log``, products, the anchoring); at a training step's
 sizes (one frame, six instants) each costs a few microseconds forward and more backward, and an
 anchored linear trajectory took 1.4 ms a step, forward and backward. Here the same poses come
-from numpy in float64, and with them their derivatives with respect to every knot (forward-mode:
-each quantity carries its tangents along the P = K x 6 knot coordinates, a few dozen). The
+from one numba function in float64, and with them their derivatives with respect to every knot
+(forward mode: each quantity carries its tangents along the P = K x 6 knot coordinates). The
 backward is then one contraction of those tangents with the upstream gradient
-(``TrajectoryPoses``).
+(``TrajectoryPoses``). The torch functions stay the reference (tests compare both).
 
 Rotations use the closed forms of SO(3) (Barfoot, "State Estimation for Robotics", 7.1):
 exp(w) = I + a W + b W^2 and its right Jacobian Jr(w) = I - b W + c W^2 (W = [w]x, a = sin t / t,
 b = (1 - cos t) / t^2, c = (t - sin t) / t^3, t = |w|), so d exp(w) = exp(w) [Jr(w) dw]x; the
 logarithm as ``ebad.lie.so3_log`` and d log(R) = Jr^-1(w) vee(R^T dR), Jr^-1(w) = I + W / 2 +
-e W^2, e = (1 - (t / 2) cot(t / 2)) / t^2. Series replace the ratios near t = 0. Rotations whose
-logarithm is needed within ``NEAR_PI_COS`` of pi are refused (``NearPi``): the caller takes the
-torch path, as ``so3_log`` takes kornia's there.
+e W^2, e = (1 - (t / 2) cot(t / 2)) / t^2. Series replace the ratios near t = 0. A logarithm
+within ``NEAR_PI_COS`` of pi is refused (``NearPi``): the caller takes the torch path, as
+``so3_log`` takes kornia's there.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import torch
+from numba import njit
 from torch import Tensor
 
-__all__ = ["TrajectoryPoses", "NearPi", "poses_with_tangents", "fast_poses_available", "so3_exp", "so3_log"]
+__all__ = ["TrajectoryPoses", "NearPi", "poses_with_tangents", "fast_poses_available", "KINDS"]
 
 #: below this cos(angle) a logarithm is refused (``ebad.lie._NEAR_PI_COS``: there vee(R - R^T) loses its digits)
 NEAR_PI_COS = -0.9
 _SMALL_EXP = 1e-4  # t^2 below which exp's and Jr's ratios come from their series (error ~ t^6 / 5040)
 _SMALL_INV = 1e-2  # t^2 below which Jr^-1's ratio comes from its series (error ~ t^8 / 4.8e7)
 _SMALL_LOG = 1e-10  # sin(t)^2 below which t / sin(t) comes from its series
+#: the trajectory kinds with a closed form, and their number of knots (``ebad.trajectory.TRAJECTORIES``)
+KINDS = {"linear": 2, "cubic": 4, "offset": 1}
+_KIND_ID = {"linear": 0, "cubic": 1, "offset": 2}
 
 
 class NearPi(ValueError):
     """A rotation whose logarithm is wanted is within ``NEAR_PI_COS`` of pi."""
 
 
-def _hat(w: np.ndarray) -> np.ndarray:  # [..., 3] -> [..., 3, 3] the skew matrix [w]x
-    out = np.zeros(w.shape[:-1] + (3, 3))
-    out[..., 0, 1], out[..., 0, 2] = -w[..., 2], w[..., 1]
-    out[..., 1, 0], out[..., 1, 2] = w[..., 2], -w[..., 0]
-    out[..., 2, 0], out[..., 2, 1] = -w[..., 1], w[..., 0]
-    return out
+@njit(cache=True)
+def _hat_into(v0, v1, v2, out):  # pragma: no cover - jit
+    out[0, 0], out[0, 1], out[0, 2] = 0.0, -v2, v1
+    out[1, 0], out[1, 1], out[1, 2] = v2, 0.0, -v0
+    out[2, 0], out[2, 1], out[2, 2] = -v1, v0, 0.0
 
 
-def _vee(M: np.ndarray) -> np.ndarray:  # [..., 3, 3] -> [..., 3] the vector of M's skew part
-    return 0.5 * np.stack([M[..., 2, 1] - M[..., 1, 2], M[..., 0, 2] - M[..., 2, 0], M[..., 1, 0] - M[..., 0, 1]], -1)
-
-
-def _exp_ratios(w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # [...] each: a, b, c
-    t2 = (w * w).sum(-1)
-    small = t2 < _SMALL_EXP
-    t2s = np.where(small, 1.0, t2)
-    t = np.sqrt(t2s)
-    a = np.where(small, 1 - t2 / 6 + t2 * t2 / 120, np.sin(t) / t)
-    b = np.where(small, 0.5 - t2 / 24 + t2 * t2 / 720, (1 - np.cos(t)) / t2s)
-    c = np.where(small, 1 / 6 - t2 / 120 + t2 * t2 / 5040, (t - np.sin(t)) / (t2s * t))
-    return a, b, c
-
-
-def so3_exp(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # [..., 3] -> R [..., 3, 3], Jr [..., 3, 3]
-    """Rotation matrices and right Jacobians of rotation vectors (float64)."""
-    a, b, c = _exp_ratios(w)
-    W = _hat(w)
+@njit(cache=True)
+def _exp_jr(w0, w1, w2, R, J):  # pragma: no cover - jit
+    """R = exp([w]x) and J = Jr(w), 3 x 3, written."""
+    t2 = w0 * w0 + w1 * w1 + w2 * w2
+    if t2 < _SMALL_EXP:
+        a = 1.0 - t2 / 6.0 + t2 * t2 / 120.0
+        b = 0.5 - t2 / 24.0 + t2 * t2 / 720.0
+        c = 1.0 / 6.0 - t2 / 120.0 + t2 * t2 / 5040.0
+    else:
+        t = math.sqrt(t2)
+        a = math.sin(t) / t
+        b = (1.0 - math.cos(t)) / t2
+        c = (t - math.sin(t)) / (t2 * t)
+    W = np.empty((3, 3))
+    _hat_into(w0, w1, w2, W)
     W2 = W @ W
-    eye = np.eye(3)
-    return (eye + a[..., None, None] * W + b[..., None, None] * W2,
-            eye - b[..., None, None] * W + c[..., None, None] * W2)
+    for i in range(3):
+        for j in range(3):
+            e = 1.0 if i == j else 0.0
+            R[i, j] = e + a * W[i, j] + b * W2[i, j]
+            J[i, j] = e - b * W[i, j] + c * W2[i, j]
 
 
-def so3_log(R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # [..., 3, 3] -> w [..., 3], Jr^-1(w) [..., 3, 3]
-    """Rotation vectors and inverse right Jacobians of rotations (float64), angles below pi;
-    raises ``NearPi`` within ``NEAR_PI_COS`` of pi."""
-    v = _vee(R)
-    cos = 0.5 * (np.trace(R, axis1=-2, axis2=-1) - 1)
-    if bool((cos < NEAR_PI_COS).any()):
-        raise NearPi("a rotation is near pi")
-    s2 = (v * v).sum(-1)
-    small = s2 < _SMALL_LOG
-    s = np.sqrt(np.where(small, 1.0, s2))
-    w = v * np.where(small, 1 + s2 / 6 + 3 * s2 * s2 / 40, np.arctan2(s, cos) / s)[..., None]
-    t2 = (w * w).sum(-1)
-    near = t2 < _SMALL_INV
-    t = np.sqrt(np.where(near, 1.0, t2))
-    e = np.where(near, 1 / 12 + t2 / 720 + t2 * t2 / 30240 + t2 ** 3 / 1209600,
-                 (1 - 0.5 * t / np.tan(0.5 * t)) / np.where(near, 1.0, t2))
-    W = _hat(w)
-    return w, np.eye(3) + 0.5 * W + e[..., None, None] * (W @ W)
+@njit(cache=True)
+def _log_jinv(Q, w, Jinv):  # pragma: no cover - jit
+    """w = log(Q) and Jinv = Jr(w)^-1 written; False (nothing written) within NEAR_PI_COS of pi."""
+    v0 = 0.5 * (Q[2, 1] - Q[1, 2])
+    v1 = 0.5 * (Q[0, 2] - Q[2, 0])
+    v2 = 0.5 * (Q[1, 0] - Q[0, 1])
+    cos = 0.5 * (Q[0, 0] + Q[1, 1] + Q[2, 2] - 1.0)
+    if cos < NEAR_PI_COS:
+        return False
+    s2 = v0 * v0 + v1 * v1 + v2 * v2
+    if s2 < _SMALL_LOG:
+        f = 1.0 + s2 / 6.0 + 3.0 * s2 * s2 / 40.0
+    else:
+        s = math.sqrt(s2)
+        f = math.atan2(s, cos) / s
+    w[0], w[1], w[2] = v0 * f, v1 * f, v2 * f
+    t2 = w[0] * w[0] + w[1] * w[1] + w[2] * w[2]
+    if t2 < _SMALL_INV:
+        e = 1.0 / 12.0 + t2 / 720.0 + t2 * t2 / 30240.0 + t2 * t2 * t2 / 1209600.0
+    else:
+        t = math.sqrt(t2)
+        e = (1.0 - 0.5 * t / math.tan(0.5 * t)) / t2
+    W = np.empty((3, 3))
+    _hat_into(w[0], w[1], w[2], W)
+    W2 = W @ W
+    for i in range(3):
+        for j in range(3):
+            Jinv[i, j] = (1.0 if i == j else 0.0) + 0.5 * W[i, j] + e * W2[i, j]
+    return True
 
 
-def _rot_tangent(R: np.ndarray, J: np.ndarray, dw: np.ndarray) -> np.ndarray:
-    """d(exp(w)) = exp(w) [Jr(w) dw]x for tangents dw [B, P, ..., 3] of w [B, ..., 3] -> [B, P, ..., 3, 3]."""
-    return R[:, None] @ _hat((J[:, None] @ dw[..., None])[..., 0])
+@njit(cache=True)
+def _rot_tangent(R, J, col, scale, out):  # pragma: no cover - jit
+    """out = R [scale * J[:, col]]x: d exp(w) for dw = scale * e_col, left-multiplied by R."""
+    H = np.empty((3, 3))
+    _hat_into(scale * J[0, col], scale * J[1, col], scale * J[2, col], H)
+    out[:, :] = R @ H
 
 
-def _linear(Rm, tm, knots, u, scale):
-    """R [B, V, 3, 3], t [B, V, 3] and their tangents [B, P, V, ...] of ``linear_poses``."""
-    B, K, _ = knots.shape
-    P = 6 * K
-    basis = np.eye(P).reshape(P, K, 6)  # tangent p moves knot coordinate p
-    E, Jr = so3_exp(knots[:, :, :3])  # [B, 2, 3, 3]
-    R01 = Rm[:, None] @ E  # start and end rotations
-    dR01 = _rot_tangent(R01, Jr, np.broadcast_to(basis[None, :, :, :3], (B, P, K, 3)))  # [B, P, 2, 3, 3]
-    t01 = tm[:, None] + scale * knots[:, :, 3:]
-    dt01 = np.broadcast_to(scale * basis[None, :, :, 3:], (B, P, K, 3))
-    R0, R1, dR0, dR1 = R01[:, 0], R01[:, 1], dR01[:, :, 0], dR01[:, :, 1]
-    Q = R0.swapaxes(-1, -2) @ R1
-    dQ = dR0.swapaxes(-1, -2) @ R1[:, None] + R0.swapaxes(-1, -2)[:, None] @ dR1
-    rel, Jinv = so3_log(Q)  # [B, 3]
-    drel = (Jinv[:, None] @ _vee(Q.swapaxes(-1, -2)[:, None] @ dQ)[..., None])[..., 0]  # [B, P, 3]
-    a = u[None, :, None] * rel[:, None]  # [B, V, 3]
-    Eu, Ju = so3_exp(a)
-    dEu = _rot_tangent(Eu, Ju, u[None, None, :, None] * drel[:, :, None])  # [B, P, V, 3, 3]
-    R = R0[:, None] @ Eu
-    dR = dR0[:, :, None] @ Eu[:, None] + R0[:, None, None] @ dEu
-    uu = u[None, :, None]
-    t = (1 - uu) * t01[:, 0, None] + uu * t01[:, 1, None]
-    dt = (1 - uu[:, None]) * dt01[:, :, 0, None] + uu[:, None] * dt01[:, :, 1, None]
-    return R, t, dR, dt
+@njit(cache=True)
+def _vee_skew(M):  # pragma: no cover - jit
+    return 0.5 * (M[2, 1] - M[1, 2]), 0.5 * (M[0, 2] - M[2, 0]), 0.5 * (M[1, 0] - M[0, 1])
 
 
-def _bspline(u: np.ndarray) -> np.ndarray:  # [V] -> [V, 4], as ``trajectory.bspline_weights``
-    u2, u3 = u * u, u * u * u
-    return np.stack([(1 - u) ** 3 / 6, (3 * u3 - 6 * u2 + 4) / 6, (-3 * u3 + 3 * u2 + 3 * u + 1) / 6, u3 / 6], -1)
+@njit(cache=True)
+def _frame(kind, Rm, tm, knots, u, scale, R, t, dR, dt):  # pragma: no cover - jit
+    """One frame's poses R [V, 3, 3], t [V, 3] at the instants u [V] and their tangents dR
+    [P, V, 3, 3], dt [P, V, 3] (written; zero where a coordinate does not move them). False when a
+    logarithm is near pi."""
+    V = u.shape[0]
+    dR[:] = 0.0
+    dt[:] = 0.0
+    E = np.empty((3, 3))
+    J = np.empty((3, 3))
+    if kind == 2:  # offset: one pose at every instant
+        _exp_jr(knots[0, 0], knots[0, 1], knots[0, 2], E, J)
+        R0 = Rm @ E
+        for v in range(V):
+            R[v] = R0
+            for i in range(3):
+                t[v, i] = tm[i] + scale * knots[0, 3 + i]
+                _rot_tangent(R0, J, i, 1.0, dR[i, v])
+                dt[3 + i, v, i] = scale
+        return True
+    if kind == 1:  # cubic B-spline in the tangent space at the mid pose
+        for v in range(V):
+            uu = u[v]
+            u2 = uu * uu
+            u3 = u2 * uu
+            B = ((1 - uu) ** 3 / 6, (3 * u3 - 6 * u2 + 4) / 6, (-3 * u3 + 3 * u2 + 3 * uu + 1) / 6, u3 / 6)
+            xi = np.zeros(6)
+            for k in range(4):
+                for i in range(6):
+                    xi[i] += B[k] * knots[k, i]
+            _exp_jr(xi[0], xi[1], xi[2], E, J)
+            R[v] = Rm @ E
+            for i in range(3):
+                t[v, i] = tm[i] + scale * xi[3 + i]
+            for k in range(4):
+                for i in range(3):
+                    _rot_tangent(R[v], J, i, B[k], dR[6 * k + i, v])
+                    dt[6 * k + 3 + i, v, i] = scale * B[k]
+        return True
+    # linear: R0 exp(u log(R0^T R1)), (1 - u) t0 + u t1
+    E1 = np.empty((3, 3))
+    J1 = np.empty((3, 3))
+    _exp_jr(knots[0, 0], knots[0, 1], knots[0, 2], E, J)
+    _exp_jr(knots[1, 0], knots[1, 1], knots[1, 2], E1, J1)
+    R0 = Rm @ E
+    R1 = Rm @ E1
+    dR0 = np.zeros((12, 3, 3))
+    dR1 = np.zeros((12, 3, 3))
+    for i in range(3):
+        _rot_tangent(R0, J, i, 1.0, dR0[i])
+        _rot_tangent(R1, J1, i, 1.0, dR1[6 + i])
+    Q = R0.T @ R1
+    rel = np.empty(3)
+    Jinv = np.empty((3, 3))
+    if not _log_jinv(Q, rel, Jinv):
+        return False
+    drel = np.zeros((12, 3))
+    for p in (0, 1, 2, 6, 7, 8):
+        dQ = dR0[p].T @ R1 + R0.T @ dR1[p]
+        a0, a1, a2 = _vee_skew(Q.T @ dQ)
+        for i in range(3):
+            drel[p, i] = Jinv[i, 0] * a0 + Jinv[i, 1] * a1 + Jinv[i, 2] * a2
+    Eu = np.empty((3, 3))
+    Ju = np.empty((3, 3))
+    dEu = np.empty((3, 3))
+    H = np.empty((3, 3))
+    for v in range(V):
+        uu = u[v]
+        _exp_jr(uu * rel[0], uu * rel[1], uu * rel[2], Eu, Ju)
+        R[v] = R0 @ Eu
+        for i in range(3):
+            t[v, i] = tm[i] + scale * ((1 - uu) * knots[0, 3 + i] + uu * knots[1, 3 + i])
+            dt[3 + i, v, i] = scale * (1 - uu)
+            dt[9 + i, v, i] = scale * uu
+        for p in (0, 1, 2, 6, 7, 8):
+            g = Ju @ (uu * drel[p])
+            _hat_into(g[0], g[1], g[2], H)
+            dEu[:, :] = Eu @ H
+            dR[p, v] = dR0[p] @ Eu + R0 @ dEu
+    return True
 
 
-def _cubic(Rm, tm, knots, u, scale):
-    """``cubic_poses`` and tangents (see ``_linear``)."""
-    B, K, _ = knots.shape
-    P = 6 * K
-    Bw = _bspline(u)  # [V, 4]
-    xi = Bw @ knots  # [B, V, 6]
-    dxi = np.zeros((P, len(u), 6))  # coordinate i of knot k moves xi[:, i] by B[:, k]
-    for k in range(K):
-        for i in range(6):
-            dxi[6 * k + i, :, i] = Bw[:, k]
-    E, Jr = so3_exp(xi[..., :3])
-    R = Rm[:, None] @ E
-    dR = _rot_tangent(R, Jr, np.broadcast_to(dxi[None, ..., :3], (B, P, len(u), 3)))
-    t = tm[:, None] + scale * xi[..., 3:]
-    dt = np.broadcast_to(scale * dxi[None, ..., 3:], (B, P, len(u), 3))
-    return R, t, dR, dt
-
-
-def _offset(Rm, tm, knots, u, scale):
-    """``offset_poses`` and tangents (see ``_linear``)."""
+@njit(cache=True)
+def _poses(kind, c2w_mid, knots, u, scale, anchored, c2w, dC):  # pragma: no cover - jit
+    """c2w [B, V, 4, 4] and dC [B, P, V, 3, 4] written (see ``poses_with_tangents``); False when a
+    logarithm is near pi."""
     B = knots.shape[0]
-    V = len(u)
-    basis = np.eye(6)
-    E, Jr = so3_exp(knots[:, 0, :3])
-    R = Rm @ E  # [B, 3, 3]
-    dR = _rot_tangent(R, Jr, np.broadcast_to(basis[None, :, :3], (B, 6, 3)))  # [B, 6, 3, 3]
-    t = tm + scale * knots[:, 0, 3:]
-    dt = np.broadcast_to(scale * basis[None, :, 3:], (B, 6, 3))
-    return (np.broadcast_to(R[:, None], (B, V, 3, 3)), np.broadcast_to(t[:, None], (B, V, 3)),
-            np.broadcast_to(dR[:, :, None], (B, 6, V, 3, 3)), np.broadcast_to(dt[:, :, None], (B, 6, V, 3)))
-
-
-_KINDS = {"linear": _linear, "cubic": _cubic, "offset": _offset}
+    P = knots.shape[1] * 6
+    V = u.shape[0]
+    Va = V + 1 if anchored else V
+    ua = np.empty(Va)
+    ua[:V] = u
+    if anchored:
+        ua[V] = 0.5
+    R = np.empty((Va, 3, 3))
+    t = np.empty((Va, 3))
+    dR = np.empty((P, Va, 3, 3))
+    dt = np.empty((P, Va, 3))
+    for b in range(B):
+        Rm = np.ascontiguousarray(c2w_mid[b, :3, :3])
+        tm = c2w_mid[b, :3, 3].copy()
+        if not _frame(kind, Rm, tm, knots[b], ua, scale, R, t, dR, dt):
+            return False
+        for v in range(V):
+            c2w[b, v] = 0.0
+            c2w[b, v, 3, 3] = 1.0
+        if anchored:  # left-multiply by M = T_mid T(0.5)^-1: R_M = R_m Rh^T, t_M = t_m - R_M th
+            RM = Rm @ np.ascontiguousarray(R[V].T)
+            tM = tm - RM @ t[V]
+            for v in range(V):
+                c2w[b, v, :3, :3] = RM @ R[v]
+                c2w[b, v, :3, 3] = RM @ t[v] + tM
+            for p in range(P):
+                dRM = Rm @ np.ascontiguousarray(dR[p, V].T)
+                dtM = -(dRM @ t[V]) - RM @ dt[p, V]
+                for v in range(V):
+                    dC[b, p, v, :, :3] = dRM @ R[v] + RM @ dR[p, v]
+                    dC[b, p, v, :, 3] = dRM @ t[v] + RM @ dt[p, v] + dtM
+        else:
+            for v in range(V):
+                c2w[b, v, :3, :3] = R[v]
+                c2w[b, v, :3, 3] = t[v]
+                for p in range(P):
+                    dC[b, p, v, :, :3] = dR[p, v]
+                    dC[b, p, v, :, 3] = dt[p, v]
+    return True
 
 
 def poses_with_tangents(kind: str, c2w_mid: np.ndarray, knots: np.ndarray, u: np.ndarray, scale: float,
                         anchored: bool) -> tuple[np.ndarray, np.ndarray]:
     """c2w [B, V, 4, 4] of a trajectory kind with knots (``ebad.trajectory``'s ``linear``, ``cubic``,
-    ``offset``), anchored or not, and its tangents along every knot coordinate: dC [B, P, V, 3, 4]
-    (the top three rows), P = K x 6 in the knots' [K, 6] order. float64 throughout; raises
-    ``NearPi`` (see the module docstring)."""
-    Rm, tm = c2w_mid[:, :3, :3], c2w_mid[:, :3, 3]
+    ``offset`` on c2w_mid [B, 4, 4], knots [B, K, 6], u [V]), anchored or not, and its tangents
+    along every knot coordinate: dC [B, P, V, 3, 4] (the top three rows), P = K x 6 in the knots'
+    [K, 6] order. float64 throughout; raises ``NearPi`` (see the module docstring)."""
+    B, K, _ = knots.shape
     V = len(u)
-    if anchored:
-        u = np.append(u, 0.5)
-    R, t, dR, dt = _KINDS[kind](Rm, tm, knots, u, scale)
-    if anchored:  # left-multiply by M = T_mid T(0.5)^-1: R_M = R_m Rh^T, t_M = t_m - R_M th
-        Rh, th, dRh, dth = R[:, V], t[:, V], dR[:, :, V], dt[:, :, V]
-        R, t, dR, dt = R[:, :V], t[:, :V], dR[:, :, :V], dt[:, :, :V]
-        RM = Rm @ Rh.swapaxes(-1, -2)  # [B, 3, 3]
-        dRM = Rm[:, None] @ dRh.swapaxes(-1, -2)  # [B, P, 3, 3]
-        tM = tm - (RM @ th[..., None])[..., 0]
-        dtM = -(dRM @ th[:, None, :, None])[..., 0] - (RM[:, None] @ dth[..., None])[..., 0]
-        dR = dRM[:, :, None] @ R[:, None] + RM[:, None, None] @ dR
-        dt = ((dRM[:, :, None] @ t[:, None, ..., None])[..., 0] + (RM[:, None, None] @ dt[..., None])[..., 0]
-              + dtM[:, :, None])
-        R = RM[:, None] @ R
-        t = (RM[:, None] @ t[..., None])[..., 0] + tM[:, None]
-    B = R.shape[0]
-    c2w = np.zeros((B, V, 4, 4))
-    c2w[..., :3, :3], c2w[..., :3, 3], c2w[..., 3, 3] = R, t, 1.0
-    dC = np.empty(dR.shape[:3] + (3, 4))
-    dC[..., :3], dC[..., 3] = dR, dt
+    c2w = np.empty((B, V, 4, 4))
+    dC = np.empty((B, 6 * K, V, 3, 4))
+    if not _poses(_KIND_ID[kind], np.ascontiguousarray(c2w_mid, np.float64), np.ascontiguousarray(knots, np.float64),
+                  np.ascontiguousarray(u, np.float64), float(scale), bool(anchored), c2w, dC):
+        raise NearPi("a rotation whose logarithm a linear trajectory needs is near pi")
     return c2w, dC
 
 
@@ -197,20 +266,18 @@ class TrajectoryPoses(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, knots: Tensor, c2w_mid: Tensor, u: Tensor, kind: str, scale: float, anchored: bool) -> Tensor:
-        c2w, dC = poses_with_tangents(kind, c2w_mid.detach().double().numpy(), knots.detach().double().numpy(),
-                                      u.detach().double().numpy(), scale, anchored)
+        c2w, dC = poses_with_tangents(kind, c2w_mid.detach().numpy(), knots.detach().numpy(), u.detach().numpy(),
+                                      scale, anchored)
         ctx.dC, ctx.knot_shape = dC, knots.shape
         return torch.from_numpy(c2w).to(knots.dtype)
 
     @staticmethod
     def backward(ctx, grad: Tensor):  # [B, V, 4, 4]
-        G = grad.detach().double().numpy()[..., :3, :]
-        B, P = ctx.dC.shape[:2]
+        G = grad.detach().numpy()[..., :3, :].astype(np.float64)
         gk = np.einsum("bpvij,bvij->bp", ctx.dC, G).reshape(ctx.knot_shape)
         return torch.from_numpy(gk).to(grad.dtype), None, None, None, None, None
 
 
 def fast_poses_available(kind: str) -> bool:
     """Whether ``poses_with_tangents`` has the kind (``fixed`` needs no derivative at all)."""
-    return kind in _KINDS
-
+    return kind in KINDS

