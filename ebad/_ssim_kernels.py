@@ -132,6 +132,7 @@ def ssim_forward(a, b, g, s_map, coef, want_grad, sums):  # pragma: no cover - j
         l1_sum = 0.0
         for i in range(i0, i1):  # down the columns: the moments, the map and its derivatives
             ii = i - i0
+            m[:] = 0.0
             for c in range(5):
                 mc = m[c]
                 for blk in range(T // TAPS):
@@ -140,14 +141,8 @@ def ssim_forward(a, b, g, s_map, coef, want_grad, sums):  # pragma: no cover - j
                     g4, g5, g6 = g[blk * TAPS + 4], g[blk * TAPS + 5], g[blk * TAPS + 6]
                     q0, q1, q2, q3 = rows[c, o], rows[c, o + 1], rows[c, o + 2], rows[c, o + 3]
                     q4, q5, q6 = rows[c, o + 4], rows[c, o + 5], rows[c, o + 6]
-                    if blk == 0:
-                        for j in range(W):
-                            mc[j] = g0 * q0[j] + g1 * q1[j] + g2 * q2[j] + g3 * q3[j] + g4 * q4[j] + g5 * q5[j] \
-                                + g6 * q6[j]
-                    else:
-                        for j in range(W):
-                            mc[j] += g0 * q0[j] + g1 * q1[j] + g2 * q2[j] + g3 * q3[j] + g4 * q4[j] + g5 * q5[j] \
-                                + g6 * q6[j]
+                    for j in range(W):
+                        mc[j] += g0 * q0[j] + g1 * q1[j] + g2 * q2[j] + g3 * q3[j] + g4 * q4[j] + g5 * q5[j] + g6 * q6[j]
             for j in range(W):
                 # from here on in float64 on purpose (C1, C2 and 2.0 are Python floats): the variances are
                 # differences of raw moments, which lose digits in float32 (SSIM of two equal flat images
@@ -233,38 +228,25 @@ def ssim_backward(a, b, g, coef, grad_s, gs_const, l1_coef, grad_a, grad_b, want
                     if (c == 0 and not want_a) or (c == 1 and not want_b):
                         continue
                     dst = cols[c, T - 1:T - 1 + W]
+                    dst[:] = 0.0
                     for blk in range(T // TAPS):
                         o = blk * TAPS
                         w0, w1, w2, w3, w4, w5, w6 = gw[o], gw[o + 1], gw[o + 2], gw[o + 3], gw[o + 4], gw[o + 5], \
                             gw[o + 6]
-                        k0, k1, k2, k3, k4, k5, k6 = gr[o], gr[o + 1], gr[o + 2], gr[o + 3], gr[o + 4], gr[o + 5], \
-                            gr[o + 6]
+                        p0, p1, p2, p3 = coef[c, n, gr[o]], coef[c, n, gr[o + 1]], coef[c, n, gr[o + 2]], coef[c, n, gr[o + 3]]
+                        p4, p5, p6 = coef[c, n, gr[o + 4]], coef[c, n, gr[o + 5]], coef[c, n, gr[o + 6]]
                         if const:
                             G = gs_const[n]
                             w0, w1, w2, w3, w4, w5, w6 = G * w0, G * w1, G * w2, G * w3, G * w4, G * w5, G * w6
-                            p0, p1, p2, p3 = coef[c, n, k0], coef[c, n, k1], coef[c, n, k2], coef[c, n, k3]
-                            p4, p5, p6 = coef[c, n, k4], coef[c, n, k5], coef[c, n, k6]
-                            if blk == 0:
-                                for j in range(W):
-                                    dst[j] = w0 * p0[j] + w1 * p1[j] + w2 * p2[j] + w3 * p3[j] + w4 * p4[j] \
-                                        + w5 * p5[j] + w6 * p6[j]
-                            else:
-                                for j in range(W):
-                                    dst[j] += w0 * p0[j] + w1 * p1[j] + w2 * p2[j] + w3 * p3[j] + w4 * p4[j] \
-                                        + w5 * p5[j] + w6 * p6[j]
+                            for j in range(W):
+                                dst[j] += w0 * p0[j] + w1 * p1[j] + w2 * p2[j] + w3 * p3[j] + w4 * p4[j] + w5 * p5[j] \
+                                    + w6 * p6[j]
                         else:
-                            p0, p1, p2, p3 = coef[c, n, k0], coef[c, n, k1], coef[c, n, k2], coef[c, n, k3]
-                            p4, p5, p6 = coef[c, n, k4], coef[c, n, k5], coef[c, n, k6]
-                            s0, s1, s2, s3 = grad_s[n, k0], grad_s[n, k1], grad_s[n, k2], grad_s[n, k3]
-                            s4, s5, s6 = grad_s[n, k4], grad_s[n, k5], grad_s[n, k6]
-                            if blk == 0:
-                                for j in range(W):
-                                    dst[j] = w0 * s0[j] * p0[j] + w1 * s1[j] * p1[j] + w2 * s2[j] * p2[j] \
-                                        + w3 * s3[j] * p3[j] + w4 * s4[j] * p4[j] + w5 * s5[j] * p5[j] + w6 * s6[j] * p6[j]
-                            else:
-                                for j in range(W):
-                                    dst[j] += w0 * s0[j] * p0[j] + w1 * s1[j] * p1[j] + w2 * s2[j] * p2[j] \
-                                        + w3 * s3[j] * p3[j] + w4 * s4[j] * p4[j] + w5 * s5[j] * p5[j] + w6 * s6[j] * p6[j]
+                            s0, s1, s2, s3 = grad_s[n, gr[o]], grad_s[n, gr[o + 1]], grad_s[n, gr[o + 2]], grad_s[n, gr[o + 3]]
+                            s4, s5, s6 = grad_s[n, gr[o + 4]], grad_s[n, gr[o + 5]], grad_s[n, gr[o + 6]]
+                            for j in range(W):
+                                dst[j] += w0 * s0[j] * p0[j] + w1 * s1[j] * p1[j] + w2 * s2[j] * p2[j] \
+                                    + w3 * s3[j] * p3[j] + w4 * s4[j] * p4[j] + w5 * s5[j] * p5[j] + w6 * s6[j] * p6[j]
                     # the adjoint of the row pass: padded column x gathers tap k from column x - k
                     src = cols[c]
                     tc = t[c]
