@@ -185,7 +185,14 @@ def _with_hidden_crossings(events: EventStream, exposure: tuple[float, float]) -
 
 def _flow_energy(b: np.ndarray, exposure: tuple[float, float], events: EventStream, ratio: float,
                  patch: int = FLOW_PATCH, k: int = FLOW_SUBINTERVALS) -> Callable[[float], float]:
-    """energy(c) of one blurry frame b [H, W, D]: brightness-constancy residual (module docstring).
+    """energy(c) of one blurry frame b [H, W, D] at c_pos / c_neg = ratio (``_flow_setup``)."""
+    return _flow_setup(b, exposure, events, patch, k)(ratio)
+
+
+def _flow_setup(b: np.ndarray, exposure: tuple[float, float], events: EventStream, patch: int = FLOW_PATCH,
+                k: int = FLOW_SUBINTERVALS) -> Callable[[float], Callable[[float], float]]:
+    """ratio -> energy(c) of one blurry frame b [H, W, D]: brightness-constancy residual (module
+    docstring); what does not depend on the ratio c_pos / c_neg is computed once.
 
     Integrated over a sub-interval [a, b) of the exposure, brightness constancy under a flow
     v is exact: log L(b) - log L(a) = -grad(mean over [a, b) of log L) . v (b - a). The left
@@ -247,9 +254,11 @@ def _flow_energy(b: np.ndarray, exposure: tuple[float, float], events: EventStre
         mean.append(np.cumsum(n, axis=0) - n + tail)
     ty, tx = _tiles(H, patch), _tiles(W, patch)
 
-    def blocks(a: np.ndarray, b_: np.ndarray) -> np.ndarray:  # [K, H, W] twice -> [ty, tx]: sums of a b (masked)
-        ab = np.einsum("khw,khw->hw", a, b_) * valid
-        return np.add.reduceat(np.add.reduceat(ab, ty, axis=0), tx, axis=1)
+    def tile(a: np.ndarray) -> np.ndarray:  # [H, W] -> [ty, tx]: sums over the tiles (masked)
+        return np.add.reduceat(np.add.reduceat(a * valid, ty, axis=0), tx, axis=1)
+
+    def sum_k(a: np.ndarray, b_: np.ndarray) -> np.ndarray:  # [K, H, W] twice -> [H, W]: sum over k of a b
+        return np.einsum("khw,khw->hw", a, b_)
 
     def gauss(a: np.ndarray, oy: int, ox: int) -> np.ndarray:  # [..., H, W]: Gaussian or its derivative
         a = ndimage.gaussian_filter1d(a, FLOW_SMOOTH, axis=-2, order=oy, mode="mirror")
@@ -272,37 +281,53 @@ def _flow_energy(b: np.ndarray, exposure: tuple[float, float], events: EventStre
     g_lb = [grad(lb, h) for h in (0, 1)]  # per half: x, y [H, W]
     g_mean = [[grad(m, h) for m in mean] for h in (0, 1)]  # per half, per polarity: x, y [K, H, W]
 
-    def energy(c: float) -> float:
-        cc = _pair(c, ratio)
-        r, _ = edi_log_ratio(aug, exposure, bounds[:1], cc)  # E(t_s) - lme = -lme, [1, H, W]
-        d = cc.pos * d_parts[0] - cc.neg * d_parts[1]  # [K, H, W] change of log L per sub-interval, smoothed
-        g = []  # per half: x, y gradients [K, H, W] of the mean of log L over each sub-interval
-        for h in (0, 1):
-            g_lme = grad(r[0], h)  # of -lme
-            g.append([cc.pos * g_mean[h][0][i] - cc.neg * g_mean[h][1][i] + (g_lb[h][i] + g_lme[i])[None]
-                      for i in (0, 1)])
-        (ax, ay), (bx_, by_) = g
-        # per patch: min_w sum (d + g . w)^2, explained part b^T A^-1 b with A = sum g g^T and
-        # b = sum g d; each product of gradients is one of the half A with the half B
-        axx, ayy, axy = blocks(ax, bx_), blocks(ay, by_), 0.5 * (blocks(ax, by_) + blocks(ay, bx_))
-        b_a, b_b = (blocks(ax, d), blocks(ay, d)), (blocks(bx_, d), blocks(by_, d))
-        dd = blocks(d, d)
-        eps = FLOW_RIDGE * 0.25 * (blocks(ax + bx_, ax + bx_) + blocks(ay + by_, ay + by_))
-        # A's eigenvalues lambda counted as lambda / (lambda^2 + eps^2), none below 0
-        half_tr, half_df = 0.5 * (axx + ayy), 0.5 * (axx - ayy)
-        rad = np.hypot(half_df, axy)
-        theta = 0.5 * np.arctan2(axy, half_df)
-        cos, sin = np.cos(theta), np.sin(theta)
-        expl = np.zeros_like(dd)
-        for lam, (ux, uy) in ((half_tr + rad, (cos, sin)), (half_tr - rad, (-sin, cos))):
-            lam = np.maximum(lam, 0.0)
-            proj = (ux * b_a[0] + uy * b_a[1]) * (ux * b_b[0] + uy * b_b[1])
-            expl += proj * lam / (lam * lam + eps * eps + 1e-300)  # 0 where a patch has no gradient
-        expl = np.clip(expl, 0.0, dd)
-        tot = float(dd.sum())
-        return float((tot - expl.sum()) / tot) if tot > 0 else math.inf
+    def for_ratio(ratio: float) -> Callable[[float], float]:
+        s = math.sqrt(ratio)  # c_pos = c s, c_neg = c / s (``_pair``)
+        # with these, the smoothed change is d = c D and half h's gradient g_h = c Q_h + S_h, where
+        # S_h = grad(log(B + eps) - lme) is the same for every sub-interval: every sum over the
+        # sub-intervals of a product is a polynomial in c whose coefficients are computed here
+        D = s * d_parts[0] - d_parts[1] / s  # [K, H, W]
+        Q = [[s * g_mean[h][0][i] - g_mean[h][1][i] / s for i in (0, 1)] for h in (0, 1)]
+        U = [Q[0][i] + Q[1][i] for i in (0, 1)]
+        sum_D, DD = D.sum(axis=0), tile(sum_k(D, D))
+        sum_Q = [[q.sum(axis=0) for q in Q[h]] for h in (0, 1)]
+        sum_U, UU = [u.sum(axis=0) for u in U], [sum_k(u, u) for u in U]
+        QQ = [[sum_k(Q[0][i], Q[1][j]) for j in (0, 1)] for i in (0, 1)]  # half 0's i with half 1's j
+        QD = [[sum_k(q, D) for q in Q[h]] for h in (0, 1)]
 
-    return energy
+        def energy(c: float) -> float:
+            r, _ = edi_log_ratio(aug, exposure, bounds[:1], _pair(c, ratio))  # E(t_s) - lme = -lme, [1, H, W]
+            S = [[gl + gm for gl, gm in zip(g_lb[h], grad(r[0], h))] for h in (0, 1)]
+
+            def cross(i: int, j: int) -> np.ndarray:  # tiles of sum_k g_0i g_1j
+                return tile(c * c * QQ[i][j] + c * (S[0][i] * sum_Q[1][j] + S[1][j] * sum_Q[0][i])
+                            + k * S[0][i] * S[1][j])
+
+            # per patch: min_w sum (d + g . w)^2, explained part b^T A^-1 b with A = sum g g^T and
+            # b = sum g d; each product of gradients is one of the half 0 with the half 1
+            axx, ayy, axy = cross(0, 0), cross(1, 1), 0.5 * (cross(0, 1) + cross(1, 0))
+            b_h = [[tile(c * c * QD[h][i] + c * S[h][i] * sum_D) for i in (0, 1)] for h in (0, 1)]
+            dd = c * c * DD
+            T = [S[0][i] + S[1][i] for i in (0, 1)]
+            eps = FLOW_RIDGE * 0.25 * sum(tile(c * c * UU[i] + 2 * c * T[i] * sum_U[i] + k * T[i] * T[i])
+                                          for i in (0, 1))
+            # A's eigenvalues lambda counted as lambda / (lambda^2 + eps^2), none below 0
+            half_tr, half_df = 0.5 * (axx + ayy), 0.5 * (axx - ayy)
+            rad = np.hypot(half_df, axy)
+            theta = 0.5 * np.arctan2(axy, half_df)
+            cos, sin = np.cos(theta), np.sin(theta)
+            expl = np.zeros_like(dd)
+            for lam, (ux, uy) in ((half_tr + rad, (cos, sin)), (half_tr - rad, (-sin, cos))):
+                lam = np.maximum(lam, 0.0)
+                proj = (ux * b_h[0][0] + uy * b_h[0][1]) * (ux * b_h[1][0] + uy * b_h[1][1])
+                expl += proj * lam / (lam * lam + eps * eps + 1e-300)  # 0 where a patch has no gradient
+            expl = np.clip(expl, 0.0, dd)
+            tot = float(dd.sum())
+            return float((tot - expl.sum()) / tot) if tot > 0 else math.inf
+
+        return energy
+
+    return for_ratio
 
 
 def _sobel_mag(img: np.ndarray) -> np.ndarray:
@@ -695,9 +720,11 @@ def estimate_c(
         sat = 1.0 - float((fr[i] < SATURATION).all(axis=-1).mean())
         exposure = (float(ex[i, 0]), float(ex[i, 1]))
 
+        flow = _flow_setup(fr[i], exposure, events) if energy == "flow" else None
+
         def build(ratio: float) -> Callable[[float], float]:
-            if energy == "flow":
-                return _flow_energy(fr[i], exposure, events, ratio)
+            if flow is not None:
+                return flow(ratio)
             return _paper_energy(fr[i], exposure, events, ratio, paper_weight)
 
         with warnings.catch_warnings():
