@@ -219,7 +219,7 @@ def _flow_setup(b: np.ndarray, exposure: tuple[float, float], events: EventStrea
       in the gradients that a larger c amplifies, and squared they explained less of the change
       at larger c (0.75-0.99x on unquantised events with mismatch 0.03, 0.83-1.02x with the
       halves); across the halves the noise is independent and drops out. What mismatch leaves
-      is that low thresholds fire more: the events see a harmonic mean of the thresholds (0.957
+      is that low thresholds fire more: the events see a harmonic mean of the thresholds (0.956
       of their mean at c 0.15, sigma_c 0.03).
 
     The patches tile the whole frame. Per patch, the flow solves the normal equations with the

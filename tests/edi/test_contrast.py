@@ -358,8 +358,8 @@ def test_single_frame_low_reads_come_from_the_mismatch():
     each seed reads lower or the same, by 0.004 to 0.115 (mean 0.044; 0 to 0.24, mean 0.083,
     when the fit's second moments were squares of the noisy gradients). What is left is not
     the fit's: a pixel of threshold c_px fires c / c_px times as often as one of threshold c, and
-    the mean of c / c_px is 1 + (sigma_c / c)^2 and more, 1.045 at c 0.15 (a harmonic mean of
-    the thresholds, 0.957 of their mean, as the consistency estimator's instruments also see),
+    the mean of c / c_px is 1 + (sigma_c / c)^2 and more, 1.046 at c 0.15 (a harmonic mean of
+    the thresholds, 0.956 of their mean, as the consistency estimator's instruments also see),
     plus the draw of 2000 pixels' thresholds (seed 0, 0.889x, is the lowest)."""
     ideal, mismatch = [], []
     for seed in range(10):
