@@ -13,12 +13,12 @@ Two estimators (each an energy of c, every evaluation one EDI pass per frame use
   small leaves the blurry frame's gradients (too weak for the events), a c too large adds
   ghost edges that move with no flow. The events get back the crossings the pixels'
   hysteresis hid (an event after a reversal of polarity needs a change of 2c), the gradient
-  is the exact derivative of the smoothed latent, and the fit's second moments are products
-  of two halves of the pixels, so that a pixel's own threshold error does not enter squared
-  (``_flow_energy`` says what each removed). ``"paper"`` is the EDI paper's energy as it states it:
-  total variation of the mid-exposure latent (relative to the blurry frame's) minus
-  ``paper_weight`` times the normalised cross-correlation of the Sobel magnitudes of the
-  latent and of the event integral (integral over the exposure of E(t)). It is kept for
+  is the exact derivative of the smoothed latent, and every product in the fit's normal
+  equations takes one factor from each half of a checkerboard of the pixels, so that a pixel's
+  own threshold error does not enter squared (``_flow_setup`` says what each removed).
+  ``"paper"`` is the EDI paper's energy as it states it: total variation of the mid-exposure
+  latent (relative to the blurry frame's) minus ``paper_weight`` times the normalised
+  cross-correlation of the Sobel magnitudes of the latent and of the event integral (integral over the exposure of E(t)). It is kept for
   comparison: measured on ``moving_texture`` and the ray-cast scenes its minimum lies at
   the low end of the bracket (the latent's TV grows with c faster than the correlation),
   see ``benchmarks/calibration.py``.
@@ -72,7 +72,7 @@ FLOW_PATCH = 16
 FLOW_SMOOTH = 1.0
 FLOW_BORDER = 2
 #: flow energy: a patch direction whose noise-free gradient energy (the eigenvalue of the halves'
-#: product) is small against FLOW_RIDGE times the patch's gradient energy explains little (``_flow_energy``)
+#: product) is small against FLOW_RIDGE times the patch's gradient energy explains little (``_flow_setup``)
 FLOW_RIDGE = 0.01
 
 #: consistency: a pixel's instrument sums over its 8 neighbours (``_consistency_pairs``)
@@ -181,12 +181,6 @@ def _with_hidden_crossings(events: EventStream, exposure: tuple[float, float]) -
     y = np.concatenate([win.y.astype(np.int64), vpx // events.width])[order]
     p = np.concatenate([win.p, vp])[order]
     return EventStream(t[order], x, y, p, events.width, events.height)
-
-
-def _flow_energy(b: np.ndarray, exposure: tuple[float, float], events: EventStream, ratio: float,
-                 patch: int = FLOW_PATCH, k: int = FLOW_SUBINTERVALS) -> Callable[[float], float]:
-    """energy(c) of one blurry frame b [H, W, D] at c_pos / c_neg = ratio (``_flow_setup``)."""
-    return _flow_setup(b, exposure, events, patch, k)(ratio)
 
 
 def _flow_setup(b: np.ndarray, exposure: tuple[float, float], events: EventStream, patch: int = FLOW_PATCH,

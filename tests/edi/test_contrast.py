@@ -27,7 +27,7 @@ def test_single_frame_flow_energy_on_the_benchmark_textures():
     pixel's threshold exactly c) and texture_no_lead (the sensor started at the frame, per-pixel
     mismatch sigma_c 0.03), one frame, seeds 0-9, the target of issue 11 (9 of 10 within 10%):
     measured 0.990-1.006x (10 of 10) and 0.889-1.033x (9 of 10, seed 0 at 0.889). Before the
-    hidden crossings, the exact derivative and the halves' products (``edi.contrast._flow_energy``)
+    hidden crossings, the exact derivative and the halves' products (``edi.contrast._flow_setup``)
     1.051-1.126x (8 of 10, rising with c) and 0.808-1.053x (8 of 10)."""
     uniform, no_lead = [], []
     for seed in range(10):
