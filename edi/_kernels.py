@@ -147,3 +147,103 @@ def edi_pass_binned(t, x, y, p, width, height, t0_us, t1_us, inst_us, c_pos, c_n
     for k, c in enumerate(cut_f):
         np.add.at(Ef[k], pix[:c], inc[:c])
     return logmean, Ef
+
+
+# --- the crossings a DVS pixel's hysteresis hides -------------------------------------------------
+#
+# A DVS pixel fires when log I moves a threshold away from its reference, the level of its last
+# event. After an ON event at level L it fires OFF only at L - c, so when log I turns (rises to
+# a peak below L + c, falls back), its return through L makes no event: a sensor quantising log I
+# on fixed levels would fire an OFF event there, and after that both agree. ``hidden_crossings``
+# puts that missing event back, of the reversing event's polarity, at the fraction ``frac`` of the
+# interval between the pixel's previous event (t_prev) and the reversing one (t_i):
+# t_prev + frac (t_i - t_prev), rounded to the microsecond; every reversal of the stream whose
+# crossing falls in [t0_us, t1_us) is returned.
+
+
+@numba.njit(cache=True, nogil=True)
+def _hidden_crossings_numba(t, x, y, p, width, npix, t0_us, t1_us, frac):  # pragma: no cover - jit
+    M = t.shape[0]
+    last_t = np.zeros(npix, np.int64)
+    last_p = np.zeros(npix, np.int8)  # 0: no event yet
+    closed = np.zeros(npix, np.bool_)  # a pixel's first event at or after t1 has been seen
+    n_open = 0  # pixels with an event before t1 whose first event at or after t1 is not seen yet
+    out_t = np.empty(16, np.int64)
+    out_px = np.empty(16, np.int64)
+    out_p = np.empty(16, np.int8)
+    n = 0
+    t_stop = np.int64(-1)  # set at t1: no later reversal can put its crossing before t1
+    for i in range(M):
+        ti = t[i]
+        if ti >= t1_us and t_stop < 0:
+            for q in range(npix):  # a reversal at t_i puts its crossing at or after t_prev + frac (t_i - t_prev)
+                if last_p[q] != 0 and not closed[q]:
+                    if frac <= 0.0:  # every crossing sits at its pixel's previous event
+                        t_stop = t[M - 1]
+                        break
+                    lim = last_t[q] + np.int64(np.ceil((t1_us - last_t[q]) / frac)) + 1
+                    if lim > t_stop:
+                        t_stop = lim
+        if ti >= t1_us and (n_open == 0 or ti > t_stop):
+            break
+        px = np.int64(y[i]) * width + np.int64(x[i])
+        if ti >= t1_us:
+            if closed[px] or last_p[px] == 0:
+                continue
+            closed[px] = True
+            n_open -= 1
+        elif last_p[px] == 0:
+            n_open += 1
+        pi = p[i]
+        if last_p[px] != 0 and pi != last_p[px]:
+            tc = last_t[px] + np.int64(np.rint(frac * np.float64(ti - last_t[px])))
+            if t0_us <= tc < t1_us:
+                if n == out_t.shape[0]:
+                    out_t = np.concatenate((out_t, np.empty(n, np.int64)))
+                    out_px = np.concatenate((out_px, np.empty(n, np.int64)))
+                    out_p = np.concatenate((out_p, np.empty(n, np.int8)))
+                out_t[n] = tc
+                out_px[n] = px
+                out_p[n] = pi
+                n += 1
+        last_t[px] = ti
+        last_p[px] = pi
+    return out_t[:n], out_px[:n], out_p[:n]
+
+
+def hidden_crossings(
+    t: np.ndarray,  # [M] int64 us, sorted
+    x: np.ndarray,  # [M]
+    y: np.ndarray,  # [M]
+    p: np.ndarray,  # [M] int8 in {-1, +1}
+    width: int,
+    height: int,
+    t0_us: int,
+    t1_us: int,
+    frac: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Fast path: (t [V] int64 us, pixel [V] int64 = y * width + x, p [V] int8) of the crossings
+    hidden by the pixels' hysteresis that fall in [t0_us, t1_us), sorted by t, then pixel (see
+    above). One pass over the stream up to the first event at or after t1_us of every pixel that
+    fired before it."""
+    assert 0.0 <= frac <= 1.0
+    ct, cpx, cp = _hidden_crossings_numba(t, x, y, np.asarray(p, np.int8), int(width), int(width) * int(height),
+                                          np.int64(t0_us), np.int64(t1_us), float(frac))
+    order = np.lexsort((cpx, ct))
+    return ct[order], cpx[order], cp[order]
+
+
+def hidden_crossings_reference(t, x, y, p, width, height, t0_us, t1_us, frac):
+    """Reference: every event of the stream with its pixel's previous event (a stable sort by
+    pixel, then time), the reversals' crossings, those in the window; sorted by t, then pixel."""
+    pix = y.astype(np.int64) * width + x.astype(np.int64)
+    order = np.lexsort((t, pix))  # stable: simultaneous events keep their stream order
+    q, tt, pp = pix[order], t[order].astype(np.int64), np.asarray(p)[order].astype(np.int8)
+    rev = np.zeros(len(q), bool)
+    rev[1:] = (q[1:] == q[:-1]) & (pp[1:] != pp[:-1])
+    i = np.flatnonzero(rev)
+    tc = tt[i - 1] + np.rint(frac * (tt[i] - tt[i - 1]).astype(np.float64)).astype(np.int64)
+    keep = (tc >= t0_us) & (tc < t1_us)
+    tc, cpx, cp = tc[keep], q[i][keep], pp[i][keep]
+    o = np.lexsort((cpx, tc))
+    return tc[o], cpx[o], cp[o]

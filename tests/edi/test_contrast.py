@@ -22,31 +22,77 @@ def rmse(a, b):
 
 
 @pytest.mark.slow
-def test_single_frame_flow_energy_ideal_sensor_all_seeds():
-    """Measured c/c_true 1.025 to 1.053 over seeds 0-9 (no mismatch)."""
-    ratios = []
+def test_single_frame_flow_energy_on_the_benchmark_textures():
+    """benchmarks.calibration's texture_uniform (the sensor running 0.1 s before the frame, every
+    pixel's threshold exactly c) and texture_no_lead (the sensor started at the frame, per-pixel
+    mismatch sigma_c 0.03), one frame, seeds 0-9, the target of issue 11 (9 of 10 within 10%):
+    measured 0.990-1.006x (10 of 10) and 0.889-1.033x (9 of 10, seed 0 at 0.889). Before the
+    hidden crossings, the exact derivative and the halves' products (``edi.contrast._flow_setup``)
+    1.051-1.126x (8 of 10, rising with c) and 0.808-1.053x (8 of 10)."""
+    uniform, no_lead = [], []
     for seed in range(10):
         c = C_BY_SEED[seed % 3]
-        s = moving_texture(num_frames=1, seed=seed, c=c)
-        est, rep = estimate_c(s.frames[0], s.exposures[0], s.events, return_report=True)
-        assert rep.method == "single" and rep.energy_name == "flow" and not rep.at_bound
-        ratios.append(est / c)
-    assert all(abs(r - 1) <= 0.1 for r in ratios), np.round(ratios, 3)
+        for kw, out in ((dict(sigma_c=0.0, lead=0.1), uniform), (dict(sigma_c=0.03), no_lead)):
+            s = moving_texture(num_frames=1, seed=seed, c=c, **kw)
+            est, rep = estimate_c(s.frames[0], s.exposures[0], s.events, return_report=True)
+            assert rep.method == "single" and rep.energy_name == "flow" and not rep.at_bound
+            out.append(est / c)
+    uniform, no_lead = np.array(uniform), np.array(no_lead)
+    assert (np.abs(uniform - 1) <= 0.1).sum() >= 9 and abs(np.median(uniform) - 1) <= 0.02, np.round(uniform, 3)
+    assert (np.abs(no_lead - 1) <= 0.1).sum() >= 9 and (np.abs(no_lead - 1) <= 0.12).all(), np.round(no_lead, 3)
+
+
+def fixed_level_events(seq, c, lead, seed, step_us=50):
+    """Events of a sensor without hysteresis watching ``seq``'s texture on moving_texture's time
+    grid: one event each time log(I + eps) crosses one of a pixel's levels phase + k c (phase
+    uniform in [0, c)), up or down alike; a DVS pixel instead fires at c from its last event."""
+    rng = np.random.default_rng(seed)
+    H, W = seq.frames.shape[1:3]
+    phase = rng.uniform(0.0, c, (H, W))
+    t_end = round((seq.exposures[-1, 1]) * 1e6)
+    level = None
+    ts, xs, ys, ps = [], [], [], []
+    for tj in range(0, t_end + step_us, step_us):
+        new = np.floor((np.log(seq.sharp(tj * 1e-6).mean(axis=-1) + LOG_EPS) - phase) / c)
+        if level is not None:
+            for n, pol in ((new - level, 1), (level - new, -1)):
+                yy, xx = np.nonzero(n > 0)
+                reps = n[yy, xx].astype(np.int64)
+                ts.append(np.full(reps.sum(), tj))
+                xs.append(np.repeat(xx, reps))
+                ys.append(np.repeat(yy, reps))
+                ps.append(np.full(reps.sum(), pol))
+        level = new
+    t = np.concatenate(ts)
+    o = np.argsort(t, kind="stable")
+    return EventStream(t[o], np.concatenate(xs)[o], np.concatenate(ys)[o], np.concatenate(ps)[o], W, H)
 
 
 @pytest.mark.slow
-def test_single_frame_flow_energy_with_mismatch_all_seeds():
-    """Per-pixel mismatch sigma_c 0.03 (20% of c = 0.15): measured c/c_true 0.81 to 1.05,
-    8 of 10 seeds within 10% (issue 11's target is 9 of 10; not met on this generator)."""
-    ratios = []
-    for seed in range(10):
+def test_the_bias_rising_with_c_was_the_sensors_hysteresis(monkeypatch):
+    """A DVS pixel fires at c from the level of its last event, so after a reversal it needs a
+    change of 2c: the return through its last level makes no event. Textures 24x32, the sensor
+    running 0.1 s, every threshold c, seeds 0-5 (c 0.15, 0.2, 0.3 twice): a sensor firing at fixed
+    levels (no hysteresis) read without hidden crossings gives 0.997-1.001x; the DVS's events
+    without them 1.022-1.088x, rising with c (the bias of issue 11); with them (the default)
+    0.986-1.014x."""
+    from edi import contrast
+
+    raw = lambda events, exposure: events[slice(*events_in_window(events, *exposure))]  # noqa: E731
+    fixed, dvs_raw, dvs = [], [], []
+    for seed in range(6):
         c = C_BY_SEED[seed % 3]
-        s = moving_texture(num_frames=1, seed=seed, c=c, sigma_c=0.03)
-        est, rep = estimate_c(s.frames[0], s.exposures[0], s.events, return_report=True)
-        assert not rep.at_bound
-        ratios.append(est / c)
-    ratios = np.array(ratios)
-    assert (np.abs(ratios - 1) <= 0.1).sum() >= 8 and (np.abs(ratios - 1) <= 0.2).all(), np.round(ratios, 3)
+        s = moving_texture(num_frames=1, seed=seed, c=c, lead=0.1, height=24, width=32)
+        B, ex = s.frames[0], s.exposures[0]
+        dvs.append(estimate_c(B, ex, s.events) / c)
+        with monkeypatch.context() as m:
+            m.setattr(contrast, "_with_hidden_crossings", raw)
+            fixed.append(estimate_c(B, ex, fixed_level_events(s, c, 0.1, seed)) / c)
+            dvs_raw.append(estimate_c(B, ex, s.events) / c)
+    fixed, dvs_raw, dvs = np.array(fixed), np.array(dvs_raw), np.array(dvs)
+    assert (np.abs(fixed - 1) <= 0.03).all(), np.round(fixed, 3)
+    assert (np.abs(dvs - 1) <= 0.03).all(), np.round(dvs, 3)
+    assert (dvs_raw > fixed + 0.015).all() and dvs_raw[[2, 5]].min() > dvs_raw[[0, 3]].max(), np.round(dvs_raw, 3)
 
 
 def test_single_frame_estimate_sharpens_the_frame():
@@ -73,7 +119,7 @@ def test_paper_energy_has_no_interior_minimum():
 
 
 def test_single_frame_pair_finds_the_ratio():
-    """c = (0.15, 0.3): measured c_pos / c_neg 0.46 to 0.48 (true 0.5) over seeds 0-3."""
+    """c = (0.15, 0.3): measured c_pos / c_neg 0.470 to 0.486 (true 0.5) over seeds 0-3."""
     for seed in range(4):
         s = moving_texture(num_frames=1, seed=seed, c=(0.15, 0.3), sigma_c=0.03)
         est = estimate_c(s.frames[0], s.exposures[0], s.events, pair=True)
@@ -197,7 +243,7 @@ def test_estimate_c_bad_input():
 @pytest.mark.slow
 def test_ray_cast_scenes_single_and_consistency():
     """scenes.make_scene with the idealised (linear) sensor, 64x48, 3 frames, c 0.2, mismatch
-    0.03: measured single-frame 0.97-1.06x and consistency 0.944-0.984x (boxes grey, spheres
+    0.03: measured single-frame 0.987-1.055x and consistency 0.944-0.984x (boxes grey, spheres
     colour, seeds 0-2; 0.999-1.03x before the residual model, which the 160x120 scenes of the
     benchmark read 0.97-0.99x with). (The realistic sensor's gamma makes any estimate from its
     frames read about gamma x c: benchmarks.calibration.)"""
@@ -290,9 +336,9 @@ def test_consistency_pair_on_blurry_texture_with_a_running_sensor():
 
 @pytest.mark.slow
 def test_single_frame_with_a_running_sensor():
-    """The first frame of a sensor started 0.1 s before it (the others as in the benchmark):
-    9 of 10 seeds within 10% (the tenth at 1.10x); started at the exposure, 8 of 10, from the
-    per-pixel mismatch rather than the start (``test_single_frame_low_reads_come_from_the_mismatch``)."""
+    """The first frame of a sensor started 0.1 s before it, mismatch 0.03 (the benchmark's
+    texture): measured 0.935-1.010x, 10 of 10 within 10% (9 of 10, up to 1.10x, before the
+    hidden crossings, the exact derivative and the halves' products)."""
     ratios = []
     for seed in range(10):
         c = C_BY_SEED[seed % 3]
@@ -301,17 +347,20 @@ def test_single_frame_with_a_running_sensor():
         assert rep.method == "single" and not rep.at_bound
         ratios.append(est / c)
     ratios = np.array(ratios)
-    assert (np.abs(ratios - 1) <= 0.1).sum() >= 9 and (np.abs(ratios - 1) <= 0.15).all(), np.round(ratios, 3)
+    assert (np.abs(ratios - 1) <= 0.1).sum() >= 9 and (np.abs(ratios - 1) <= 0.1).all(), np.round(ratios, 3)
 
 
 @pytest.mark.slow
 def test_single_frame_low_reads_come_from_the_mismatch():
     """Sensor started at the exposure (the benchmark's texture_no_lead), seeds 0-9: the same
-    scenes without per-pixel mismatch read 1.025-1.053x, all within 10%; with sigma_c 0.03 each
-    seed reads lower or the same (measured 0 to 0.24 lower, mean 0.083; seeds 0 and 7, 0.81x and
-    0.90x, fall outside 10%). The mismatch's noise (the pixel's threshold error times its count)
-    is in the latent's gradients as well as in the event-driven change, and the flow fit explains
-    less of the change as that noise grows with c."""
+    scenes without per-pixel mismatch read 1.004-1.037x (a start-up residue: no pixel has an
+    event before the frame, so a reversal at its first event is not seen); with sigma_c 0.03
+    each seed reads lower or the same, by 0.004 to 0.115 (mean 0.044; 0 to 0.24, mean 0.083,
+    when the fit's second moments were squares of the noisy gradients). What is left is not
+    the fit's: a pixel of threshold c_px fires c / c_px times as often as one of threshold c, and
+    the mean of c / c_px is 1 + (sigma_c / c)^2 and more, 1.046 at c 0.15 (a harmonic mean of
+    the thresholds, 0.956 of their mean, as the consistency estimator's instruments also see),
+    plus the draw of 2000 pixels' thresholds (seed 0, 0.889x, is the lowest)."""
     ideal, mismatch = [], []
     for seed in range(10):
         c = C_BY_SEED[seed % 3]
@@ -319,17 +368,32 @@ def test_single_frame_low_reads_come_from_the_mismatch():
             s = moving_texture(num_frames=1, seed=seed, c=c, sigma_c=sigma)
             out.append(estimate_c(s.frames[0], s.exposures[0], s.events) / c)
     ideal, mismatch = np.array(ideal), np.array(mismatch)
-    assert (np.abs(ideal - 1) <= 0.1).all(), np.round(ideal, 3)
-    assert (mismatch <= ideal + 0.01).all() and (ideal - mismatch).mean() > 0.04, np.round(ideal - mismatch, 3)
+    assert (np.abs(ideal - 1) <= 0.05).all(), np.round(ideal, 3)
+    assert (mismatch <= ideal + 0.01).all() and 0.02 < (ideal - mismatch).mean() < 0.07, np.round(ideal - mismatch, 3)
 
 
 def test_low_end_message_says_the_events_do_not_explain_the_blur():
-    """Events that have nothing to do with the frame: uniform random ones (as many as the frame's
-    own) leave the flow energy's minimum at the low end in 3 of seeds 0-4 (seeds 2 and 4 stop
-    inside, at 0.56 and 0.051: an interior estimate does not prove that the events explain the
-    blur), and the report then says what the low end means; another texture's events drive it to
-    the top end, whose message does not say it, nor does the paper energy's low end (its own bias)."""
-    low = 0
+    """A bracket above the true c (0.3) leaves the flow energy's minimum at its low end, and the
+    report says what the low end means; a bracket below it, the top end, whose message does not
+    say it, nor does the paper energy's low end (its own bias). (The real frames whose estimate
+    sits at the low end: tests/edi/test_real_data.py.)"""
+    s = moving_texture(num_frames=1, seed=2, c=0.3, sigma_c=0.03)
+    B, ex = s.frames[0], s.exposures[0]
+    est, rep = estimate_c(B, ex, s.events, bracket=(0.6, 1.5), return_report=True)
+    assert rep.at_bound and est < 0.6 * 1.02
+    assert "no interior minimum" in rep.message and "cover the whole exposure" in rep.message
+    est, rep = estimate_c(B, ex, s.events, bracket=(0.03, 0.1), return_report=True)
+    assert rep.at_bound and est > 0.1 / 1.02 and "cover the whole exposure" not in rep.message
+    _, rep = estimate_c(B, ex, s.events, energy="paper", return_report=True)
+    assert rep.at_bound and "cover the whole exposure" not in rep.message
+
+
+def test_events_unrelated_to_the_frame_explain_nothing():
+    """Uniform random events, as many as the frame's own: the flow energy stays at 0.90-0.98 (the
+    fit explains at most a tenth of their changes) at every c the search tries, where the frame's
+    own events leave 0.007-0.012, seeds 0-4. Where it then stops means nothing (inside the bracket
+    in 4 of these 5); with squared gradients in the fit, noise that a larger c amplified made it
+    grow with c, and the search stopped at the low end in 3 of 5."""
     for seed in range(5):
         s = moving_texture(num_frames=1, seed=seed, c=C_BY_SEED[seed % 3], sigma_c=0.03)
         ex = s.exposures[0]
@@ -338,18 +402,10 @@ def test_low_end_message_says_the_events_do_not_explain_the_blur():
         t = np.sort(rng.integers(round(ex[0] * 1e6), round(ex[1] * 1e6), n))
         ev = EventStream(t, rng.integers(0, 56, n), rng.integers(0, 40, n),
                          np.where(rng.random(n) < 0.5, 1, -1).astype(np.int8), 56, 40)
-        est, rep = estimate_c(s.frames[0], ex, ev, return_report=True)
-        if rep.at_bound and est < rep.bracket[0] * 1.02:
-            low += 1
-            assert "no interior minimum" in rep.message and "cover the whole exposure" in rep.message
-        else:
-            assert "cover the whole exposure" not in rep.message
-    assert low >= 3
-    other = moving_texture(num_frames=1, seed=100, c=0.2, sigma_c=0.03)
-    est, rep = estimate_c(s.frames[0], ex, other.events, return_report=True)
-    assert rep.at_bound and est > rep.bracket[1] / 1.02 and "cover the whole exposure" not in rep.message
-    _, rep = estimate_c(s.frames[0], ex, s.events, energy="paper", return_report=True)
-    assert rep.at_bound and "cover the whole exposure" not in rep.message
+        _, rep = estimate_c(s.frames[0], ex, ev, return_report=True)
+        assert min(e for _, e in rep.evals) > 0.9, sorted(rep.evals)
+        _, own = estimate_c(s.frames[0], ex, s.events, return_report=True)
+        assert own.energy < 0.02, own.energy
 
 
 # --- a power response (gamma) ---------------------------------------------------------------------

@@ -53,7 +53,8 @@ def test_street_events_predict_the_next_frame(street):
 
 
 #: a latent whose impulse noise grows more than this over the blurry frame's is noise, not
-#: detail: measured 1.0 to 3.5 with the estimated c, 14.7 to 259 with c at the top of the
+#: detail: measured 1.0 to 2.5 with the estimated c (not low_light_model1, whose estimate is the
+#: top end: NI_TOP_END), 14.7 to 259 with c at the top of the
 #: bracket (1.5), 3.4 to 7.3 with c = 0.2 to 0.3 on the frames where the estimate has no
 #: interior minimum (keyboard, toy, text_cambridge)
 NOISE_GAIN_MAX = 5.0
@@ -71,8 +72,12 @@ def read_ni(name):
 NI_NAMES = ["keyboard", "toy", "text_cambridge", "badminton", "night_run", "low_light_model1"]
 
 
+#: the real frame whose single-frame estimate sits at the top end of the bracket
+NI_TOP_END = ["low_light_model1"]
+
+
 @needs_ni
-@pytest.mark.parametrize("name", NI_NAMES)
+@pytest.mark.parametrize("name", [n for n in NI_NAMES if n not in NI_TOP_END])
 def test_ni_joint_estimate_does_not_amplify_noise(name):
     """With the estimated c the latent is at least as sharp as the frame and its impulse noise
     stays within NOISE_GAIN_MAX of the frame's; a c at the top of the bracket fails both
@@ -113,3 +118,21 @@ def test_ni_joint_low_end_frames_have_events_that_do_not_cover_the_blur(name):
     assert moved["px"] < 2.5 and moved["variance_gain"] < 1.01, moved
     blur = frame_blur_against_events(B, ev)
     assert blur["length_px"] >= 16 and blur["ncc"] > blur["ncc_unblurred"], blur
+
+
+@needs_ni
+@pytest.mark.parametrize("name", NI_TOP_END)
+def test_ni_joint_top_end_frame_is_reported(name):
+    """low_light_model1 (dark, its 2 ms of events about one per fired pixel): the flow energy falls
+    over the whole bracket (measured 0.761 at c 0.13 to 0.733 at 1.5), so the estimate is the top
+    end and the report says it has no interior minimum and to give c. Its events moved 3.4 px in
+    their window against a frame blur fitted at 6 px: they explain their own changes better alone
+    than with the frame. (Until the fit's second moments became products of two halves of the
+    pixels, the noise of the events' part, squared, made the energy rise again and the estimate
+    stopped at 0.59, with 3.5 times the frame's impulse noise.)"""
+    B, ev, ex = read_ni(name)
+    c, rep = edi.estimate_c(B, ex, ev, return_report=True)
+    assert rep.at_bound and c > rep.bracket[1] / 1.02
+    assert "no interior minimum" in rep.message and "--c" in rep.message
+    cs, es = zip(*sorted(rep.evals))
+    assert all(b <= a + 1e-4 for a, b in zip(es, es[1:])), (cs, es)  # falls with c (to the search's precision)
