@@ -22,7 +22,9 @@ Generators (the truth is read only by this benchmark, never passed to the estima
 Rows: for each generator and estimator, c_est / c_true over the seeds (median, min, max;
 c_true the mean of the per-pixel thresholds, per polarity for pairs, and the mean of the two
 for one c), how many seeds are within 10% (single frame) and 5% (multi-frame) in the worse
-polarity, how many estimates sit at a bracket end, and the PSNR of ``edi.deblur`` over all
+polarity, how many estimates sit at a bracket end, how many are reported unreliable (at a bracket
+end, or a flow fit explaining less than ``edi.contrast.FLOW_MIN_EXPLAINED`` of the events' changes)
+and the least share the flow fit explained, and the PSNR of ``edi.deblur`` over all
 frames with the joint pair estimate (what ``ebad deblur CAPTURE`` does) minus the PSNR with
 the true mean pair and the true response (both scored against the sharp frames as the
 camera records them). Then the next-frame yardstick on synthetic sharp frames whose c is
@@ -250,8 +252,8 @@ def run_case(case: Case) -> dict:
         # a pair against the true pair; one c against the true mean (c_pos + c_neg) / 2
         ratio = ([rep.c.pos / case.c_true.pos, rep.c.neg / case.c_true.neg] if kw.get("pair")
                  else [rep.c.mean / case.c_true.mean])
-        row[name] = {"c": list(rep.c), "ratio": ratio,
-                     "at_bound": rep.at_bound, "method": rep.method, "seconds": time.perf_counter() - t}
+        row[name] = {"c": list(rep.c), "ratio": ratio, "at_bound": rep.at_bound, "reliable": rep.reliable,
+                     "explained": rep.explained, "method": rep.method, "seconds": time.perf_counter() - t}
     # what `ebad deblur CAPTURE` does (the joint pair, frames taken as linear) against EDI with
     # the true mean pair and the true response, both scored in the camera's recorded units
     row["psnr_true_c"] = deblur_psnr(case, case.c_true, case.gamma)
@@ -273,11 +275,15 @@ def summarise(rows: list[dict]) -> list[dict]:
                         "min_ratio": float(min(min(r[name]["ratio"]) for r in rs)),
                         "max_ratio": float(max(max(r[name]["ratio"]) for r in rs)),
                         "tolerance": tol, "within": int((err <= tol).sum()),
-                        "at_bound": int(sum(r[name]["at_bound"] for r in rs))})
+                        "at_bound": int(sum(r[name]["at_bound"] for r in rs)),
+                        "unreliable": int(sum(not r[name]["reliable"] for r in rs)),
+                        "min_explained": min((r[name]["explained"] for r in rs if r[name]["explained"] is not None),
+                                             default=None)})
         d = np.array([r["psnr_estimated_c"] - r["psnr_true_c"] for r in rs])
         out.append({"generator": gen, "estimator": "deblur dB (estimated - true c, gamma)", "seeds": len(rs),
                     "median_ratio": float(np.median(d)), "min_ratio": float(d.min()), "max_ratio": float(d.max()),
-                    "tolerance": 0.5, "within": int((d >= -0.5).sum()), "at_bound": 0})
+                    "tolerance": 0.5, "within": int((d >= -0.5).sum()), "at_bound": 0, "unreliable": 0,
+                    "min_explained": None})
     return out
 
 
@@ -482,8 +488,8 @@ def ni_rows() -> list[dict]:
         for energy in ("flow", "paper"):
             c, rep = edi.estimate_c(B, ex, ev, energy=energy, return_report=True)
             s_l, n_l = sharpness_and_noise(edi.deblur(B, ex, ev, c=c))
-            row[energy] = {"c": c, "at_bound": rep.at_bound, "sharpness_gain": s_l / s_b, "noise_gain": n_l / n_b,
-                           "evals": sorted(rep.evals)}
+            row[energy] = {"c": c, "at_bound": rep.at_bound, "reliable": rep.reliable, "explained": rep.explained,
+                           "sharpness_gain": s_l / s_b, "noise_gain": n_l / n_b, "evals": sorted(rep.evals)}
         for g in NI_GAMMAS:  # is a non-linear response why the estimate ends at the bracket?
             c, rep = edi.estimate_c(B, ex, ev, gamma=g, return_report=True)
             s_l, n_l = sharpness_and_noise(edi.deblur(B, ex, ev, c=c, gamma=g))
@@ -513,10 +519,13 @@ def main(argv: list[str] | None = None) -> None:
             rows.append(run_case(load_case(gen, seed, args.cache)))
             print(f"{gen} seed {seed}: done ({time.perf_counter() - t0:.0f} s)", flush=True)
     table = summarise(rows)
-    print(f"\n{'generator':20s} {'estimator':32s} {'median':>7s} {'min':>6s} {'max':>6s} {'within':>8s} {'at_bound':>8s}")
+    print(f"\n{'generator':20s} {'estimator':32s} {'median':>7s} {'min':>6s} {'max':>6s} {'within':>8s} {'at_bound':>8s} "
+          f"{'unreliable':>10s} {'min explained':>13s}")
     for r in table:
+        expl = "" if r["min_explained"] is None else f"{r['min_explained']:.3f}"
         print(f"{r['generator']:20s} {r['estimator']:32s} {r['median_ratio']:7.3f} {r['min_ratio']:6.3f} "
-              f"{r['max_ratio']:6.3f} {r['within']:>3d}/{r['seeds']:<2d}{'':2s} {r['at_bound']:>8d}")
+              f"{r['max_ratio']:6.3f} {r['within']:>3d}/{r['seeds']:<2d}{'':2s} {r['at_bound']:>8d} "
+              f"{r['unreliable']:>10d} {expl:>13s}")
     check = prediction_metric_check([load_case(g, seed, args.cache) for g in ("boxes_grey_strong", "realistic_linear")
                                      for seed in range(2 if args.quick else 3)])
     print("\nnext-frame prediction on synthetic sharp frames (known c), and the regression bracket:")
@@ -542,12 +551,15 @@ def main(argv: list[str] | None = None) -> None:
         print(f"  estimate within every bracket: {street['estimate_within_bounds']}")
     ni = ni_rows()
     if ni:
-        print(f"\n{'ni_joint':18s} {'energy':15s} {'c':>7s} {'bound':>6s} {'sharp x':>8s} {'noise x':>8s}")
+        print(f"\n{'ni_joint':18s} {'energy':15s} {'c':>7s} {'bound':>6s} {'sharp x':>8s} {'noise x':>8s} "
+              f"{'explained':>9s} {'reliable':>8s}")
         for r in ni:
             for energy in ("flow", "paper") + tuple(f"flow_gamma_{g:g}" for g in NI_GAMMAS):
                 e = r[energy]
+                expl = f"{e['explained']:.3f}" if e.get("explained") is not None else ""
+                rel = str(e["reliable"]) if "reliable" in e else ""
                 print(f"{r['name']:18s} {energy:15s} {e['c']:7.4f} {str(e['at_bound']):>6s} "
-                      f"{e['sharpness_gain']:8.2f} {e['noise_gain']:8.2f}")
+                      f"{e['sharpness_gain']:8.2f} {e['noise_gain']:8.2f} {expl:>9s} {rel:>8s}")
             print(f"{r['name']:18s} {'c=1.5':15s} {'':7s} {'':6s} {r['bracket_top']['sharpness_gain']:8.2f} "
                   f"{r['bracket_top']['noise_gain']:8.2f}")
     if ni:

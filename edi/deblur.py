@@ -62,7 +62,7 @@ def deblur(
             the exposure). A sequence gives [F, H, W(, D)].
         c: contrast threshold: a float, (c_pos, c_neg) (e.g. an ``edi.Contrast``), or None to
             estimate the pair from this frame with ``estimate_c`` (the report's ``c_report``
-            says whether the estimate is trustworthy: ``at_bound``).
+            says whether the estimate is trustworthy: ``reliable``, ``at_bound``, ``explained``).
         impl: "fast" (numba, exact), "reference" (numpy, exact) or "binned" (``n_bins``).
         saturation: blurry pixels at or above it are returned unchanged and reported.
         gamma: the frame's response, recorded = irradiance ** gamma (1: linear). The frame is

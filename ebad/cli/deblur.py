@@ -181,8 +181,8 @@ def _save(path: Path, img: np.ndarray, bits: int = 8) -> None:
     Image.fromarray((a * 255.0 + 0.5).astype(np.uint8)).save(path, format="PNG")
 
 
-def _say_at_bound(rep, where: str) -> None:
-    if rep is not None and rep.at_bound:
+def _say_unreliable(rep, where: str) -> None:
+    if rep is not None and not rep.reliable:
         print(f"ebad deblur: warning: {where}: {rep.message}")
 
 
@@ -222,7 +222,7 @@ def run(args) -> int:
              "frames taken as linear: if they are not, c is in the frames' units; give --gamma")
     if c_all is not None:
         print(f"ebad deblur: c_pos {c_all[0]:.4f}, c_neg {c_all[1]:.4f} ({c_source}; {units})")
-    _say_at_bound(c_rep, "the joint estimate")
+    _say_unreliable(c_rep, "the joint estimate")
     medi_lat = None
     if args.medi:
         from edi.model import to_unit_range
@@ -241,7 +241,7 @@ def run(args) -> int:
         lat, rep = edi.deblur(frames[i], (t_s, t_e), events, c=c_all, gamma=gamma, return_report=True)
         if rep.c_report is not None:
             print(f"ebad deblur: {names[i]}: c {rep.c.mean:.4f} ({c_source})")
-            _say_at_bound(rep.c_report, names[i])
+            _say_unreliable(rep.c_report, names[i])
         if medi_lat is not None:
             lat = medi_lat[i]
         _save(out / "sharp" / f"{names[i]}.png", lat, args.bits)
@@ -261,6 +261,7 @@ def run(args) -> int:
             "c_neg": None if sharp_frame else rep.c.neg,
             "c_source": "unused (sharp frame or no events)" if sharp_frame else c_source,
             "c_at_bracket_end": None if sharp_frame or c_report is None else bool(c_report.at_bound),
+            "c_reliable": None if sharp_frame or c_report is None else bool(c_report.reliable),
             "c_message": None if sharp_frame or c_report is None else c_report.message,
             "saturated_pixels": int(rep.saturated.sum()),
             "notes": rep.notes,
@@ -270,8 +271,9 @@ def run(args) -> int:
                    "gamma_source": "given (--gamma)" if gamma != 1.0 else "assumed linear (default: c in the frames' units)",
                    "frames": per_frame},
                   f, indent=2)
-    unreliable = [fr["name"] for fr in per_frame if fr["c_at_bracket_end"]]
-    tail = (f"; {len(unreliable)} of them with c at a bracket end, so not deblurred reliably "
+    unreliable = [fr["name"] for fr in per_frame if fr["c_reliable"] is False]
+    tail = (f"; {len(unreliable)} of them with an unreliable c (at a bracket end, or events that do not follow "
+            f"the frame's blur), so not deblurred reliably "
             f"({', '.join(unreliable[:3])}{', ...' if len(unreliable) > 3 else ''}): give --c (c.json has the reports)"
             if unreliable else "")
     print(f"ebad deblur: {len(per_frame)} frame(s) written to {out}{tail}")

@@ -38,7 +38,9 @@ def test_frame_image_with_events(tmp_path, frame_and_events, capsys):
     assert "time unit us (relative integer timestamps" in out and "c 0." in out
     assert out.strip().splitlines()[-1].endswith("1 frame(s) written to " + str(tmp_path / "o"))  # nothing flagged
     meta = json.loads((tmp_path / "o" / "c.json").read_text())
-    assert meta["frames"][0]["c_at_bracket_end"] is False and meta["frames"][0]["num_events"] == len(s.events[: s.events.window(*s.exposures[0])[1]])
+    frame = meta["frames"][0]
+    assert frame["c_at_bracket_end"] is False and frame["c_reliable"] is True
+    assert frame["num_events"] == len(s.events[: s.events.window(*s.exposures[0])[1]])
 
 
 def test_sensor_size_mismatch_is_an_error(tmp_path, frame_and_events, capsys):
@@ -129,9 +131,9 @@ def test_estimate_without_interior_minimum_says_what_to_do(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "warning: keyboard" in out and "no interior minimum" in out and "--c C" in out
     last = out.strip().splitlines()[-1]  # the summary does not present the frame as deblurred
-    assert "1 frame(s) written" in last and "1 of them with c at a bracket end" in last and "(keyboard)" in last
+    assert "1 frame(s) written" in last and "1 of them with an unreliable c" in last and "(keyboard)" in last
     meta = json.loads((tmp_path / "k" / "c.json").read_text())
-    assert meta["frames"][0]["c_at_bracket_end"] is True
+    assert meta["frames"][0]["c_at_bracket_end"] is True and meta["frames"][0]["c_reliable"] is False
 
 
 @needs_ni

@@ -36,6 +36,7 @@ def test_single_frame_flow_energy_on_the_benchmark_textures():
             s = moving_texture(num_frames=1, seed=seed, c=c, **kw)
             est, rep = estimate_c(s.frames[0], s.exposures[0], s.events, return_report=True)
             assert rep.method == "single" and rep.energy_name == "flow" and not rep.at_bound
+            assert rep.reliable and rep.explained > 0.9, rep.explained  # its own events: no unreliable flag
             out.append(est / c)
     uniform, no_lead = np.array(uniform), np.array(no_lead)
     assert (np.abs(uniform - 1) <= 0.1).sum() >= 9 and abs(np.median(uniform) - 1) <= 0.02, np.round(uniform, 3)
@@ -257,7 +258,7 @@ def test_ray_cast_scenes_single_and_consistency():
             c_true = 0.5 * (sc.c_pos.mean() + sc.c_neg.mean())  # truth: read here only
             single, rep = estimate_c(cap.frames[0], cap.exposures[0], cap.events, return_report=True)
             multi = estimate_c(cap.frames, cap.exposures, cap.events)
-            assert not rep.at_bound
+            assert not rep.at_bound and rep.reliable, rep.explained
             assert abs(single / c_true - 1) <= 0.1, (name, seed, single)
             multis.append(multi / c_true)
     err = np.abs(np.array(multis) - 1)
@@ -392,8 +393,9 @@ def test_events_unrelated_to_the_frame_explain_nothing():
     """Uniform random events, as many as the frame's own: the flow energy stays at 0.90-0.98 (the
     fit explains at most a tenth of their changes) at every c the search tries, where the frame's
     own events leave 0.007-0.012, seeds 0-4. Where it then stops means nothing (inside the bracket
-    in 4 of these 5); with squared gradients in the fit, noise that a larger c amplified made it
-    grow with c, and the search stopped at the low end in 3 of 5."""
+    in 4 of these 5; with squared gradients in the fit, noise that a larger c amplified made it
+    grow with c, and the search stopped at the low end in 3 of 5), so the report says the estimate
+    is unreliable: its fit explains less than FLOW_MIN_EXPLAINED of the events' changes."""
     for seed in range(5):
         s = moving_texture(num_frames=1, seed=seed, c=C_BY_SEED[seed % 3], sigma_c=0.03)
         ex = s.exposures[0]
@@ -404,8 +406,11 @@ def test_events_unrelated_to_the_frame_explain_nothing():
                          np.where(rng.random(n) < 0.5, 1, -1).astype(np.int8), 56, 40)
         _, rep = estimate_c(s.frames[0], ex, ev, return_report=True)
         assert min(e for _, e in rep.evals) > 0.9, sorted(rep.evals)
+        assert not rep.reliable and rep.explained < 0.1 and "do not follow the frame's blur" in rep.message
+        assert "--c" in rep.message
         _, own = estimate_c(s.frames[0], ex, s.events, return_report=True)
         assert own.energy < 0.02, own.energy
+        assert own.reliable and own.explained > 0.98 and own.message == ""
 
 
 # --- a power response (gamma) ---------------------------------------------------------------------
