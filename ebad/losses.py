@@ -311,10 +311,17 @@ class _EventLoss(torch.autograd.Function):
     def backward(ctx, grad: Tensor):
         scale = float(grad) * ctx.inv_count
         grad_L = torch.from_numpy(_event_adjoint(ctx.Ln, ctx.g, scale, ctx.eps)) if ctx.needs_input_grad[0] else None
-        dt = grad.dtype
-        g_pos = torch.tensor(-scale * ctx.s_on, dtype=dt) if ctx.needs_input_grad[2] else None  # r falls with c_pos
-        g_neg = torch.tensor(scale * ctx.s_off, dtype=dt) if ctx.needs_input_grad[3] else None
+        g_pos, g_neg = _threshold_grads(scale, ctx.s_on, ctx.s_off, ctx.needs_input_grad[2], ctx.needs_input_grad[3],
+                                        grad.dtype)
         return grad_L, None, g_pos, g_neg, None, None
+
+
+def _threshold_grads(scale: float, s_on: float, s_off: float, want_pos: bool, want_neg: bool,
+                     dtype: torch.dtype) -> tuple[Tensor | None, Tensor | None]:
+    """The gradients of L_ev with respect to c_pos and c_neg from ``_event_pass``'s sums (r falls
+    with c_pos, rises with c_neg), for an upstream gradient ``scale`` of the sum."""
+    return (torch.tensor(-scale * s_on, dtype=dtype) if want_pos else None,
+            torch.tensor(scale * s_off, dtype=dtype) if want_neg else None)
 
 
 def edi_loss(renders: Tensor,  # [H, W, D] or [V, H, W, D]
@@ -466,8 +473,6 @@ class _ExposureLosses(torch.autograd.Function):
                 out[idx] += gl[..., None] if D == 1 else gl[..., None] * np.asarray(LUMA, gl.dtype)
             grad_images = torch.from_numpy(np.ascontiguousarray(out))
         if spec.event_views:
-            scale = float(G[2]) / ctx.g.size
-            dt = grad.dtype
-            g_pos = torch.tensor(-scale * ctx.s_on, dtype=dt) if ctx.needs_input_grad[1] else None  # r falls with c_pos
-            g_neg = torch.tensor(scale * ctx.s_off, dtype=dt) if ctx.needs_input_grad[2] else None
+            g_pos, g_neg = _threshold_grads(float(G[2]) / ctx.g.size, ctx.s_on, ctx.s_off, ctx.needs_input_grad[1],
+                                            ctx.needs_input_grad[2], grad.dtype)
         return grad_images, g_pos, g_neg, None, None, None, None
