@@ -31,6 +31,8 @@ with ``g`` the window's ``win`` 1-D weights (summing to 1).
 """
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 from numba import njit, prange
 
@@ -299,11 +301,14 @@ def gauss_taps(win: int, sigma: float = 1.5) -> np.ndarray:
     return g / g.sum()
 
 
+@functools.lru_cache(maxsize=None)
 def window_taps(win: int) -> np.ndarray:
     """``gauss_taps(win)`` centred in a multiple of ``TAPS`` taps, zeros around it: what the kernels
-    take (seven taps, the default window, have no zeros; five become 0, g0 .. g4, 0)."""
+    take (seven taps, the default window, have no zeros; five become 0, g0 .. g4, 0). Computed once
+    per window (every loss call asks), read-only."""
     T = TAPS * -(-win // TAPS)
     out = np.zeros(T)
     lo = T // 2 - win // 2
     out[lo:lo + win] = gauss_taps(win)
+    out.setflags(write=False)
     return out
