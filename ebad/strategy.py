@@ -19,7 +19,6 @@ import math
 from dataclasses import dataclass, field
 from typing import Callable, Protocol
 
-import numpy as np
 import torch
 from numba import njit
 from torch import Tensor, nn
