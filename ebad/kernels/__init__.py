@@ -20,9 +20,9 @@ it from its cache.
 from __future__ import annotations
 
 import contextlib
-from typing import Iterator
+from collections.abc import Iterator
 
-__all__ = ["use_kernels", "torch_reference"]
+__all__ = ["torch_reference", "use_kernels"]
 
 _enabled = True  # False inside ``torch_reference()``
 

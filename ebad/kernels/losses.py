@@ -10,8 +10,8 @@ is the reference these are tested against (``tests/ebad/kernels/test_losses.py``
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 import torch
@@ -19,7 +19,7 @@ from torch import Tensor
 
 from ..losses import LUMA
 
-__all__ = ["ssim_map", "l1_ssim_each", "event_loss", "exposure_losses"]
+__all__ = ["event_loss", "exposure_losses", "l1_ssim_each", "ssim_map"]
 
 
 def ssim_map(a: Tensor,  # [B, H, W, D]

@@ -11,8 +11,7 @@ from torch import Tensor
 
 from ._numba_poses import _KIND_ID, KINDS, NEAR_PI_COS, _poses
 
-__all__ = ["trajectory_poses", "TrajectoryPoses", "NearPi", "poses_with_tangents", "available", "KINDS",
-           "NEAR_PI_COS"]
+__all__ = ["KINDS", "NEAR_PI_COS", "NearPi", "TrajectoryPoses", "available", "poses_with_tangents", "trajectory_poses"]
 
 
 class NearPi(ValueError):
