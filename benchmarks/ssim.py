@@ -9,7 +9,7 @@ implementations, each timed in this process, alternately, median of ``--repeats`
 a warm-up:
 
 - ``fused loss``: ``ebad.losses.l1_ssim`` with the SSIM weight 1, what the training losses call
-  (``ebad._ssim_kernels``: one kernel pass over both separable directions that sums the map
+  (``ebad.kernels._numba_ssim``: one kernel pass over both separable directions that sums the map
   without storing it, one for its adjoint with a constant upstream gradient);
 - ``fused``: ``ebad.losses.ssim_map`` (the same kernels, writing the map, and the adjoint of a
   map of upstream gradients), what the metrics call;
@@ -38,7 +38,7 @@ def grouped_conv_ssim(a, b, window: int = 7):
     """The previous ``ssim_map``: the five moments in one grouped conv2d (torch autograd)."""
     import torch
 
-    from ebad._ssim_kernels import C1, C2, DEN_EPS, gauss_taps
+    from ebad.kernels._numba_ssim import C1, C2, DEN_EPS, gauss_taps
 
     a = a.permute(0, 3, 1, 2)
     b = b.permute(0, 3, 1, 2)

@@ -13,9 +13,11 @@ poses ``[F, V, 4, 4]``:
   camera whose pose is not trusted (gsplat's ``pose_opt``).
 - ``fixed`` (K = 0): the mid pose at every instant (trusted poses, sharp frames).
 
-``ExposureTrajectories`` is the stateful shell (an ``nn.Module`` holding the knots). On the CPU it
-evaluates the same poses in closed form with their derivatives (``ebad._fast_poses``, one autograd
-node instead of a few dozen small ones); these functions are its reference.
+``ExposureTrajectories`` is the stateful shell (an ``nn.Module`` holding the knots); it evaluates
+its poses through ``trajectory_poses``, which adds the anchoring and is the one place that chooses
+the path: on the CPU the same poses in closed form with their derivatives (``ebad.kernels.poses``,
+one autograd node instead of a few dozen small ones, chosen by ``ebad.kernels.use_kernels``); the
+torch functions here are their reference.
 """
 from __future__ import annotations
 
@@ -25,11 +27,12 @@ from typing import Callable
 import torch
 from torch import Tensor, nn
 
-from ._fast_poses import NearPi, TrajectoryPoses, fast_poses_available
+from .kernels import poses as closed_form
+from .kernels import use_kernels
 from .lie import compose_pose, rigid_inverse, so3_exp, so3_log
 
 __all__ = ["TrajectoryModel", "TRAJECTORIES", "linear_poses", "cubic_poses", "offset_poses", "fixed_poses",
-           "ExposureTrajectories", "virtual_instants"]
+           "trajectory_poses", "ExposureTrajectories", "virtual_instants"]
 
 
 def virtual_instants(V: int, dtype=torch.float32, device=None) -> Tensor:  # -> [V]
@@ -127,6 +130,32 @@ TRAJECTORIES: dict[str, TrajectoryModel] = {
 }
 
 
+def trajectory_poses(
+    kind: str,
+    c2w_mid: Tensor,  # [F, 4, 4]
+    knots: Tensor,  # [F, K, 6]
+    u: Tensor,  # [V]
+    scale: float = 1.0,
+    anchored: bool = False,
+) -> Tensor:  # [F, V, 4, 4]
+    """The poses of the registered trajectory ``kind`` (a key of ``TRAJECTORIES``), anchored or not
+    (see ``ExposureTrajectories``): the pose function's, then left-multiplied by
+    c2w_mid T(0.5)^-1 when ``anchored``. On CPU tensors the closed form computes them
+    (``ebad.kernels.poses``) except near a logarithm of pi, where it refuses and this torch code
+    runs (``so3_log`` takes kornia's path there)."""
+    model = TRAJECTORIES[kind]
+    if closed_form.available(kind) and use_kernels(knots):
+        try:
+            return closed_form.trajectory_poses(kind, c2w_mid, knots, u, scale, anchored)
+        except closed_form.NearPi:
+            pass
+    if not (anchored and model.num_knots > 0):
+        return model.poses(c2w_mid, knots, u, scale)
+    both = model.poses(c2w_mid, knots, torch.cat([u, u.new_tensor([0.5])]), scale)  # u and mid-exposure in one call
+    poses, at_half = both[:, :-1], both[:, -1]  # [F, V, 4, 4], [F, 4, 4]
+    return (c2w_mid @ rigid_inverse(at_half))[:, None] @ poses
+
+
 class ExposureTrajectories(nn.Module):
     """Per-frame exposure trajectories around fixed mid-exposure poses.
 
@@ -173,16 +202,7 @@ class ExposureTrajectories(nn.Module):
         """Poses of ``frames`` at normalised instants ``u``."""
         knots = self.knots[frames] * self.moving[frames, None, None]
         mid = self.c2w_mid[frames]
-        if fast_poses_available(self.kind) and knots.device.type == "cpu":
-            try:  # the same poses in closed form, one autograd node (ebad._fast_poses)
-                return TrajectoryPoses.apply(knots, mid, u, self.kind, self.scale, self.anchored)
-            except NearPi:  # a logarithm near pi: the torch path (so3_log takes kornia's there)
-                pass
-        if not (self.anchored and self.model.num_knots > 0):
-            return self.model.poses(mid, knots, u, self.scale)
-        both = self.model.poses(mid, knots, torch.cat([u, u.new_tensor([0.5])]), self.scale)  # u and mid-exposure in one call
-        poses, at_half = both[:, :-1], both[:, -1]  # [B, V, 4, 4], [B, 4, 4]
-        return (mid @ rigid_inverse(at_half))[:, None] @ poses
+        return trajectory_poses(self.kind, mid, knots, u, self.scale, self.anchored)
 
     def mid_poses(self) -> Tensor:  # [F, 4, 4]
         """Every frame's pose at mid-exposure (u = 0.5)."""

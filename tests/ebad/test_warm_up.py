@@ -8,8 +8,8 @@ import sys
 _CODE = """
 import json, numba
 from ebad import trainer
-import splat_cpu._numba_kernels, splat_cpu._numba_project, ebad._ssim_kernels, ebad._event_kernels
-MODULES = (splat_cpu._numba_kernels, splat_cpu._numba_project, ebad._ssim_kernels, ebad._event_kernels)
+import splat_cpu._numba_kernels, splat_cpu._numba_project, ebad.kernels._numba_ssim, ebad.kernels._numba_event
+MODULES = (splat_cpu._numba_kernels, splat_cpu._numba_project, ebad.kernels._numba_ssim, ebad.kernels._numba_event)
 def compiled():  # the parallel kernels of the rasteriser, SSIM and L_ev -> how many signatures each has
     return {f"{m.__name__}.{k}": len(v.signatures) for m in MODULES for k, v in vars(m).items()
             if isinstance(v, numba.core.registry.CPUDispatcher) and v.targetoptions.get("parallel")}

@@ -1,4 +1,4 @@
-"""The exposure trajectories' poses in closed form, with their derivatives carried forward.
+"""The exposure trajectories' poses in closed form, with their derivatives carried forward (numba).
 
 ``ebad.trajectory``'s pose functions are torch compositions of a few dozen small operations
 (``so3_exp`` through ``matrix_exp``, ``so3_log``, products, the anchoring); at a training step's
@@ -7,26 +7,22 @@ anchored linear trajectory took 1.4 ms a step, forward and backward. Here the sa
 from one numba function in float64, and with them their derivatives with respect to every knot
 (forward mode: each quantity carries its tangents along the P = K x 6 knot coordinates). The
 backward is then one contraction of those tangents with the upstream gradient
-(``TrajectoryPoses``). The torch functions stay the reference (tests compare both).
+(``ebad.kernels.poses.TrajectoryPoses``). The torch functions stay the reference (tests compare both).
 
 Rotations use the closed forms of SO(3) (Barfoot, "State Estimation for Robotics", 7.1):
 exp(w) = I + a W + b W^2 and its right Jacobian Jr(w) = I - b W + c W^2 (W = [w]x, a = sin t / t,
 b = (1 - cos t) / t^2, c = (t - sin t) / t^3, t = |w|), so d exp(w) = exp(w) [Jr(w) dw]x; the
 logarithm as ``ebad.lie.so3_log`` and d log(R) = Jr^-1(w) vee(R^T dR), Jr^-1(w) = I + W / 2 +
 e W^2, e = (1 - (t / 2) cot(t / 2)) / t^2. Series replace the ratios near t = 0. A logarithm
-within ``NEAR_PI_COS`` of pi is refused (``NearPi``): the caller takes the torch path, as
-``so3_log`` takes kornia's there.
+within ``NEAR_PI_COS`` of pi is refused (``_poses`` returns False, ``ebad.kernels.poses`` raises
+``NearPi``): the caller takes the torch path, as ``so3_log`` takes kornia's there.
 """
 from __future__ import annotations
 
 import math
 
 import numpy as np
-import torch
 from numba import njit
-from torch import Tensor
-
-__all__ = ["TrajectoryPoses", "NearPi", "poses_with_tangents", "fast_poses_available", "KINDS"]
 
 #: below this cos(angle) a logarithm is refused (``ebad.lie._NEAR_PI_COS``: there vee(R - R^T) loses its digits)
 NEAR_PI_COS = -0.9
@@ -36,10 +32,6 @@ _SMALL_LOG = 1e-10  # sin(t)^2 below which t / sin(t) comes from its series
 #: the trajectory kinds with a closed form, and their number of knots (``ebad.trajectory.TRAJECTORIES``)
 KINDS = {"linear": 2, "cubic": 4, "offset": 1}
 _KIND_ID = {"linear": 0, "cubic": 1, "offset": 2}
-
-
-class NearPi(ValueError):
-    """A rotation whose logarithm is wanted is within ``NEAR_PI_COS`` of pi."""
 
 
 # The numba functions below are written with scalar loops only: numba's array expressions, slice
@@ -241,8 +233,8 @@ def _frame(kind, Rm, tm, knots, u, scale, R, t, dR, dt):  # pragma: no cover - j
 
 @njit(cache=True)
 def _poses(kind, c2w_mid, knots, u, scale, anchored, c2w, dC):  # pragma: no cover - jit
-    """c2w [B, V, 4, 4] and dC [B, P, V, 3, 4] written (see ``poses_with_tangents``); False when a
-    logarithm is near pi."""
+    """c2w [B, V, 4, 4] and dC [B, P, V, 3, 4] written (see ``ebad.kernels.poses.poses_with_tangents``);
+    False when a logarithm is near pi."""
     B = knots.shape[0]
     P = knots.shape[1] * 6
     V = u.shape[0]
@@ -308,41 +300,3 @@ def _poses(kind, c2w_mid, knots, u, scale, anchored, c2w, dC):  # pragma: no cov
                                          + dtM[i])
     return True
 
-
-def poses_with_tangents(kind: str, c2w_mid: np.ndarray, knots: np.ndarray, u: np.ndarray, scale: float,
-                        anchored: bool) -> tuple[np.ndarray, np.ndarray]:
-    """c2w [B, V, 4, 4] of a trajectory kind with knots (``ebad.trajectory``'s ``linear``, ``cubic``,
-    ``offset`` on c2w_mid [B, 4, 4], knots [B, K, 6], u [V]), anchored or not, and its tangents
-    along every knot coordinate: dC [B, P, V, 3, 4] (the top three rows), P = K x 6 in the knots'
-    [K, 6] order. float64 throughout; raises ``NearPi`` (see the module docstring)."""
-    B, K, _ = knots.shape
-    V = len(u)
-    c2w = np.empty((B, V, 4, 4))
-    dC = np.empty((B, 6 * K, V, 3, 4))
-    if not _poses(_KIND_ID[kind], np.ascontiguousarray(c2w_mid, np.float64), np.ascontiguousarray(knots, np.float64),
-                  np.ascontiguousarray(u, np.float64), float(scale), bool(anchored), c2w, dC):
-        raise NearPi("a rotation whose logarithm a linear trajectory needs is near pi")
-    return c2w, dC
-
-
-class TrajectoryPoses(torch.autograd.Function):
-    """c2w [B, V, 4, 4] from knots [B, K, 6] (``poses_with_tangents``), the gradient of the knots
-    by one contraction of the tangents with the upstream gradient."""
-
-    @staticmethod
-    def forward(ctx, knots: Tensor, c2w_mid: Tensor, u: Tensor, kind: str, scale: float, anchored: bool) -> Tensor:
-        c2w, dC = poses_with_tangents(kind, c2w_mid.detach().numpy(), knots.detach().numpy(), u.detach().numpy(),
-                                      scale, anchored)
-        ctx.dC, ctx.knot_shape = dC, knots.shape
-        return torch.from_numpy(c2w).to(knots.dtype)
-
-    @staticmethod
-    def backward(ctx, grad: Tensor):  # [B, V, 4, 4]
-        G = grad.detach().numpy()[..., :3, :].astype(np.float64)
-        gk = np.einsum("bpvij,bvij->bp", ctx.dC, G).reshape(ctx.knot_shape)
-        return torch.from_numpy(gk).to(grad.dtype), None, None, None, None, None
-
-
-def fast_poses_available(kind: str) -> bool:
-    """Whether ``poses_with_tangents`` has the kind (``fixed`` needs no derivative at all)."""
-    return kind in KINDS

@@ -10,7 +10,8 @@ of every L_k: (g_{k-1} - g_k) / (L_k + eps), zero where L_k < 0 (the clamp).
 
 Written as torch operations, the loss took a dozen full-image temporaries and their autograd.
 Here each direction is one parallel region over bands of rows. Arrays are float32 or float64:
-L [V, H, W], counts [V - 1, 2, H, W].
+L [V, H, W], counts [V - 1, 2, H, W]. ``ebad.kernels.losses`` wraps the kernels in an autograd
+Function; ``ebad.losses.event_loss``'s torch code is the reference they are tested against.
 """
 from __future__ import annotations
 

@@ -23,7 +23,7 @@ had loaded and stored every row sum again, and an index below the loop counter k
 index check. Six 173x130 images, 2 threads: forward 0.60 -> 0.45 ms, backward 0.73 -> 0.36 ms;
 at 346x260 2.12 -> 1.49 and 2.56 -> 1.05 (scratch timing against the previous kernels, medians
 of 300 calls).
-``ebad.losses`` wraps the kernels in autograd Functions; ``ebad.losses.ssim_map_kornia`` is the
+``ebad.kernels.losses`` wraps the kernels in autograd Functions; ``ebad.losses.ssim_map_kornia`` is the
 reference they are tested against.
 
 Arrays are [N, H, W] (N = batch x channels) float32 or float64, H and W larger than ``win // 2``,
