@@ -1,6 +1,7 @@
 """The in-memory capture: what every reader returns and the reconstruction eats."""
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -10,12 +11,19 @@ from edi import EventStream
 
 from .errors import CaptureError
 
-__all__ = ["Capture", "TestView", "check_rigid", "POSE_TRUST"]
+__all__ = ["Capture", "TestView", "check_rigid", "nearest_rigid", "guess_K", "POSE_TRUST", "ROTATION_REPAIR_TOL",
+           "EXACT_RIGID_TOL", "DAVIS_DEFAULT_HFOV_DEG"]
 
 RIGID_TOL = 1e-5  # max |R^T R - I| and |det R - 1| accepted for a camera pose
 # How far a capture's poses can be trusted, as the capture states it (real captures state it
 # too: motion capture -> "exact", SfM or another tool -> "approximate", nothing -> "none").
 POSE_TRUST = ("exact", "approximate", "none")
+# Largest deviation of a pose's rotation from orthonormal (|singular value - 1|) that is
+# repaired (re-orthonormalised by SVD) instead of refused. Poses written with 5 decimals are
+# off by ~1e-5; 1e-3 still refuses any real scale (a 0.1% zoom) and every reflection.
+ROTATION_REPAIR_TOL = 1e-3
+EXACT_RIGID_TOL = 1e-9  # a pose this close to rigid is kept bit for bit (float64 round trips of rigid poses)
+DAVIS_DEFAULT_HFOV_DEG = 70.0  # used only when a recording comes with no K
 
 
 def check_rigid(m: np.ndarray, file: str | None, field_name: str) -> np.ndarray:
@@ -37,6 +45,50 @@ def check_rigid(m: np.ndarray, file: str | None, field_name: str) -> np.ndarray:
         raise CaptureError(file, field_name,
                            f"is not a rigid transform (max |R^T R - I| = {ortho:.2e}, det R = {det:.6f})")
     return a
+
+
+def nearest_rigid(m: Any,  # [4, 4]
+                  file: str | None, field_name: str, tol: float = ROTATION_REPAIR_TOL) -> np.ndarray:
+    """A camera pose read from a file as a float64 [4, 4] rigid transform.
+
+    A pose already orthonormal to ``EXACT_RIGID_TOL`` is returned unchanged (so save -> load
+    stays lossless). A rotation block within ``tol`` of orthonormal (every singular value in [1 - tol, 1 + tol],
+    det > 0; e.g. poses rounded to 5 decimals) is replaced by the nearest rotation (SVD:
+    R = U V^T); a scale, a shear or a reflection is refused, as is a last row that is not
+    [0, 0, 0, 1] within ``tol``.
+
+    Raises:
+        CaptureError: naming ``file`` and ``field_name`` and what is wrong.
+    """
+    try:
+        a = np.array(m, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise CaptureError(file, field_name, "must be a 4x4 list of numbers") from None
+    if a.shape != (4, 4):
+        raise CaptureError(file, field_name, f"must be a 4x4 matrix, got shape {a.shape}")
+    if not np.isfinite(a).all():
+        raise CaptureError(file, field_name, "has a non-finite entry")
+    if np.abs(a[3] - np.array([0.0, 0.0, 0.0, 1.0])).max() > tol:
+        raise CaptureError(file, field_name, f"last row must be [0, 0, 0, 1], got {a[3].tolist()}")
+    u, sv, vt = np.linalg.svd(a[:3, :3])
+    det = float(np.linalg.det(a[:3, :3]))
+    if det <= 0:
+        raise CaptureError(file, field_name, f"is not a rigid transform: the rotation is a reflection (det R = {det:.6f})")
+    dev = float(np.abs(sv - 1.0).max())
+    if dev > tol:
+        raise CaptureError(file, field_name, f"is not a rigid transform: the rotation block scales by "
+                                             f"{sv.min():.6f}..{sv.max():.6f} (repaired only within {tol:g} of 1)")
+    if dev > EXACT_RIGID_TOL or np.abs(a[3] - np.array([0.0, 0.0, 0.0, 1.0])).max() > EXACT_RIGID_TOL:
+        a[:3, :3] = u @ vt
+        a[3] = (0.0, 0.0, 0.0, 1.0)
+    return check_rigid(a, file, field_name)
+
+
+def guess_K(width: int, height: int) -> np.ndarray:  # -> [3, 3]
+    """Pinhole intrinsics from a 70-degree horizontal field of view (DAVIS346 with its usual
+    lens), for recordings that carry no calibration; callers set ``meta['K_guessed']``."""
+    fx = 0.5 * width / math.tan(math.radians(DAVIS_DEFAULT_HFOV_DEG) / 2)
+    return np.array([[fx, 0, width / 2], [0, fx, height / 2], [0, 0, 1.0]])
 
 
 @dataclass

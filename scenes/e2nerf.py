@@ -52,10 +52,12 @@ import numpy as np
 
 from edi import EventStream, seconds_to_us
 
-from .capture import Capture, TestView
+from .capture import Capture, TestView, nearest_rigid
 from .errors import CaptureError
 from .images import read_image
+from .jsonio import read_json_object
 from .poses import interpolate_poses, opengl_to_opencv, read_poses_bounds
+from .truth import GroundTruth
 
 __all__ = ["load_ebad_nerf", "load_e2nerf", "read_event_bins", "events_from_bins", "nominal_exposures",
            "detect_e2nerf", "ground_truth_blur", "BIN_S", "LLFF_HOLD", "EVENTS_FILE"]
@@ -210,8 +212,6 @@ def load_ebad_nerf(root: str | os.PathLike, llffhold: int = LLFF_HOLD) -> Captur
     slots = nominal_exposures(n, counts.shape[1])  # every view keeps its slot on the clock
     exposures = slots[keep]
     events = events_from_bins(counts, exposures, w, h)
-    from .format import nearest_rigid
-
     c2w = np.stack([nearest_rigid(c2w_all[i], str(pb_path), f"poses_bounds[{i}]") for i in range(n)])
     f = hwf[0, 2] * w / hwf[0, 1]  # focal of the stored size, scaled to the images
     if abs(hwf[0, 0] / hwf[0, 1] - h / w) > 0.02:
@@ -229,8 +229,6 @@ def load_ebad_nerf(root: str | os.PathLike, llffhold: int = LLFF_HOLD) -> Captur
 
 
 def _transforms(path: Path) -> tuple[dict, list]:
-    from .format import read_json_object
-
     doc = read_json_object(path)
     if not isinstance(doc.get("frames"), list) or not doc["frames"]:
         raise CaptureError(str(path), "frames", "must be a non-empty list")
@@ -238,8 +236,6 @@ def _transforms(path: Path) -> tuple[dict, list]:
 
 
 def _pose_list(v: Any, jf: str, field: str) -> np.ndarray:  # -> [S, 4, 4] OpenCV, rigid
-    from .format import nearest_rigid
-
     try:
         a = np.array(v, dtype=np.float64)
     except (TypeError, ValueError):
@@ -339,8 +335,6 @@ def ground_truth_blur(root: str | os.PathLike, llffhold: int = LLFF_HOLD):
     """A :class:`scenes.format.GroundTruth` mapping the training frames of an EBAD-NeRF folder
     (names as :func:`load_ebad_nerf` gives them) to the sharp images of ``images_gt_blur/``
     (sorted, one per training view, in the same order)."""
-    from .format import GroundTruth
-
     root = Path(root)
     all_files = _images(root / "images")
     held = set(range(0, len(all_files), llffhold)) if _images(root / "images_gt_novel") else set()

@@ -14,7 +14,6 @@ import os
 import shutil
 import tempfile
 import zipfile
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -22,23 +21,23 @@ import numpy as np
 
 from edi import CorruptFileError, EbadError, EventStream, read_events
 
-from .capture import Capture, TestView, check_rigid
+from .capture import EXACT_RIGID_TOL, ROTATION_REPAIR_TOL, Capture, TestView, nearest_rigid
+from .e2nerf import ground_truth_blur
 from .errors import CaptureError
 from .images import read_image, write_image
+from .jsonio import read_json_object
+from .truth import GT_FILE, GroundTruth
 
+# nearest_rigid, ROTATION_REPAIR_TOL (scenes.capture), read_json_object (scenes.jsonio) and GroundTruth
+# (scenes.truth) are re-exported under their old import paths
 __all__ = ["FORMAT", "load_capture_folder", "save", "read_event_file", "nearest_rigid", "ROTATION_REPAIR_TOL",
-           "read_ground_truth", "GroundTruth"]
+           "EXACT_RIGID_TOL", "read_json_object", "read_ground_truth", "GroundTruth", "GT_FILE"]
 
 FORMAT = "ebad-capture/1"
 T_UNITS = ("us", "ns", "ms", "s")
 EVENT_SUFFIXES = (".npz", ".h5", ".hdf5")
 # What numpy, zipfile and h5py raise on a truncated or corrupt file (h5py raises OSError).
 CORRUPT_FILE_ERRORS = (OSError, EOFError, ValueError, zipfile.BadZipFile)
-# Largest deviation of a pose's rotation from orthonormal (|singular value - 1|) that is
-# repaired (re-orthonormalised by SVD) instead of refused. Poses written with 5 decimals are
-# off by ~1e-5; 1e-3 still refuses any real scale (a 0.1% zoom) and every reflection.
-ROTATION_REPAIR_TOL = 1e-3
-EXACT_RIGID_TOL = 1e-9  # a pose this close to rigid is kept bit for bit (float64 round trips of rigid poses)
 
 
 def _req(d: dict, key: str, file: str, where: str) -> Any:
@@ -86,57 +85,6 @@ def read_event_file(path: Path, t_unit: str, width: int, height: int, t0_us: int
     if t0_us:
         object.__setattr__(events, "t0", int(t0_us))
     return events
-
-
-def nearest_rigid(m: Any,  # [4, 4]
-                  file: str | None, field_name: str, tol: float = ROTATION_REPAIR_TOL) -> np.ndarray:
-    """A camera pose read from a file as a float64 [4, 4] rigid transform.
-
-    A pose already orthonormal to ``EXACT_RIGID_TOL`` is returned unchanged (so save -> load
-    stays lossless). A rotation block within ``tol`` of orthonormal (every singular value in [1 - tol, 1 + tol],
-    det > 0; e.g. poses rounded to 5 decimals) is replaced by the nearest rotation (SVD:
-    R = U V^T); a scale, a shear or a reflection is refused, as is a last row that is not
-    [0, 0, 0, 1] within ``tol``.
-
-    Raises:
-        CaptureError: naming ``file`` and ``field_name`` and what is wrong.
-    """
-    try:
-        a = np.array(m, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise CaptureError(file, field_name, "must be a 4x4 list of numbers") from None
-    if a.shape != (4, 4):
-        raise CaptureError(file, field_name, f"must be a 4x4 matrix, got shape {a.shape}")
-    if not np.isfinite(a).all():
-        raise CaptureError(file, field_name, "has a non-finite entry")
-    if np.abs(a[3] - np.array([0.0, 0.0, 0.0, 1.0])).max() > tol:
-        raise CaptureError(file, field_name, f"last row must be [0, 0, 0, 1], got {a[3].tolist()}")
-    u, sv, vt = np.linalg.svd(a[:3, :3])
-    det = float(np.linalg.det(a[:3, :3]))
-    if det <= 0:
-        raise CaptureError(file, field_name, f"is not a rigid transform: the rotation is a reflection (det R = {det:.6f})")
-    dev = float(np.abs(sv - 1.0).max())
-    if dev > tol:
-        raise CaptureError(file, field_name, f"is not a rigid transform: the rotation block scales by "
-                                             f"{sv.min():.6f}..{sv.max():.6f} (repaired only within {tol:g} of 1)")
-    if dev > EXACT_RIGID_TOL or np.abs(a[3] - np.array([0.0, 0.0, 0.0, 1.0])).max() > EXACT_RIGID_TOL:
-        a[:3, :3] = u @ vt
-        a[3] = (0.0, 0.0, 0.0, 1.0)
-    return check_rigid(a, file, field_name)
-
-
-def read_json_object(path: Path) -> dict:
-    """A JSON file whose top level is an object; CaptureError naming the file otherwise."""
-    path = Path(path)
-    if not path.is_file():
-        raise CaptureError(str(path), None, "file not found")
-    try:
-        doc = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise CaptureError(str(path), None, f"not valid JSON ({exc})") from None
-    if not isinstance(doc, dict):
-        raise CaptureError(str(path), None, "top level must be an object")
-    return doc
 
 
 def _matrix(v: Any, file: str, field: str) -> np.ndarray:
@@ -344,40 +292,6 @@ def _write(cap: Capture, root: Path) -> None:
 
 # --------------------------------------------------------------------------- ground truth
 
-GT_FILE = "gt.json"
-
-
-@dataclass
-class GroundTruth:
-    """What a synthetic scene's ``gt/`` folder records (``scenes.write_scene``), for evaluation
-    only: no code path of the method reads it.
-
-    ``frame_files`` maps a frame name to its sharp mid-exposure image; ``trajectories`` maps a
-    frame name to its true in-exposure trajectory (times [S] seconds, c2w [S, 4, 4]).
-    """
-
-    root: Path
-    frame_files: dict[str, Path] = field(default_factory=dict)
-    trajectories: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
-    meta: dict[str, Any] = field(default_factory=dict)
-
-    def frames(self, names: list[str]) -> np.ndarray | None:  # -> [F, H, W, D] float32
-        """The sharp frames of ``names`` (in that order), or None when one is not recorded."""
-        if not all(n in self.frame_files for n in names):
-            return None
-        return np.stack([read_image(self.frame_files[n], f"{GT_FILE}: frames[{n!r}].file") for n in names])
-
-    def trajectory_c2w(self, names: list[str]) -> np.ndarray | None:  # -> [F, S, 4, 4]
-        """The true trajectories of ``names`` (in that order), or None when one is missing or
-        they have different sample counts."""
-        if not all(n in self.trajectories for n in names):
-            return None
-        c2ws = [self.trajectories[n][1] for n in names]
-        if len({c.shape for c in c2ws}) != 1:
-            return None
-        return np.stack(c2ws)
-
-
 def read_ground_truth(gt_dir: str | os.PathLike) -> GroundTruth:
     """Parse ``gt_dir/gt.json`` (the one parser of that file; ``scenes.write_scene`` writes it),
     or, for an EBAD-NeRF folder without one, map its training frames to ``images_gt_blur/``.
@@ -389,8 +303,6 @@ def read_ground_truth(gt_dir: str | os.PathLike) -> GroundTruth:
     path = root / GT_FILE
     jf = str(path)
     if not path.is_file() and (root / "images_gt_blur").is_dir():
-        from .e2nerf import ground_truth_blur
-
         return ground_truth_blur(root)
     doc = read_json_object(path)
     frames_doc = doc.get("frames", []) or []

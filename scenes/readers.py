@@ -22,12 +22,13 @@ import numpy as np
 
 from edi import CorruptFileError, EbadError, EventStream, read_aedat4
 
-from .capture import Capture
+from .capture import Capture, guess_K
 from .e2nerf import LLFF_HOLD, detect_e2nerf, load_e2nerf, load_ebad_nerf
 from .errors import CaptureError
 from .format import FORMAT, decode_events, load_capture_folder, nearest_rigid
 from .images import read_image
 from .poses import interpolate_poses, read_poses_bounds
+from .rosbag import load_rosbag
 from .undistort import undistort_events, undistort_frames
 
 __all__ = ["load", "load_ecd", "load_aedat4", "load_evdeblurnerf", "detect_layout", "interpolate_poses", "LAYOUTS",
@@ -101,8 +102,6 @@ def load(path: str | os.PathLike, undistort: bool = True, K: np.ndarray | None =
     elif layout == "aedat4":
         cap = load_aedat4(_single_file(path, ".aedat4"), K=K)
     elif layout == "rosbag1":
-        from .rosbag import load_rosbag
-
         cap = load_rosbag(_single_file(path, ".bag"), K=K, exposure_us=exposure_us)
     elif layout == "ebad-nerf":
         cap = load_ebad_nerf(path, llffhold=llffhold)
@@ -224,16 +223,6 @@ CORRUPT_RECORDING_ERRORS = (RuntimeError, OSError, EOFError, ValueError, zipfile
 
 def _read_events(path: Path, t_unit: str | None, width: int, height: int) -> EventStream:
     return decode_events(path, t_unit, width, height, "events")
-
-
-DAVIS_DEFAULT_HFOV_DEG = 70.0  # used only when a recording comes with no K
-
-
-def guess_K(width: int, height: int) -> np.ndarray:  # -> [3, 3]
-    """Pinhole intrinsics from a 70-degree horizontal field of view (DAVIS346 with its usual
-    lens), for recordings that carry no calibration; callers set ``meta['K_guessed']``."""
-    fx = 0.5 * width / math.tan(math.radians(DAVIS_DEFAULT_HFOV_DEG) / 2)
-    return np.array([[fx, 0, width / 2], [0, fx, height / 2], [0, 0, 1.0]])
 
 
 def load_aedat4(path: Path, K: np.ndarray | None = None) -> Capture:

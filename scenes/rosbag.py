@@ -31,7 +31,7 @@ import numpy as np
 
 from edi import EventStream
 
-from .capture import Capture
+from .capture import Capture, guess_K
 from .errors import CaptureError
 
 __all__ = ["load_rosbag", "dvs_typestore", "decode_event_array", "exposure_window_us", "ROS_INSTALL",
@@ -143,8 +143,6 @@ def load_rosbag(path: str | os.PathLike, K: np.ndarray | None = None, exposure_u
         CaptureError: ``rosbags`` missing (with the pip command), an unreadable bag, a missing
             topic, no exposure (neither ``/dvs/exposure`` nor ``exposure_us``), bad messages.
     """
-    from .readers import guess_K  # readers imports this module lazily
-
     path = Path(path)
     rosbag1, _ = _rosbags()
     if rosbag1 is None:
