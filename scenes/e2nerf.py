@@ -46,9 +46,10 @@ from __future__ import annotations
 import math
 import os
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from edi import EventStream, seconds_to_us
 
@@ -77,7 +78,7 @@ def _first(root: Path, names: tuple[str, ...]) -> Path | None:
     return next((root / n for n in names if (root / n).is_file()), None)
 
 
-def detect_e2nerf(root: Path) -> str | None:
+def detect_e2nerf(root: str | os.PathLike) -> Literal["ebad-nerf", "e2nerf"] | None:
     """"ebad-nerf" (LLFF poses), "e2nerf" (transforms json) or None."""
     root = Path(root)
     if not (root / EVENTS_FILE).is_file():
@@ -250,8 +251,6 @@ def _pose_list(v: Any, jf: str, field: str) -> np.ndarray:  # -> [S, 4, 4] OpenC
 def _mid_pose(poses: np.ndarray) -> np.ndarray:  # [S, 4, 4] over the exposure -> [4, 4] at its middle
     if len(poses) == 1:
         return poses[0]
-    from scipy.spatial.transform import Rotation
-
     s = np.linspace(0.0, 1.0, len(poses))
     out, _ = interpolate_poses(np.array([0.5]), s, poses[:, :3, 3], Rotation.from_matrix(poses[:, :3, :3]).as_quat())
     return out[0]
@@ -282,7 +281,9 @@ def load_e2nerf(root: str | os.PathLike) -> Capture:
     if not with_path and len(files) != len(frames_doc):
         raise CaptureError(str(root / "train"), "images", f"{len(files)} images for {len(frames_doc)} frames in "
                                                           f"{tj.name} (and no file_path to match them)")
-    images, c2w, names = [], [], []
+    images: list[np.ndarray] = []
+    c2w: list[np.ndarray] = []
+    names: list[str] = []
     for k, fr in enumerate(frames_doc):
         if not isinstance(fr, dict) or "transform_matrix" not in fr:
             raise CaptureError(jf, f"frames[{k}].transform_matrix", "missing")
@@ -331,8 +332,8 @@ def load_e2nerf(root: str | os.PathLike) -> Capture:
                    split=["train"] * len(frames), test_views=test_views, names=names, meta=meta)
 
 
-def ground_truth_blur(root: str | os.PathLike, llffhold: int = LLFF_HOLD):
-    """A :class:`scenes.format.GroundTruth` mapping the training frames of an EBAD-NeRF folder
+def ground_truth_blur(root: str | os.PathLike, llffhold: int = LLFF_HOLD) -> GroundTruth:
+    """A :class:`scenes.truth.GroundTruth` mapping the training frames of an EBAD-NeRF folder
     (names as :func:`load_ebad_nerf` gives them) to the sharp images of ``images_gt_blur/``
     (sorted, one per training view, in the same order)."""
     root = Path(root)

@@ -15,7 +15,7 @@ import shutil
 import tempfile
 import zipfile
 from pathlib import Path
-from typing import Any
+from typing import Any, Final
 
 import numpy as np
 
@@ -33,7 +33,7 @@ from .truth import GT_FILE, GroundTruth
 __all__ = ["FORMAT", "load_capture_folder", "save", "read_event_file", "nearest_rigid", "ROTATION_REPAIR_TOL",
            "EXACT_RIGID_TOL", "read_json_object", "read_ground_truth", "GroundTruth", "GT_FILE"]
 
-FORMAT = "ebad-capture/1"
+FORMAT: Final = "ebad-capture/1"
 T_UNITS = ("us", "ns", "ms", "s")
 EVENT_SUFFIXES = (".npz", ".h5", ".hdf5")
 # What numpy, zipfile and h5py raise on a truncated or corrupt file (h5py raises OSError).
@@ -97,13 +97,36 @@ def _str(v: Any, file: str, field: str) -> str:
     return v
 
 
-def load_capture_folder(path: Path) -> Capture:
-    """Read an ``ebad-capture/1`` folder (``path`` is the folder or its capture.json)."""
+def load_capture_folder(path: str | os.PathLike) -> Capture:
+    """Read an ``ebad-capture/1`` folder (``path`` is the folder or its capture.json).
+
+    Raises:
+        CaptureError: a missing or malformed field, naming capture.json (or the frame's file) and the field.
+    """
     path = Path(path)
     root = path.parent if path.is_file() else path
     js = root / "capture.json"
     jf = str(js)
     doc = read_json_object(js)
+    width, height = _read_size(doc, jf)
+    K, distortion = _read_camera(doc, jf)
+    events = _read_events_entry(doc, root, jf, width, height)
+    frames, exposures, c2ws, split, names = _read_frames(doc, root, jf, width, height)
+    test_views = _read_test_views(doc, root, jf, width, height)
+    meta = doc.get("meta", {}) or {}
+    if not isinstance(meta, dict):
+        raise CaptureError(jf, "meta", f"must be an object, got {type(meta).__name__}")
+    meta = dict(meta)
+    if len(set(names)) != len(names):
+        names = [f"{i:04d}" for i in range(len(names))]
+    cap = Capture(frames=np.stack(frames).astype(np.float32), exposures=np.array(exposures, dtype=np.float64),
+                  events=events, K=K, distortion=distortion, c2w=np.stack(c2ws) if c2ws else None,
+                  split=split, test_views=test_views, names=names, meta=meta, pose_trust=doc.get("pose_trust"))
+    return cap.validate(jf)
+
+
+def _read_size(doc: dict, jf: str) -> tuple[int, int]:
+    """capture.json's format (must be ``FORMAT``), width and height (positive integers)."""
     fmt = _req(doc, "format", jf, "")
     if fmt != FORMAT:
         raise CaptureError(jf, "format", f"expected {FORMAT!r}, got {fmt!r}")
@@ -112,6 +135,11 @@ def load_capture_folder(path: Path) -> Capture:
     for name, v in (("width", width), ("height", height)):
         if isinstance(v, bool) or not isinstance(v, int) or v <= 0:
             raise CaptureError(jf, name, f"must be a positive integer, got {v!r}")
+    return width, height
+
+
+def _read_camera(doc: dict, jf: str) -> tuple[np.ndarray, np.ndarray | None]:
+    """K [3, 3] from ``intrinsics`` and the optional ``distortion`` [5] (k1 k2 p1 p2 k3)."""
     intr = _req(doc, "intrinsics", jf, "")
     fx, fy, cx, cy = (_num(_req(intr, k, jf, "intrinsics"), jf, f"intrinsics.{k}") for k in ("fx", "fy", "cx", "cy"))
     if fx <= 0 or fy <= 0:
@@ -123,7 +151,11 @@ def load_capture_folder(path: Path) -> Capture:
         if not isinstance(dv, list) or len(dv) != 5:
             raise CaptureError(jf, "distortion", "must be a list of 5 numbers k1 k2 p1 p2 k3")
         distortion = np.array([_num(x, jf, f"distortion[{i}]") for i, x in enumerate(dv)])
+    return K, distortion
 
+
+def _read_events_entry(doc: dict, root: Path, jf: str, width: int, height: int) -> EventStream:
+    """The stream the ``events`` entry names (file, t_unit, t0_us)."""
     evd = _req(doc, "events", jf, "")
     ev_file = _str(_req(evd, "file", jf, "events"), jf, "events.file")
     t_unit = evd.get("t_unit", "us")
@@ -133,12 +165,21 @@ def load_capture_folder(path: Path) -> Capture:
     if isinstance(t0_us, bool) or not isinstance(t0_us, int):
         raise CaptureError(jf, "events.t0_us", f"must be an integer, got {t0_us!r}")
     # t0_us is the stream's reference: stored times are relative, so t0 is re-attached, not subtracted
-    events = read_event_file(root / ev_file, t_unit, width, height, t0_us=t0_us)
+    return read_event_file(root / ev_file, t_unit, width, height, t0_us=t0_us)
 
+
+def _read_frames(doc: dict, root: Path, jf: str, width: int,
+                 height: int) -> tuple[list[np.ndarray], list[tuple[float, float]], list[np.ndarray], list[str], list[str]]:
+    """The ``frames`` entries: images [H, W, D], exposures (t_start, t_end), poses [4, 4] (every
+    frame has one or none does), splits and names."""
     frames_doc = _req(doc, "frames", jf, "")
     if not isinstance(frames_doc, list) or not frames_doc:
         raise CaptureError(jf, "frames", "must be a non-empty list")
-    frames, exposures, c2ws, split, names = [], [], [], [], []
+    frames: list[np.ndarray] = []
+    exposures: list[tuple[float, float]] = []
+    c2ws: list[np.ndarray] = []
+    split: list[str] = []
+    names: list[str] = []
     have_pose = ["c2w" in fr for fr in frames_doc if isinstance(fr, dict)]
     if any(have_pose) and not all(have_pose):
         i = have_pose.index(False)
@@ -150,13 +191,7 @@ def load_capture_folder(path: Path) -> Capture:
         t1 = _num(_req(fr, "t_end", jf, where), jf, f"{where}.t_end")
         if t1 < t0:
             raise CaptureError(jf, f"{where}.t_end", f"{t1} is before t_start {t0}")
-        img = read_image(root / file, f"{where}.file")
-        if img.shape[:2] != (height, width):
-            raise CaptureError(str(root / file), f"{where}.file",
-                               f"frame is {img.shape[1]}x{img.shape[0]}, capture.json says {width}x{height}")
-        if frames and img.shape[2] != frames[0].shape[2]:
-            raise CaptureError(str(root / file), f"{where}.file",
-                               f"has {img.shape[2]} channels, frame 0 has {frames[0].shape[2]}")
+        img = _read_frame_image(root, file, where, width, height, frames[0] if frames else None)
         frames.append(img)
         exposures.append((t0, t1))
         if "c2w" in fr:
@@ -166,6 +201,24 @@ def load_capture_folder(path: Path) -> Capture:
             raise CaptureError(jf, f"{where}.split", f"must be a string, got {s!r}")
         split.append(s)
         names.append(_str(fr.get("name", Path(file).stem), jf, f"{where}.name"))
+    return frames, exposures, c2ws, split, names
+
+
+def _read_frame_image(root: Path, file: str, where: str, width: int, height: int,
+                      first: np.ndarray | None) -> np.ndarray:  # -> [H, W, D]
+    """A frame's image, of the capture's size and of the first frame's channels."""
+    img = read_image(root / file, f"{where}.file")
+    if img.shape[:2] != (height, width):
+        raise CaptureError(str(root / file), f"{where}.file",
+                           f"frame is {img.shape[1]}x{img.shape[0]}, capture.json says {width}x{height}")
+    if first is not None and img.shape[2] != first.shape[2]:
+        raise CaptureError(str(root / file), f"{where}.file",
+                           f"has {img.shape[2]} channels, frame 0 has {first.shape[2]}")
+    return img
+
+
+def _read_test_views(doc: dict, root: Path, jf: str, width: int, height: int) -> list[TestView]:
+    """The ``test_views`` entries: a name, a time and a c2w, an image file or both."""
     test_views = []
     tv_doc = doc.get("test_views", []) or []
     if not isinstance(tv_doc, list):
@@ -184,16 +237,7 @@ def load_capture_folder(path: Path) -> Capture:
                 raise CaptureError(str(tv_file), f"{where}.file",
                                    f"image is {image.shape[1]}x{image.shape[0]}, capture.json says {width}x{height}")
         test_views.append(TestView(name=name, t=t, c2w=c2w, image=image))
-    meta = doc.get("meta", {}) or {}
-    if not isinstance(meta, dict):
-        raise CaptureError(jf, "meta", f"must be an object, got {type(meta).__name__}")
-    meta = dict(meta)
-    if len(set(names)) != len(names):
-        names = [f"{i:04d}" for i in range(len(names))]
-    cap = Capture(frames=np.stack(frames).astype(np.float32), exposures=np.array(exposures, dtype=np.float64),
-                  events=events, K=K, distortion=distortion, c2w=np.stack(c2ws) if c2ws else None,
-                  split=split, test_views=test_views, names=names, meta=meta, pose_trust=doc.get("pose_trust"))
-    return cap.validate(jf)
+    return test_views
 
 
 def _jsonable(meta: dict) -> dict:

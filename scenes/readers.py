@@ -17,6 +17,7 @@ import math
 import os
 import zipfile
 from pathlib import Path
+from typing import Literal, Sequence, get_args
 
 import numpy as np
 
@@ -35,11 +36,13 @@ __all__ = ["load", "load_ecd", "load_aedat4", "load_evdeblurnerf", "detect_layou
            "AEDAT_INSTALL"]
 
 ECD_CLAMP_S = 0.05  # frames up to this far outside the ground-truth time range take the end pose
-LAYOUTS = (FORMAT, "aedat4", "ecd", "evdeblurnerf", "ebad-nerf", "e2nerf", "rosbag1")
+#: the layouts ``load`` reads (``detect_layout`` names one)
+Layout = Literal["ebad-capture/1", "aedat4", "ecd", "evdeblurnerf", "ebad-nerf", "e2nerf", "rosbag1"]
+LAYOUTS: tuple[Layout, ...] = get_args(Layout)
 AEDAT_INSTALL = "pip install aedat (part of ebad's install)"
 
 
-def detect_layout(path: Path) -> str:
+def detect_layout(path: str | os.PathLike) -> Layout:
     """One of :data:`LAYOUTS`; CaptureError if none fits."""
     path = Path(path)
     if not path.exists():
@@ -61,7 +64,8 @@ def detect_layout(path: Path) -> str:
         return e2
     if (path / "poses_bounds.npy").is_file() and any((path / n).is_file() for n in ("events.h5", "events.npz", "events.txt")):
         return "evdeblurnerf"
-    for suffix, layout in ((".aedat4", "aedat4"), (".bag", "rosbag1")):
+    single_files: tuple[tuple[str, Layout], ...] = ((".aedat4", "aedat4"), (".bag", "rosbag1"))
+    for suffix, layout in single_files:
         found = sorted(path.glob(f"*{suffix}"))
         if len(found) == 1:
             return layout
@@ -123,7 +127,7 @@ def load(path: str | os.PathLike, undistort: bool = True, K: np.ndarray | None =
 # --------------------------------------------------------------------------- ECD
 
 
-def _loadtxt(path: Path, ncols: int, field: str, usecols=None) -> np.ndarray:
+def _loadtxt(path: Path, ncols: int, field: str, usecols: Sequence[int] | None = None) -> np.ndarray:
     if not path.is_file():
         raise CaptureError(str(path), field, "file not found")
     try:
@@ -137,7 +141,7 @@ def _loadtxt(path: Path, ncols: int, field: str, usecols=None) -> np.ndarray:
     return a
 
 
-def load_ecd(root: Path) -> Capture:
+def load_ecd(root: str | os.PathLike) -> Capture:
     """The Event Camera Dataset text layout (images.txt, events.txt, groundtruth.txt, calib.txt).
 
     Convention changes on load: calib.txt's principal point (OpenCV, pixel centres at integers)
@@ -225,7 +229,7 @@ def _read_events(path: Path, t_unit: str | None, width: int, height: int) -> Eve
     return decode_events(path, t_unit, width, height, "events")
 
 
-def load_aedat4(path: Path, K: np.ndarray | None = None) -> Capture:
+def load_aedat4(path: str | os.PathLike, K: np.ndarray | None = None) -> Capture:  # K [3, 3]
     """An AEDAT4 recording: APS frames with exposure begin/end and events, no poses. AEDAT4
     holds no calibration: pass ``K``, or a guess from a 70-degree horizontal field of view is
     used and ``meta['K_guessed'] = True``. Needs the ``aedat`` package (the ``aedat`` extra):
@@ -254,7 +258,7 @@ def load_aedat4(path: Path, K: np.ndarray | None = None) -> Capture:
                    meta=meta)
 
 
-def load_evdeblurnerf(root: Path) -> Capture:
+def load_evdeblurnerf(root: str | os.PathLike) -> Capture:
     """An EvDeblurNeRF-style folder: ``events.h5`` (or .npz/.txt), LLFF ``poses_bounds.npy``
     (see scenes.poses) and ``images_1/`` frames with ``images_1/timestamps.npz`` holding start
     and end times (seconds)."""
