@@ -248,7 +248,7 @@ def run_case(case: Case) -> dict:
     for name, (kw, multi) in ESTIMATORS.items():
         t = time.perf_counter()
         frames, ex = (case.frames, case.exposures) if multi else (case.frames[0], case.exposures[0])
-        est, rep = edi.estimate_c(frames, ex, case.events, return_report=True, **kw)
+        rep = edi.estimate_contrast(frames, ex, case.events, **kw)
         # a pair against the true pair; one c against the true mean (c_pos + c_neg) / 2
         ratio = ([rep.c.pos / case.c_true.pos, rep.c.neg / case.c_true.neg] if kw.get("pair")
                  else [rep.c.mean / case.c_true.mean])
@@ -314,7 +314,7 @@ def prediction_metric_check(cases: list[Case]) -> list[dict]:
         mid = case.exposures.mean(axis=1)
         ex = np.stack([mid, mid], axis=1)
         gains = [street_gain(sharp, ex, case.events, float(c)) for c in grid]
-        est = edi.estimate_c(sharp, ex, case.events)
+        est = edi.estimate_c(sharp, ex, case.events).mean
         out.append({"generator": case.generator, "seed": case.seed, "c_true": case.c_true.mean,
                     "best_fixed_c": float(grid[int(np.argmax(gains))]), "best_gain_db": float(max(gains)),
                     "estimate": est, "estimate_gain_db": street_gain(sharp, ex, case.events, est),
@@ -334,7 +334,7 @@ def street_rows() -> dict:
     best = max(out["scan"], key=out["scan"].get)
     out["best_fixed_c"], out["best_gain_db"] = best, out["scan"][best]
     for pair in (False, True):
-        c, rep = edi.estimate_c(fr, ex, ev, pair=pair, return_report=True)
+        rep = edi.estimate_contrast(fr, ex, ev, pair=pair)
         key = "estimate_pair" if pair else "estimate"
         out[key] = {"c": list(rep.c), "gain_db": street_gain(fr, ex, ev, rep.c), "method": rep.method}
     out["bounds"] = [regression_bounds(fr, ex, ev, gap) for gap in STREET_GAPS]
@@ -357,8 +357,9 @@ def gamma_scan(cases: list[Case]) -> list[dict]:
     out = []
     for case in cases:
         for g in GAMMA_SCAN:
-            c, rep = edi.estimate_c(case.frames, case.exposures, case.events, method="consistency", pair=True,
-                                    gamma=g, return_report=True)
+            rep = edi.estimate_contrast(case.frames, case.exposures, case.events, method="consistency", pair=True,
+                                        gamma=g)
+            c = rep.c
             out.append({"generator": case.generator, "seed": case.seed, "gamma_true": case.gamma, "gamma": g,
                         "c_mean": c.mean, "c_true_mean": case.c_true.mean, "gamma_times_c": g * c.mean,
                         "energy": rep.energy})
@@ -464,7 +465,8 @@ def partial_window() -> list[dict]:
             t0, t1 = s.exposures[0]
             mid, half = 0.5 * (t0 + t1), 0.5 * frac * (t1 - t0)
             i0, i1 = edi.events_in_window(s.events, mid - half, mid + half)
-            est, rep = edi.estimate_c(s.frames[0], s.exposures[0], s.events[i0:i1], return_report=True)
+            rep = edi.estimate_contrast(s.frames[0], s.exposures[0], s.events[i0:i1])
+            est = rep.c.mean
             out.append({"fraction": frac, "seed": seed, "ratio": est / c, "at_bound": rep.at_bound})
     return out
 
@@ -486,12 +488,14 @@ def ni_rows() -> list[dict]:
                "max_events_per_pixel": int(cnt.max()), "events_motion": events_displacement(ev),
                "frame_blur": frame_blur_against_events(B, ev)}
         for energy in ("flow", "paper"):
-            c, rep = edi.estimate_c(B, ex, ev, energy=energy, return_report=True)
+            rep = edi.estimate_contrast(B, ex, ev, energy=energy)
+            c = rep.c.mean
             s_l, n_l = sharpness_and_noise(edi.deblur(B, ex, ev, c=c))
             row[energy] = {"c": c, "at_bound": rep.at_bound, "reliable": rep.reliable, "explained": rep.explained,
                            "sharpness_gain": s_l / s_b, "noise_gain": n_l / n_b, "evals": sorted(rep.evals)}
         for g in NI_GAMMAS:  # is a non-linear response why the estimate ends at the bracket?
-            c, rep = edi.estimate_c(B, ex, ev, gamma=g, return_report=True)
+            rep = edi.estimate_contrast(B, ex, ev, gamma=g)
+            c = rep.c.mean
             s_l, n_l = sharpness_and_noise(edi.deblur(B, ex, ev, c=c, gamma=g))
             row[f"flow_gamma_{g:g}"] = {"c": c, "at_bound": rep.at_bound, "sharpness_gain": s_l / s_b,
                                         "noise_gain": n_l / n_b}

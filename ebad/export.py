@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from scipy.spatial.transform import Rotation
 
 from .errors import UserError
 from .gaussians import activate
@@ -99,23 +100,12 @@ def write_render(path: str | Path, img: np.ndarray, bits: int = 8) -> Path:  # [
 # --------------------------------------------------------------------------- rotations
 
 def rotmat_to_quat(R: np.ndarray) -> np.ndarray:  # [..., 3, 3] -> [..., 4] (w, x, y, z), w >= 0
-    """Unit quaternions (real part first, non-negative) of rotation matrices (Shepperd's method:
-    the largest of w, x, y, z is computed from the trace, the others from off-diagonals)."""
+    """Unit quaternions (real part first, non-negative) of rotation matrices, by
+    ``scipy.spatial.transform.Rotation`` (whose quaternions are (x, y, z, w))."""
     R = np.asarray(R, dtype=np.float64)
-    m00, m11, m22 = R[..., 0, 0], R[..., 1, 1], R[..., 2, 2]
-    cands = np.stack([1 + m00 + m11 + m22, 1 + m00 - m11 - m22, 1 - m00 + m11 - m22, 1 - m00 - m11 + m22], -1)
-    k = np.argmax(cands, -1)
-    s = 2.0 * np.sqrt(np.take_along_axis(cands, k[..., None], -1)[..., 0])  # 4 * |largest component|
-    d21, d02, d10 = R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]
-    s01, s02, s12 = R[..., 0, 1] + R[..., 1, 0], R[..., 0, 2] + R[..., 2, 0], R[..., 1, 2] + R[..., 2, 1]
-    q = np.stack([
-        np.stack([s / 4, d21 / s, d02 / s, d10 / s], -1),
-        np.stack([d21 / s, s / 4, s01 / s, s02 / s], -1),
-        np.stack([d02 / s, s01 / s, s / 4, s12 / s], -1),
-        np.stack([d10 / s, s02 / s, s12 / s, s / 4], -1),
-    ], -2)
-    q = np.take_along_axis(q, k[..., None, None], -2)[..., 0, :]
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    flat = R.reshape(-1, 3, 3)
+    xyzw = Rotation.from_matrix(flat).as_quat() if len(flat) else np.zeros((0, 4))
+    q = np.concatenate([xyzw[:, 3:], xyzw[:, :3]], axis=-1).reshape(*R.shape[:-2], 4)
     return np.where(q[..., :1] < 0, -q, q)
 
 

@@ -3,7 +3,7 @@
 PNG: ``scenes.images.write_png16`` (a tiny encoder: Pillow cannot write 16-bit colour);
 values are linear intensity, ``round(v * 65535)``.
 
-PLY: the standard 3DGS layout (binary little-endian float32): ``x y z nx ny nz f_dc_0 f_dc_1
+PLY (through ``plyfile``): the standard 3DGS layout (binary little-endian float32): ``x y z nx ny nz f_dc_0 f_dc_1
 f_dc_2 opacity scale_0 scale_1 scale_2 rot_0 rot_1 rot_2 rot_3``, opacity as a logit, scales
 as logs, rotation (w, x, y, z). A grey model writes its single DC value into all three f_dc
 so viewers show grey, and records ``comment ebad channels 1`` so it reads back as grey.
@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from plyfile import PlyData, PlyElement, PlyParseError
 
 # one 16-bit PNG codec for the project (frames in captures, renders in runs)
 from scenes.images import read_png16, write_png16
@@ -29,7 +30,7 @@ _PLY_FIELDS = (["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2", "
 
 
 def write_ply(path: str | Path, params: dict[str, torch.Tensor]) -> Path:
-    """Write the model in the standard 3DGS layout (see module docstring)."""
+    """Write the model in the standard 3DGS layout (see module docstring) with ``plyfile``."""
     means = params["means"].detach().float().cpu().numpy()
     N = means.shape[0]
     colors = params["colors"].detach().float().cpu().numpy()
@@ -45,46 +46,49 @@ def write_ply(path: str | Path, params: dict[str, torch.Tensor]) -> Path:
             params["scales"].detach().float().cpu().numpy(),
             params["quats"].detach().float().cpu().numpy()]
     data = np.concatenate(cols, axis=1).astype("<f4")
-    header = ["ply", "format binary_little_endian 1.0", f"comment ebad channels {D}", f"element vertex {N}"]
-    header += [f"property float {name}" for name in _PLY_FIELDS] + ["end_header"]
+    vertex = np.empty(N, dtype=[(name, "<f4") for name in _PLY_FIELDS])
+    for k, name in enumerate(_PLY_FIELDS):
+        vertex[name] = data[:, k]
+    ply = PlyData([PlyElement.describe(vertex, "vertex")], text=False, byte_order="<",
+                  comments=[f"ebad channels {D}"])
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "wb") as fh:
-        fh.write(("\n".join(header) + "\n").encode("ascii"))
-        fh.write(data.tobytes())
+    ply.write(str(path))
     return path
 
 
 def read_ply(path: str | Path) -> dict[str, torch.Tensor]:
-    """Read a 3DGS ``point_cloud.ply`` (float32 properties; the layout of ``write_ply``)."""
+    """Read a 3DGS ``point_cloud.ply`` (float32 properties; the layout of ``write_ply``) with ``plyfile``.
+
+    Raises:
+        ValueError: not a binary little-endian PLY, no ``vertex`` element, a property that is
+            not float32, a missing property; names the file.
+    """
     path = Path(path)
-    blob = path.read_bytes()
-    end = blob.find(b"end_header\n")
-    if not blob.startswith(b"ply") or end < 0:
-        raise ValueError(f"{path}: not a PLY file")
-    header = blob[:end].decode("ascii").splitlines()
-    if "format binary_little_endian 1.0" not in header:
+    try:
+        ply = PlyData.read(str(path))
+    except PlyParseError as exc:
+        raise ValueError(f"{path}: not a PLY file ({exc})") from None
+    if ply.text or ply.byte_order != "<":
         raise ValueError(f"{path}: only binary_little_endian PLY is supported")
-    names, N, D = [], None, 3
-    for line in header:
-        parts = line.split()
-        if parts[:2] == ["element", "vertex"]:
-            N = int(parts[2])
-        elif parts[:1] == ["property"]:
-            if parts[1] != "float":
-                raise ValueError(f"{path}: property {parts[-1]} must be float, got {parts[1]}")
-            names.append(parts[2])
-        elif parts[:3] == ["comment", "ebad", "channels"]:
-            D = int(parts[3])
-    if N is None:
+    if "vertex" not in ply:
         raise ValueError(f"{path}: no 'element vertex' in the header")
+    vertex = ply["vertex"]
+    for prop in vertex.properties:
+        if getattr(prop, "val_dtype", None) != "f4":
+            raise ValueError(f"{path}: property {prop.name} must be float, got {prop}")
+    names = [prop.name for prop in vertex.properties]
     missing = [n for n in _PLY_FIELDS if n not in names and not n.startswith("n")]
     if missing:
         raise ValueError(f"{path}: missing properties {missing}")
-    data = np.frombuffer(blob[end + len(b"end_header\n"):], dtype="<f4", count=N * len(names)).reshape(N, len(names))
-    col = {n: data[:, i] for i, n in enumerate(names)}
+    D = 3
+    for comment in ply.comments:
+        parts = comment.split()
+        if parts[:2] == ["ebad", "channels"]:
+            D = int(parts[2])
+    col = {n: np.asarray(vertex[n]) for n in names}
 
-    def stack(keys):
+    def stack(keys: list[str]) -> torch.Tensor:
         return torch.from_numpy(np.stack([col[k] for k in keys], 1).astype(np.float32))
 
     return {

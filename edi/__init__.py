@@ -11,18 +11,20 @@ Public API::
     Contrast(pos, neg), parse_c(c)                  # a threshold pair; float | pair -> Contrast
     linearize(img, gamma), apply_gamma(img, gamma)  # recorded = irradiance ** gamma, both ways
     deblur(blur, exposure, events, times=None, c=None, gamma=1.0) -> [H, W(, D)] | [F, H, W(, D)]
-    estimate_c(frames, exposures, events, pair=False, gamma=1.0, return_report=False)
-        -> float | Contrast (pair=True), and a ContrastReport
+        (numpy in, numpy out; torch in, torch out)
+    deblur_with_report(...same...) -> (latents, DeblurReport)
+    estimate_c(frames, exposures, events, pair=False, gamma=1.0) -> Contrast   # .mean: the one c
+    estimate_contrast(...same...) -> ContrastReport  # .c, .reliable, .message, ...
     medi(frames, exposures, events, c=None) -> [F, H, W(, D)]
     moving_texture(...) -> SyntheticSequence        # seeded synthetic ground truth
 """
-from .contrast import ContrastReport, estimate_c
-from .deblur import DeblurReport, deblur
+from .contrast import ContrastReport, estimate_c, estimate_contrast
+from .deblur import DeblurReport, deblur, deblur_with_report
 from .errors import CorruptFileError, EbadError, EventError, InputError
 from .events import EventStream, events_in_window, seconds_to_us
 from .io import AedatRecording, infer_time_unit, read_aedat4, read_events
 from .medi import medi
-from .model import LOG_EPS, SATURATION, Contrast, apply_gamma, linearize, parse_c
+from .model import LOG_EPS, SATURATION, Contrast, ContrastLike, ImageArray, apply_gamma, linearize, parse_c
 from .moving_texture import moving_texture
 
 __all__ = [
@@ -41,8 +43,12 @@ __all__ = [
     "LOG_EPS",
     "SATURATION",
     "deblur",
+    "deblur_with_report",
     "DeblurReport",
     "estimate_c",
+    "estimate_contrast",
+    "ContrastLike",
+    "ImageArray",
     "ContrastReport",
     "medi",
     "read_events",

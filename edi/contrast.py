@@ -48,18 +48,20 @@ import logging
 import math
 import warnings
 from dataclasses import dataclass, field
-from typing import Any, Callable, Literal
+from typing import Callable, Literal
 
 import numpy as np
+import numpy.typing as npt
 from scipy import ndimage
 from scipy.optimize import minimize_scalar
 
 from ._kernels import hidden_crossings
 from .errors import InputError
 from .events import EventStream, events_in_window, seconds_to_us
-from .model import LOG_EPS, SATURATION, Contrast, check_frames, check_gamma, edi_log_ratio, linearize
+from .model import (LOG_EPS, SATURATION, Contrast, ImageArray, check_frames, check_gamma, edi_log_ratio,
+                    linearize)
 
-__all__ = ["estimate_c", "ContrastReport", "minimize_log"]
+__all__ = ["estimate_c", "estimate_contrast", "ContrastReport", "minimize_log", "Method", "SingleEnergy"]
 
 log = logging.getLogger(__name__)
 
@@ -86,6 +88,9 @@ _TIME_KEY = np.int64(2**40)
 #: event's threshold and signed like it: TURN_A u^2 - TURN_B u over the interval's fraction u
 #: (``_mean_residual``)
 TURN_A, TURN_B = 2.0 + math.sqrt(3.0), 1.0 + math.sqrt(3.0)
+#: consistency: per consecutive pair of frames (i, i+1): i, N+, N-, z+, z- [H, W], pixels saturated in neither
+#: frame and those that fired, [H, W] bool (``_consistency_pairs``)
+_Pair = tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 #: consistency: fixed-point iterations and relative tolerance
 CONSISTENCY_ITERS = 20
 #: consistency: points of the coarse scan of log c that brackets the root
@@ -115,16 +120,22 @@ FLOW_MIN_EXPLAINED = 0.4
 UNEXPLAINED_HINT = ("the events do not follow the frame's blur (events missing part of the exposure, wrong exposure "
                     "times, or events of another frame), so no c is determined")
 
+#: the single-frame energy (module docstring)
 SingleEnergy = Literal["flow", "paper"]
+#: ``estimate_contrast``'s ``method``: the estimator, or "auto" (module docstring)
+Method = Literal["auto", "single", "consistency"]
+#: the estimator a report's estimate came from, and its energy
+Estimator = Literal["single", "consistency"]
+EnergyName = Literal["flow", "paper", "consistency"]
 
 
 @dataclass
 class ContrastReport:
-    """What ``estimate_c(..., return_report=True)`` found."""
+    """What ``estimate_contrast`` found."""
 
     c: Contrast  # the estimate, (c_pos, c_neg) (equal unless pair=True)
-    method: str  # "single" | "consistency"
-    energy_name: str  # "flow" | "paper" | "consistency"
+    method: Estimator  # "single" | "consistency"
+    energy_name: EnergyName  # "flow" | "paper" | "consistency"
     bracket: tuple[float, float]  # the search interval of c
     energy: float  # energy at the estimate
     num_evals: int  # EDI passes over the frame(s) used
@@ -148,7 +159,7 @@ class ContrastReport:
 
 
 def minimize_log(f: Callable[[float], float], lo: float, hi: float, xatol: float = 1e-3,
-                 evals: list | None = None) -> tuple[float, float]:
+                 evals: list[tuple[float, float]] | None = None) -> tuple[float, float]:
     """Minimise f on [lo, hi] over log x (``minimize_scalar``, bounded); returns (x, f(x)).
 
     ``xatol`` is the absolute tolerance on log x (1e-3: 0.1% of x). Each evaluation is
@@ -487,7 +498,7 @@ def _mean_residual(events: EventStream, exposures: np.ndarray) -> np.ndarray:
     return out.reshape(F, 2, H, W)
 
 
-def _consistency_pairs(fr: np.ndarray, ex: np.ndarray, events: EventStream):
+def _consistency_pairs(fr: np.ndarray, ex: np.ndarray, events: EventStream) -> tuple[list[_Pair], float]:
     """Per consecutive pair (i, i+1) of frames: the counts N+, N- between the centres (negated
     when the centres run backwards) corrected by the change of the quantisation residual
     (``_mean_residual``), their instruments and the mask of pixels saturated in neither frame.
@@ -526,7 +537,7 @@ def _consistency_pairs(fr: np.ndarray, ex: np.ndarray, events: EventStream):
     return pairs, 1.0 - float(valid.mean())
 
 
-def _consistency_update(fr: np.ndarray, ex: np.ndarray, events: EventStream, pairs, c: Contrast,
+def _consistency_update(fr: np.ndarray, ex: np.ndarray, events: EventStream, pairs: list[_Pair], c: Contrast,
                         pair: bool) -> tuple[Contrast, float]:
     """One step of the consistency estimator: latents with ``c`` -> the pair the relation gives.
 
@@ -572,7 +583,7 @@ def _consistency_update(fr: np.ndarray, ex: np.ndarray, events: EventStream, pai
     return Contrast(cm, cm), energy
 
 
-def _consistency(fr: np.ndarray, ex: np.ndarray, events: EventStream, pairs, bracket: tuple[float, float],
+def _consistency(fr: np.ndarray, ex: np.ndarray, events: EventStream, pairs: list[_Pair], bracket: tuple[float, float],
                  pair: bool, xatol: float) -> tuple[Contrast, float, int, list[tuple[float, float]]]:
     """The self-consistent pair: c = update(c) (``_consistency_update``).
 
@@ -627,12 +638,182 @@ def _consistency(fr: np.ndarray, ex: np.ndarray, events: EventStream, pairs, bra
     return c, e, len(history), history
 
 
-def estimate_c(
-    frames: Any,  # [H, W(, D)] or [F, H, W(, D)], linear [0, 1]
-    exposures: Any,  # [2] or [F, 2] seconds
+
+@dataclass
+class _Fit:
+    """One estimator's result, before the report's checks."""
+
+    est: Contrast  # (c_pos, c_neg), equal unless a pair was fitted
+    energy: float  # the energy at the estimate
+    n_pass: int  # EDI passes over the frame(s)
+    evals: list[tuple[float, float]]  # (c, energy) of the search on c
+    saturated: float  # fraction of pixels ignored as saturated
+    method: Estimator
+    energy_name: EnergyName
+
+
+def _check_estimate_inputs(frames: ImageArray, exposures: npt.ArrayLike, events: EventStream, method: str,
+                           energy: str, bracket: tuple[float, float],
+                           gamma: float) -> tuple[np.ndarray, np.ndarray, tuple[float, float], float]:
+    """The inputs checked: frames [F, H, W, D] linearised with ``gamma``, exposures [F, 2], the
+    bracket (lo, hi) and gamma; InputError (TypeError for ``events``) naming what is wrong."""
+    if not isinstance(events, EventStream):
+        raise TypeError(f"events must be an edi.EventStream, got {type(events).__name__}")
+    fr, ex = check_frames(frames, exposures, events)
+    gamma = check_gamma(gamma)
+    if gamma != 1.0:  # to irradiance; a saturated recorded value stays saturated
+        fr = np.where(fr >= SATURATION, 1.0, linearize(fr, gamma))
+    lo, hi = (float(v) for v in bracket)
+    if not (0 < lo < hi and math.isfinite(hi)):
+        raise InputError(f"bracket must be 0 < lo < hi, got {bracket!r}")
+    if method not in ("auto", "single", "consistency"):
+        raise InputError(f"method must be 'auto', 'single' or 'consistency', got {method!r}")
+    if energy not in ("flow", "paper"):
+        raise InputError(f"energy must be 'flow' or 'paper', got {energy!r}")
+    if (fr >= SATURATION).any(axis=-1).all():
+        raise InputError(
+            f"estimate_c: every pixel of the {fr.shape[0]} frame(s) is saturated (>= {SATURATION}); "
+            "nothing to estimate c from: give c"
+        )
+    return fr, ex, (lo, hi), gamma
+
+
+def _fit_consistency(fr: np.ndarray, ex: np.ndarray, events: EventStream, method: Method,
+                     bracket: tuple[float, float], pair: bool,
+                     xatol: float) -> tuple[_Fit | None, str, list[tuple[float, float]]]:
+    """The consistency estimator where ``method`` asks for it and there are two frames or more.
+
+    Returns its fit, or None when the single-frame energy is to be used instead; the reason of
+    a fallback ("" if none); and the evaluations the single-frame search starts from (the
+    consistency steps when the estimator ran but its estimate sat at a bracket end)."""
+    if method == "single":
+        return None, "", []
+    if fr.shape[0] < 2:
+        if method == "consistency":
+            raise InputError("estimate_c(method='consistency') needs at least two frames")
+        return None, "", []
+    pairs, sat = _consistency_pairs(fr, ex, events)
+    if not pairs:
+        if method == "consistency":
+            raise InputError("estimate_c: no pixel fired between consecutive frame centres; cannot use 'consistency'")
+        return None, "", []
+    lo, hi = bracket
+    blurry = bool((ex[:, 1] > ex[:, 0]).any())
+    try:
+        est, e, n_steps, evals = _consistency(fr, ex, events, pairs, bracket, pair, xatol)
+    except InputError as exc:
+        if method != "auto" or not blurry:
+            raise
+        fallback = f"{exc}; used the single-frame energy of the most blurred frame"
+        log.info("estimate_c: %s", fallback)
+        return None, fallback, []
+    if method == "auto" and blurry and not lo * BOUND_FACTOR <= est.mean <= hi / BOUND_FACTOR:
+        # no self-consistent c in the bracket: one frame instead
+        fallback = (f"consistency: no self-consistent c in the bracket (stopped at {est.mean:.4g}); "
+                    "used the single-frame energy of the most blurred frame")
+        log.info("estimate_c: %s", fallback)
+        return None, fallback, evals
+    return _Fit(est, e, n_steps * (len(pairs) + 1), evals, sat, "consistency", "consistency"), "", []
+
+
+def _single_energy(b: np.ndarray, exposure: tuple[float, float], events: EventStream, energy: SingleEnergy,
+                   paper_weight: float) -> Callable[[float], Callable[[float], float]]:
+    """ratio c_pos / c_neg -> energy(c) of one blurry frame b [H, W, D] (``_flow_setup`` or ``_paper_energy``)."""
+    if energy == "flow":
+        return _flow_setup(b, exposure, events)
+    return lambda ratio: _paper_energy(b, exposure, events, ratio, paper_weight)
+
+
+def _at_fixed_c(build: Callable[[float], Callable[[float], float]], c: float) -> Callable[[float], float]:
+    """ratio -> energy at the fixed ``c``."""
+    return lambda ratio: build(ratio)(c)
+
+
+def _fit_single(fr: np.ndarray, ex: np.ndarray, events: EventStream, energy: SingleEnergy,
+                bracket: tuple[float, float], pair: bool, xatol: float, paper_weight: float,
+                evals: list[tuple[float, float]]) -> _Fit:
+    """The single-frame estimator on the most blurred frame: c by ``minimize_log``; with ``pair``,
+    twice the ratio c_pos / c_neg at fixed c, then c at that ratio. The search on c at ratio 1
+    appends to ``evals``."""
+    lo, hi = bracket
+    i = int(np.argmax(ex[:, 1] - ex[:, 0]))  # the most blurred frame
+    j0, j1 = events_in_window(events, ex[i, 0], ex[i, 1])
+    if ex[i, 1] <= ex[i, 0] or j1 == j0:
+        raise InputError("estimate_c: no blurry frame with events in its exposure and fewer than two frames "
+                         "to compare: give c")
+    sat = 1.0 - float((fr[i] < SATURATION).all(axis=-1).mean())
+    exposure = (float(ex[i, 0]), float(ex[i, 1]))
+    build = _single_energy(fr[i], exposure, events, energy, paper_weight)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # an all-masked patch is handled, not an error
+        c, e = minimize_log(build(1.0), lo, hi, xatol, evals)
+        ratio = 1.0
+        n_pass = len(evals)
+        if pair:
+            # alternate: the ratio c_pos / c_neg at fixed c, then c at that ratio
+            for _ in range(2):
+                ev_r: list[tuple[float, float]] = []
+                ratio, _ = minimize_log(_at_fixed_c(build, c), *RATIO_BRACKET, xatol, ev_r)
+                evals = []
+                c, e = minimize_log(build(ratio), lo, hi, xatol, evals)
+                n_pass += len(ev_r) + len(evals)
+    return _Fit(_pair(c, ratio), e, n_pass, evals, sat, "single", energy)
+
+
+def _bound_check(est: Contrast, bracket: tuple[float, float], pair: bool) -> tuple[bool, str]:
+    """Whether the estimate (with ``pair``, also its ratio) sits at an end of its bracket, and what sits there."""
+    lo, hi = bracket
+    mean_c = est.mean
+    at_bound = mean_c < lo * BOUND_FACTOR or mean_c > hi / BOUND_FACTOR
+    what = f"c = {mean_c:.4g} is at an end of the bracket ({lo:g}, {hi:g})"
+    if pair and not at_bound:
+        rho = est.pos / est.neg
+        at_bound = rho < RATIO_BRACKET[0] * BOUND_FACTOR or rho > RATIO_BRACKET[1] / BOUND_FACTOR
+        what = f"c_pos / c_neg = {rho:.4g} is at an end of its bracket ({RATIO_BRACKET[0]:.3g}, {RATIO_BRACKET[1]:.3g})"
+    return at_bound, what
+
+
+def _unreliable_message(fit: _Fit, bracket: tuple[float, float], at_bound: bool, what: str,
+                        explained: float | None) -> str:
+    """What to do about an estimate at a bracket end or whose events explain too little ("" when
+    neither); logged as a warning."""
+    unexplained = explained is not None and explained < FLOW_MIN_EXPLAINED
+    if not (at_bound or unexplained):
+        return ""
+    mean_c = fit.est.mean
+    give = ("give c (ebad deblur --c C or --c C_POS,C_NEG) or more frames (two or more use the consistency "
+            "estimator)")
+    message = "estimate_c: " + (f"{what} ({fit.method} estimator, {fit.energy_name} energy): the energy has no "
+                                "interior minimum; " if at_bound else "")
+    if unexplained:
+        message += (f"at c = {mean_c:.4g} the frame's motion explains {explained:.0%} of its events' changes "
+                    f"(flow energy; at least {FLOW_MIN_EXPLAINED:.0%} where an estimate holds): {UNEXPLAINED_HINT}; ")
+    message += f"this estimate is unreliable; {give}"
+    if at_bound and fit.energy_name == "flow" and mean_c < bracket[0] * BOUND_FACTOR:
+        message += LOW_END_HINT
+    log.warning(message)
+    return message
+
+
+def _report(fit: _Fit, bracket: tuple[float, float], pair: bool, gamma: float, fallback: str) -> ContrastReport:
+    """The report of a fit: bracket ends, the share of the events' changes explained, what to do."""
+    if not all(math.isfinite(v) for v in fit.est):
+        raise FloatingPointError("estimate_c produced a non-finite estimate; please report this")
+    at_bound, what = _bound_check(fit.est, bracket, pair)
+    explained = 1.0 - float(fit.energy) if fit.energy_name == "flow" else None
+    message = _unreliable_message(fit, bracket, at_bound, what, explained)
+    if fallback:
+        message = (fallback + "; " + message) if message else fallback
+    return ContrastReport(fit.est, fit.method, fit.energy_name, bracket, float(fit.energy), int(fit.n_pass), fit.evals,
+                          float(fit.saturated), gamma, at_bound, message, explained)
+
+
+def estimate_contrast(
+    frames: ImageArray,  # [H, W(, D)] or [F, H, W(, D)], linear [0, 1]
+    exposures: npt.ArrayLike,  # [2] or [F, 2] seconds
     events: EventStream,
     *,
-    method: Literal["auto", "single", "consistency"] = "auto",
+    method: Method = "auto",
     energy: SingleEnergy = "flow",
     bracket: tuple[float, float] = DEFAULT_BRACKET,
     pair: bool = False,
@@ -640,9 +821,9 @@ def estimate_c(
     xatol: float = 1e-3,
     paper_weight: float = 1.0,
     gamma: float = 1.0,
-    return_report: bool = False,
-):
-    """Estimate the contrast threshold c (natural-log units) from frames and their events.
+) -> ContrastReport:
+    """Estimate the contrast threshold c (natural-log units) from frames and their events, with
+    what the estimators found (``estimate_c`` returns its ``c`` alone).
 
     Args:
         frames: one blurry frame [H, W(, D)] or several [F, H, W(, D)] (numpy or torch; see
@@ -657,7 +838,8 @@ def estimate_c(
         energy: the single-frame energy, "flow" (brightness constancy of the latent video,
             the default) or "paper" (the EDI paper's TV and edge correlation).
         bracket: search interval for c (single) and the range an estimate must fall in.
-        pair: estimate (c_pos, c_neg) separately. ``polarity`` is the old name of ``pair``.
+        pair: estimate (c_pos, c_neg) separately (else both are the one c fitted).
+            ``polarity`` is the old name of ``pair``.
         xatol: tolerance of the searches in log c.
         paper_weight: weight of the edge term of the "paper" energy.
         gamma: the frames' response, recorded = irradiance ** gamma (1: linear). The frames
@@ -668,128 +850,43 @@ def estimate_c(
             consistency estimate with the frames linearised by any gamma from 0.6 to 1.25 keeps
             gamma x c within 0.3% and its residual within 1%, smallest at the low end rather
             than at the true gamma, so the frames and events do not tell gamma; give it.
-        return_report: also return a ``ContrastReport``.
 
     Returns:
-        c: a float (the mean (c_pos + c_neg) / 2 when ``pair`` is False), or an
-        ``edi.Contrast(pos, neg)`` with ``pair=True``; and the report when asked. An estimate
-        at an end of ``bracket`` is logged as a warning and flagged ``report.at_bound``; one
+        A ``ContrastReport``: ``c`` is the estimate, an ``edi.Contrast(pos, neg)`` (both equal
+        to the one c fitted when ``pair`` is False; ``c.mean`` is that c either way). An
+        estimate at an end of ``bracket`` is logged as a warning and flagged ``at_bound``; one
         whose events explain too little of their changes is logged too, and either way
-        ``report.reliable`` is False and ``report.message`` says what to do.
+        ``reliable`` is False and ``message`` says what to do.
 
     Raises:
         InputError: bad shapes, ranges or bracket; no frame with events to estimate from.
     """
-    if not isinstance(events, EventStream):
-        raise TypeError(f"events must be an edi.EventStream, got {type(events).__name__}")
     if polarity is not None:
         pair = bool(polarity)
-    fr, ex = check_frames(frames, exposures, events)
-    gamma = check_gamma(gamma)
-    if gamma != 1.0:  # to irradiance; a saturated recorded value stays saturated
-        fr = np.where(fr >= SATURATION, 1.0, linearize(fr, gamma))
-    lo, hi = (float(v) for v in bracket)
-    if not (0 < lo < hi and math.isfinite(hi)):
-        raise InputError(f"bracket must be 0 < lo < hi, got {bracket!r}")
-    if method not in ("auto", "single", "consistency"):
-        raise InputError(f"method must be 'auto', 'single' or 'consistency', got {method!r}")
-    if energy not in ("flow", "paper"):
-        raise InputError(f"energy must be 'flow' or 'paper', got {energy!r}")
-    sat_all = (fr >= SATURATION).any(axis=-1).all()
-    if sat_all:
-        raise InputError(
-            f"estimate_c: every pixel of the {fr.shape[0]} frame(s) is saturated (>= {SATURATION}); "
-            "nothing to estimate c from: give c"
-        )
+    fr, ex, (lo, hi), gamma = _check_estimate_inputs(frames, exposures, events, method, energy, bracket, gamma)
+    fit, fallback, evals = _fit_consistency(fr, ex, events, method, (lo, hi), pair, xatol)
+    if fit is None:
+        fit = _fit_single(fr, ex, events, energy, (lo, hi), pair, xatol, paper_weight, evals)
+    return _report(fit, (lo, hi), pair, gamma, fallback)
 
-    evals: list[tuple[float, float]] = []
-    used = None
-    fallback = ""
-    if method in ("auto", "consistency") and fr.shape[0] >= 2:
-        pairs, sat = _consistency_pairs(fr, ex, events)
-        blurry = bool((ex[:, 1] > ex[:, 0]).any())
-        if pairs:
-            try:
-                est, e, n_steps, evals = _consistency(fr, ex, events, pairs, (lo, hi), pair, xatol)
-            except InputError as exc:
-                if method != "auto" or not blurry:
-                    raise
-                fallback = f"{exc}; used the single-frame energy of the most blurred frame"
-            else:
-                n_pass = n_steps * (len(pairs) + 1)
-                used, name = "consistency", "consistency"
-                if method == "auto" and blurry and not lo * BOUND_FACTOR <= est.mean <= hi / BOUND_FACTOR:
-                    # no self-consistent c in the bracket: one frame instead
-                    fallback = (f"consistency: no self-consistent c in the bracket (stopped at {est.mean:.4g}); "
-                                "used the single-frame energy of the most blurred frame")
-                    used = None
-            if fallback:
-                log.info("estimate_c: %s", fallback)
-        elif method == "consistency":
-            raise InputError("estimate_c: no pixel fired between consecutive frame centres; cannot use 'consistency'")
-    elif method == "consistency":
-        raise InputError("estimate_c(method='consistency') needs at least two frames")
-    if used is None:
-        i = int(np.argmax(ex[:, 1] - ex[:, 0]))  # the most blurred frame
-        j0, j1 = events_in_window(events, ex[i, 0], ex[i, 1])
-        if ex[i, 1] <= ex[i, 0] or j1 == j0:
-            raise InputError("estimate_c: no blurry frame with events in its exposure and fewer than two frames "
-                             "to compare: give c")
-        sat = 1.0 - float((fr[i] < SATURATION).all(axis=-1).mean())
-        exposure = (float(ex[i, 0]), float(ex[i, 1]))
 
-        flow = _flow_setup(fr[i], exposure, events) if energy == "flow" else None
-
-        def build(ratio: float) -> Callable[[float], float]:
-            if flow is not None:
-                return flow(ratio)
-            return _paper_energy(fr[i], exposure, events, ratio, paper_weight)
-
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)  # an all-masked patch is handled, not an error
-            c, e = minimize_log(build(1.0), lo, hi, xatol, evals)
-            ratio = 1.0
-            n_pass = len(evals)
-            if pair:
-                # alternate: the ratio c_pos / c_neg at fixed c, then c at that ratio
-                for _ in range(2):
-                    ev_r: list = []
-                    ratio, _ = minimize_log(lambda rho: build(rho)(c), *RATIO_BRACKET, xatol, ev_r)
-                    evals = []
-                    c, e = minimize_log(build(ratio), lo, hi, xatol, evals)
-                    n_pass += len(ev_r) + len(evals)
-        est = _pair(c, ratio)
-        used, name = "single", energy
-    if not all(math.isfinite(v) for v in est):
-        raise FloatingPointError("estimate_c produced a non-finite estimate; please report this")
-    mean_c = est.mean
-    at_bound = mean_c < lo * BOUND_FACTOR or mean_c > hi / BOUND_FACTOR
-    what = f"c = {mean_c:.4g} is at an end of the bracket ({lo:g}, {hi:g})"
-    if pair and not at_bound:
-        rho = est.pos / est.neg
-        at_bound = rho < RATIO_BRACKET[0] * BOUND_FACTOR or rho > RATIO_BRACKET[1] / BOUND_FACTOR
-        what = f"c_pos / c_neg = {rho:.4g} is at an end of its bracket ({RATIO_BRACKET[0]:.3g}, {RATIO_BRACKET[1]:.3g})"
-    message = ""
-    give = ("give c (ebad deblur --c C or --c C_POS,C_NEG) or more frames (two or more use the consistency "
-            "estimator)")
-    explained = 1.0 - float(e) if name == "flow" else None
-    unexplained = explained is not None and explained < FLOW_MIN_EXPLAINED
-    if at_bound or unexplained:
-        message = "estimate_c: " + (f"{what} ({used} estimator, {name} energy): the energy has no interior minimum; "
-                                    if at_bound else "")
-        if unexplained:
-            message += (f"at c = {mean_c:.4g} the frame's motion explains {explained:.0%} of its events' changes "
-                        f"(flow energy; at least {FLOW_MIN_EXPLAINED:.0%} where an estimate holds): {UNEXPLAINED_HINT}; ")
-        message += f"this estimate is unreliable; {give}"
-        if at_bound and name == "flow" and mean_c < lo * BOUND_FACTOR:
-            message += LOW_END_HINT
-        log.warning(message)
-    out: float | Contrast = est if pair else mean_c
-    if return_report:
-        if fallback:
-            message = (fallback + "; " + message) if message else fallback
-        rep = ContrastReport(est, used, name, (lo, hi), float(e), int(n_pass), evals, float(sat), gamma, at_bound,
-                             message, explained)
-        return out, rep
-    return out
-
+def estimate_c(
+    frames: ImageArray,  # [H, W(, D)] or [F, H, W(, D)], linear [0, 1]
+    exposures: npt.ArrayLike,  # [2] or [F, 2] seconds
+    events: EventStream,
+    *,
+    method: Method = "auto",
+    energy: SingleEnergy = "flow",
+    bracket: tuple[float, float] = DEFAULT_BRACKET,
+    pair: bool = False,
+    polarity: bool | None = None,
+    xatol: float = 1e-3,
+    paper_weight: float = 1.0,
+    gamma: float = 1.0,
+) -> Contrast:
+    """The contrast threshold (c_pos, c_neg) in natural-log units: ``estimate_contrast(...).c``
+    (the arguments are its own). With ``pair`` False both are the one c fitted (``.mean``
+    gives it as a float); an estimate that is not reliable is logged as a warning, and
+    ``estimate_contrast`` says why."""
+    return estimate_contrast(frames, exposures, events, method=method, energy=energy, bracket=bracket, pair=pair,
+                             polarity=polarity, xatol=xatol, paper_weight=paper_weight, gamma=gamma).c

@@ -13,22 +13,29 @@ pixel black (0, not NaN) and bounds the gain on dark pixels.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import TYPE_CHECKING, Sequence, TypeAlias, overload
 
 import numpy as np
+import numpy.typing as npt
 
-from .contrast import ContrastReport, estimate_c
+from .contrast import ContrastReport, estimate_contrast
 from .errors import InputError
 from .events import EventStream, events_in_window
-from .model import (LOG_EPS, SATURATION, Contrast, apply_gamma, check_exposure, check_gamma, check_image, check_times,
-                    edi_log_ratio, latent_from_ratio, linearize, parse_c)
+from .model import (LOG_EPS, SATURATION, Contrast, ContrastLike, EdiImpl, ImageArray, apply_gamma, check_exposure,
+                    check_gamma, check_image, check_times, edi_log_ratio, latent_from_ratio, linearize, parse_c)
 
-__all__ = ["LOG_EPS", "SATURATION", "deblur", "DeblurReport"]
+if TYPE_CHECKING:
+    import torch
+
+__all__ = ["LOG_EPS", "SATURATION", "deblur", "deblur_with_report", "DeblurReport"]
+
+#: the instants of ``deblur``: None (mid-exposure), one instant, or [F] instants, seconds
+Times: TypeAlias = "float | Sequence[float] | np.ndarray | torch.Tensor | None"
 
 
 @dataclass
 class DeblurReport:
-    """What ``deblur(..., return_report=True)`` did besides the image."""
+    """What ``deblur_with_report`` did besides the image."""
 
     c: Contrast  # (c_pos, c_neg) used
     num_events: int  # events inside the exposure
@@ -37,19 +44,30 @@ class DeblurReport:
     notes: list[str] = field(default_factory=list)
 
 
+@overload
+def deblur(blur: np.ndarray, exposure: npt.ArrayLike, events: EventStream, times: Times = None,
+           c: ContrastLike | None = None, *, impl: EdiImpl = "fast", n_bins: int | None = None,
+           saturation: float = SATURATION, gamma: float = 1.0) -> np.ndarray: ...
+
+
+@overload
+def deblur(blur: torch.Tensor, exposure: npt.ArrayLike, events: EventStream, times: Times = None,
+           c: ContrastLike | None = None, *, impl: EdiImpl = "fast", n_bins: int | None = None,
+           saturation: float = SATURATION, gamma: float = 1.0) -> torch.Tensor: ...
+
+
 def deblur(
-    blur: Any,  # [H, W] or [H, W, D], linear [0, 1], numpy or torch
-    exposure: tuple[float, float],  # (t_start, t_end) seconds, on the events' clock
+    blur: ImageArray,  # [H, W] or [H, W, D], linear [0, 1], numpy or torch
+    exposure: npt.ArrayLike,  # (t_start, t_end) seconds, on the events' clock
     events: EventStream,
-    times: float | Sequence[float] | None = None,  # None: mid-exposure; a float; or [F] instants
-    c: float | tuple[float, float] | None = None,  # None: estimated from this frame
+    times: Times = None,  # None: mid-exposure; a float; or [F] instants
+    c: ContrastLike | None = None,  # None: estimated from this frame
     *,
-    impl: str = "fast",
+    impl: EdiImpl = "fast",
     n_bins: int | None = None,
     saturation: float = SATURATION,
     gamma: float = 1.0,
-    return_report: bool = False,
-):
+) -> ImageArray:
     """Sharp latent image(s) of a blurry frame from the events of its exposure (EDI).
 
     Args:
@@ -61,8 +79,9 @@ def deblur(
         times: None (mid-exposure), one instant, or a sequence of F instants (seconds, inside
             the exposure). A sequence gives [F, H, W(, D)].
         c: contrast threshold: a float, (c_pos, c_neg) (e.g. an ``edi.Contrast``), or None to
-            estimate the pair from this frame with ``estimate_c`` (the report's ``c_report``
-            says whether the estimate is trustworthy: ``reliable``, ``at_bound``, ``explained``).
+            estimate it from this frame with ``estimate_contrast`` (``deblur_with_report``'s
+            report holds that estimator's report, which says whether the estimate is
+            trustworthy: ``reliable``, ``at_bound``, ``explained``).
         impl: "fast" (numba, exact), "reference" (numpy, exact) or "binned" (``n_bins``).
         saturation: blurry pixels at or above it are returned unchanged and reported.
         gamma: the frame's response, recorded = irradiance ** gamma (1: linear). The frame is
@@ -70,7 +89,6 @@ def deblur(
             latent mapped back, so the output is in the frame's recorded units; ``c`` is then
             in log-irradiance units (an estimate with ``gamma`` = 1 on a non-linear frame
             reads about gamma x c, c in the frame's units, see ``estimate_c``).
-        return_report: also return a ``DeblurReport``.
 
     Returns:
         [H, W(, D)] or [F, H, W(, D)] latents in [0, 1], the input's kind: torch float32 for a
@@ -79,6 +97,37 @@ def deblur(
 
     Convention: L(f) = (B + eps) / ((1/T) integral exp(E(t) - E(f)) dt) - eps, eps = LOG_EPS.
     """
+    return deblur_with_report(blur, exposure, events, times, c, impl=impl, n_bins=n_bins, saturation=saturation,
+                              gamma=gamma)[0]
+
+
+@overload
+def deblur_with_report(blur: np.ndarray, exposure: npt.ArrayLike, events: EventStream, times: Times = None,
+                       c: ContrastLike | None = None, *, impl: EdiImpl = "fast", n_bins: int | None = None,
+                       saturation: float = SATURATION, gamma: float = 1.0) -> tuple[np.ndarray, DeblurReport]: ...
+
+
+@overload
+def deblur_with_report(blur: torch.Tensor, exposure: npt.ArrayLike, events: EventStream, times: Times = None,
+                       c: ContrastLike | None = None, *, impl: EdiImpl = "fast", n_bins: int | None = None,
+                       saturation: float = SATURATION, gamma: float = 1.0) -> tuple[torch.Tensor, DeblurReport]: ...
+
+
+def deblur_with_report(
+    blur: ImageArray,  # [H, W] or [H, W, D], linear [0, 1], numpy or torch
+    exposure: npt.ArrayLike,  # (t_start, t_end) seconds, on the events' clock
+    events: EventStream,
+    times: Times = None,  # None: mid-exposure; a float; or [F] instants
+    c: ContrastLike | None = None,  # None: estimated from this frame
+    *,
+    impl: EdiImpl = "fast",
+    n_bins: int | None = None,
+    saturation: float = SATURATION,
+    gamma: float = 1.0,
+) -> tuple[ImageArray, DeblurReport]:
+    """``deblur`` (the same arguments and latents) and a ``DeblurReport`` of what it did: the c
+    used, the events in the exposure, the saturated pixels, the estimator's report when c was
+    estimated, and notes (a sharp frame, no events)."""
     if not isinstance(events, EventStream):
         raise TypeError(f"events must be an edi.EventStream, got {type(events).__name__}")
     if not (0.0 < float(saturation) <= 1.0):
@@ -91,8 +140,8 @@ def deblur(
     if c is None:
         i0, i1 = events_in_window(events, t_s, t_e)
         if t_e > t_s and i1 > i0:
-            c_est, c_report = estimate_c(b, np.array([t_s, t_e]), events, gamma=gamma, return_report=True)
-            cc = parse_c(c_est)
+            c_report = estimate_contrast(b, np.array([t_s, t_e]), events, gamma=gamma)
+            cc = parse_c(c_report.c.mean)
         else:
             cc = Contrast(1.0, 1.0)  # unused: no events, B is returned
     else:
@@ -107,15 +156,14 @@ def deblur(
         lat = lat[..., 0]
     if single:
         lat = lat[0]
+    notes = []
+    if t_e == t_s:
+        notes.append("sharp frame (t_start == t_end): returned B")
+    elif n_ev == 0:
+        notes.append("no events in the exposure: returned B")
+    report = DeblurReport(c=cc, num_events=n_ev, saturated=sat, c_report=c_report, notes=notes)
     if is_torch:
         import torch
 
-        lat = torch.from_numpy(lat.astype(np.float32))
-    if return_report:
-        notes = []
-        if t_e == t_s:
-            notes.append("sharp frame (t_start == t_end): returned B")
-        elif n_ev == 0:
-            notes.append("no events in the exposure: returned B")
-        return lat, DeblurReport(c=cc, num_events=n_ev, saturated=sat, c_report=c_report, notes=notes)
-    return lat
+        return torch.from_numpy(lat.astype(np.float32)), report
+    return lat, report

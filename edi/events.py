@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from .errors import EventError
 
@@ -76,7 +77,8 @@ class EventStream:
     t0: int = 0
     _checked: bool = field(default=False, repr=False)
 
-    def __init__(self, t, x, y, p, width: int, height: int, t0: int = 0):
+    def __init__(self, t: npt.ArrayLike, x: npt.ArrayLike, y: npt.ArrayLike, p: npt.ArrayLike,  # [M] each
+                 width: int, height: int, t0: int = 0) -> None:
         if int(width) <= 0 or int(height) <= 0:
             raise EventError(f"sensor size must be positive, got width={width}, height={height}")
         t_a, x_a, y_a, p_a = (_to_numpy(a, n) for a, n in ((t, "t"), (x, "x"), (y, "y"), (p, "p")))

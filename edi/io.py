@@ -23,6 +23,7 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal, overload
 
 import numpy as np
 
@@ -129,7 +130,7 @@ def _to_us(t: np.ndarray, unit: str, path: str) -> tuple[np.ndarray, int]:
     return t_us, t0
 
 
-def _pick(keys, field: str, path: str) -> str:
+def _pick(keys: set[str], field: str, path: str) -> str:
     for a in _ALIASES[field]:
         if a in keys:
             return a
@@ -199,6 +200,21 @@ def _parse_arrays(path: Path, ext: str) -> dict[str, np.ndarray]:
     raise AssertionError(ext)  # _load_arrays checked the extension
 
 
+@overload
+def read_events(path: str | Path, t_unit: str | None = None, width: int | None = None, height: int | None = None, *,
+                return_unit: Literal[False] = False) -> EventStream: ...
+
+
+@overload
+def read_events(path: str | Path, t_unit: str | None = None, width: int | None = None, height: int | None = None, *,
+                return_unit: Literal[True]) -> tuple[EventStream, str, str]: ...
+
+
+@overload
+def read_events(path: str | Path, t_unit: str | None = None, width: int | None = None, height: int | None = None, *,
+                return_unit: bool) -> EventStream | tuple[EventStream, str, str]: ...
+
+
 def read_events(
     path: str | Path,
     t_unit: str | None = None,
@@ -206,7 +222,7 @@ def read_events(
     height: int | None = None,
     *,
     return_unit: bool = False,
-):
+) -> EventStream | tuple[EventStream, str, str]:
     """Read an event file into an ``EventStream``.
 
     Args:

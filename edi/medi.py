@@ -15,14 +15,19 @@ the frames; lam = 1 by default.
 """
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, overload
 
 import numpy as np
+import numpy.typing as npt
 
 from .contrast import estimate_c
 from .errors import InputError
-from .model import LOG_EPS, SATURATION, check_frames, edi_log_ratio, latent_from_ratio, parse_c
+from .model import (LOG_EPS, SATURATION, ContrastLike, ImageArray, check_frames, edi_log_ratio, latent_from_ratio,
+                    parse_c)
 from .events import EventStream, events_in_window
+
+if TYPE_CHECKING:
+    import torch
 
 __all__ = ["medi", "solve_tridiagonal"]
 
@@ -56,15 +61,25 @@ def solve_tridiagonal(
     return x
 
 
+@overload
+def medi(frames: np.ndarray, exposures: npt.ArrayLike, events: EventStream, c: ContrastLike | None = None, *,
+         lam: float = 1.0, saturation: float = SATURATION) -> np.ndarray: ...
+
+
+@overload
+def medi(frames: torch.Tensor, exposures: npt.ArrayLike, events: EventStream, c: ContrastLike | None = None, *,
+         lam: float = 1.0, saturation: float = SATURATION) -> torch.Tensor: ...
+
+
 def medi(
-    frames: Any,  # [F, H, W(, D)] linear [0, 1], numpy or torch
-    exposures: Any,  # [F, 2] seconds
+    frames: ImageArray,  # [F, H, W(, D)] linear [0, 1], numpy or torch
+    exposures: npt.ArrayLike,  # [F, 2] seconds
     events: EventStream,
-    c: float | tuple[float, float] | None = None,  # None: estimate_c on all frames
+    c: ContrastLike | None = None,  # None: estimate_c on all frames
     *,
     lam: float = 1.0,
     saturation: float = SATURATION,
-):
+) -> ImageArray:
     """Sharp latents [F, H, W(, D)] at the exposure centres, all frames solved jointly.
 
     Args:

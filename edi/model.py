@@ -16,13 +16,16 @@ the latent. ``deblur``, ``estimate_c`` and ``medi`` are built on these two.
 from __future__ import annotations
 
 import math
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, Literal, NamedTuple, TypeAlias
 
 import numpy as np
 
 from ._kernels import edi_pass, edi_pass_binned, edi_pass_reference
 from .errors import InputError
 from .events import EventStream, events_in_window, seconds_to_us
+
+if TYPE_CHECKING:
+    import torch
 
 __all__ = [
     "LOG_EPS",
@@ -38,6 +41,9 @@ __all__ = [
     "check_gamma",
     "linearize",
     "apply_gamma",
+    "ImageArray",
+    "ContrastLike",
+    "EdiImpl",
 ]
 
 #: Offset in log(I + LOG_EPS) for linear intensities in [0, 1]: a black pixel has log
@@ -55,6 +61,14 @@ RANGE_TOL: float = 1e-6
 
 #: the range a response exponent (``gamma``) may take: recorded = irradiance ** gamma
 GAMMA_RANGE = (0.2, 5.0)
+
+#: an image or a stack of images as the public functions take them: numpy (floats in [0, 1] or
+#: unsigned integers, ``to_unit_range``) or a torch tensor (on the CPU or not; read, never kept)
+ImageArray: TypeAlias = "np.ndarray | torch.Tensor"
+#: a contrast threshold as the public functions take it: one c, or (c_pos, c_neg) (``parse_c``)
+ContrastLike: TypeAlias = "float | tuple[float, float] | Contrast"
+#: the EDI pass: "fast" (numba, exact), "reference" (numpy, exact), "binned" (``n_bins`` bins)
+EdiImpl = Literal["fast", "reference", "binned"]
 
 _IMPLS = {"fast": edi_pass, "reference": edi_pass_reference}
 
@@ -210,7 +224,7 @@ def edi_log_ratio(
     exposure: tuple[float, float],  # seconds
     times: np.ndarray,  # [F] seconds inside the exposure
     c: tuple[float, float],
-    impl: str = "fast",
+    impl: EdiImpl = "fast",
     n_bins: int | None = None,
 ) -> tuple[np.ndarray, int]:
     """[F, H, W] float64 r_f = E(f) - log((1/T) integral exp(E(t)) dt), and the event count.

@@ -1,6 +1,7 @@
 """The in-memory capture: what every reader returns and the reconstruction eats."""
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -10,12 +11,19 @@ from edi import EventStream
 
 from .errors import CaptureError
 
-__all__ = ["Capture", "TestView", "check_rigid", "POSE_TRUST"]
+__all__ = ["Capture", "TestView", "check_rigid", "nearest_rigid", "guess_K", "POSE_TRUST", "ROTATION_REPAIR_TOL",
+           "EXACT_RIGID_TOL", "DAVIS_DEFAULT_HFOV_DEG"]
 
 RIGID_TOL = 1e-5  # max |R^T R - I| and |det R - 1| accepted for a camera pose
 # How far a capture's poses can be trusted, as the capture states it (real captures state it
 # too: motion capture -> "exact", SfM or another tool -> "approximate", nothing -> "none").
 POSE_TRUST = ("exact", "approximate", "none")
+# Largest deviation of a pose's rotation from orthonormal (|singular value - 1|) that is
+# repaired (re-orthonormalised by SVD) instead of refused. Poses written with 5 decimals are
+# off by ~1e-5; 1e-3 still refuses any real scale (a 0.1% zoom) and every reflection.
+ROTATION_REPAIR_TOL = 1e-3
+EXACT_RIGID_TOL = 1e-9  # a pose this close to rigid is kept bit for bit (float64 round trips of rigid poses)
+DAVIS_DEFAULT_HFOV_DEG = 70.0  # used only when a recording comes with no K
 
 
 def check_rigid(m: np.ndarray, file: str | None, field_name: str) -> np.ndarray:
@@ -37,6 +45,50 @@ def check_rigid(m: np.ndarray, file: str | None, field_name: str) -> np.ndarray:
         raise CaptureError(file, field_name,
                            f"is not a rigid transform (max |R^T R - I| = {ortho:.2e}, det R = {det:.6f})")
     return a
+
+
+def nearest_rigid(m: Any,  # [4, 4]
+                  file: str | None, field_name: str, tol: float = ROTATION_REPAIR_TOL) -> np.ndarray:
+    """A camera pose read from a file as a float64 [4, 4] rigid transform.
+
+    A pose already orthonormal to ``EXACT_RIGID_TOL`` is returned unchanged (so save -> load
+    stays lossless). A rotation block within ``tol`` of orthonormal (every singular value in [1 - tol, 1 + tol],
+    det > 0; e.g. poses rounded to 5 decimals) is replaced by the nearest rotation (SVD:
+    R = U V^T); a scale, a shear or a reflection is refused, as is a last row that is not
+    [0, 0, 0, 1] within ``tol``.
+
+    Raises:
+        CaptureError: naming ``file`` and ``field_name`` and what is wrong.
+    """
+    try:
+        a = np.array(m, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise CaptureError(file, field_name, "must be a 4x4 list of numbers") from None
+    if a.shape != (4, 4):
+        raise CaptureError(file, field_name, f"must be a 4x4 matrix, got shape {a.shape}")
+    if not np.isfinite(a).all():
+        raise CaptureError(file, field_name, "has a non-finite entry")
+    if np.abs(a[3] - np.array([0.0, 0.0, 0.0, 1.0])).max() > tol:
+        raise CaptureError(file, field_name, f"last row must be [0, 0, 0, 1], got {a[3].tolist()}")
+    u, sv, vt = np.linalg.svd(a[:3, :3])
+    det = float(np.linalg.det(a[:3, :3]))
+    if det <= 0:
+        raise CaptureError(file, field_name, f"is not a rigid transform: the rotation is a reflection (det R = {det:.6f})")
+    dev = float(np.abs(sv - 1.0).max())
+    if dev > tol:
+        raise CaptureError(file, field_name, f"is not a rigid transform: the rotation block scales by "
+                                             f"{sv.min():.6f}..{sv.max():.6f} (repaired only within {tol:g} of 1)")
+    if dev > EXACT_RIGID_TOL or np.abs(a[3] - np.array([0.0, 0.0, 0.0, 1.0])).max() > EXACT_RIGID_TOL:
+        a[:3, :3] = u @ vt
+        a[3] = (0.0, 0.0, 0.0, 1.0)
+    return check_rigid(a, file, field_name)
+
+
+def guess_K(width: int, height: int) -> np.ndarray:  # -> [3, 3]
+    """Pinhole intrinsics from a 70-degree horizontal field of view (DAVIS346 with its usual
+    lens), for recordings that carry no calibration; callers set ``meta['K_guessed']``."""
+    fx = 0.5 * width / math.tan(math.radians(DAVIS_DEFAULT_HFOV_DEG) / 2)
+    return np.array([[fx, 0, width / 2], [0, fx, height / 2], [0, 0, 1.0]])
 
 
 @dataclass
@@ -101,9 +153,25 @@ class Capture:
     def channels(self) -> int:
         return int(self.frames.shape[3])
 
-    def validate(self, source: str | None = None) -> "Capture":
+    def validate(self, source: str | None = None) -> Capture:
         """Check every field (shapes, dtypes, ranges, rigid poses); raise CaptureError naming
         the field (and ``source``, the file it came from, when given). Returns ``self``."""
+        self._check_frames(source)
+        self._check_exposures(source)
+        self._check_events(source)
+        self._check_camera(source)
+        self._check_poses(source)
+        self._check_per_frame_lists(source)
+        seen: set[str] = set()
+        for j, tv in enumerate(self.test_views):
+            if tv.name in seen:
+                raise CaptureError(source, f"test_views[{j}].name", f"duplicate name {tv.name!r}")
+            seen.add(tv.name)
+            _check_test_view(tv, j, self.frames.shape[1:], source)
+        return self
+
+    def _check_frames(self, source: str | None) -> None:
+        """frames: a float32 [F, H, W, D] array, D in (1, 3), F >= 1, finite, in [0, 1]."""
         f = self.frames
         if not isinstance(f, np.ndarray) or f.ndim != 4 or f.shape[3] not in (1, 3):
             raise CaptureError(source, "frames", f"must be a [F, H, W, D] array with D in (1, 3), got "
@@ -114,7 +182,10 @@ class Capture:
             raise CaptureError(source, "frames", f"must be float32, got {f.dtype}")
         if not np.isfinite(f).all() or f.min() < 0.0 or f.max() > 1.0:
             raise CaptureError(source, "frames", "must be finite linear intensity in [0, 1]")
-        n = f.shape[0]
+
+    def _check_exposures(self, source: str | None) -> None:
+        """exposures: [F, 2] finite, t_end >= t_start."""
+        n = self.frames.shape[0]
         e = np.asarray(self.exposures)
         if e.shape != (n, 2):
             raise CaptureError(source, "exposures", f"must have shape ({n}, 2), got {e.shape}")
@@ -123,12 +194,18 @@ class Capture:
         bad = np.flatnonzero(e[:, 1] < e[:, 0])
         if len(bad):
             raise CaptureError(source, f"exposures[{bad[0]}]", f"t_end {e[bad[0], 1]} is before t_start {e[bad[0], 0]}")
+
+    def _check_events(self, source: str | None) -> None:
+        """events: an ``edi.EventStream`` of the frames' sensor size."""
         ev = self.events
         if not isinstance(ev, EventStream):
             raise CaptureError(source, "events", f"must be an edi.EventStream, got {type(ev).__name__}")
         if (ev.width, ev.height) != (self.width, self.height):
             raise CaptureError(source, "events", f"sensor {ev.width}x{ev.height} differs from the frames' "
                                                  f"{self.width}x{self.height}")
+
+    def _check_camera(self, source: str | None) -> None:
+        """K: a finite pinhole [[fx, 0, cx], [0, fy, cy], [0, 0, 1]], fx, fy > 0; distortion: 5 finite numbers or None."""
         k = np.asarray(self.K, dtype=np.float64)
         if k.shape != (3, 3) or not np.isfinite(k).all():
             raise CaptureError(source, "K", f"must be a finite 3x3 matrix, got shape {k.shape}")
@@ -138,6 +215,10 @@ class Capture:
             d = np.asarray(self.distortion, dtype=np.float64)
             if d.shape != (5,) or not np.isfinite(d).all():
                 raise CaptureError(source, "distortion", f"must be 5 finite numbers k1 k2 p1 p2 k3, got shape {d.shape}")
+
+    def _check_poses(self, source: str | None) -> None:
+        """c2w: None or [F, 4, 4] rigid; pose_trust: unset or one of ``POSE_TRUST``, and not trusted without poses."""
+        n = self.frames.shape[0]
         if self.c2w is not None:
             c = np.asarray(self.c2w)
             if c.shape != (n, 4, 4):
@@ -148,29 +229,31 @@ class Capture:
             raise CaptureError(source, "pose_trust", f"must be one of {list(POSE_TRUST)} or unset, got {self.pose_trust!r}")
         if self.pose_trust in ("exact", "approximate") and self.c2w is None:
             raise CaptureError(source, "pose_trust", f"is {self.pose_trust!r} but the frames carry no c2w")
+
+    def _check_per_frame_lists(self, source: str | None) -> None:
+        """split and names: empty or one entry per frame; names unique."""
+        n = self.frames.shape[0]
         if self.split and len(self.split) != n:
             raise CaptureError(source, "split", f"needs one entry per frame ({n}), got {len(self.split)}")
         if self.names and len(self.names) != n:
             raise CaptureError(source, "names", f"needs one entry per frame ({n}), got {len(self.names)}")
         if self.names and len(set(self.names)) != n:
             raise CaptureError(source, "names", "frame names must be unique")
-        seen = set()
-        for j, tv in enumerate(self.test_views):
-            if tv.name in seen:
-                raise CaptureError(source, f"test_views[{j}].name", f"duplicate name {tv.name!r}")
-            seen.add(tv.name)
-            if not np.isfinite(float(tv.t)):
-                raise CaptureError(source, f"test_views[{j}].t", "must be finite")
-            if tv.c2w is None and tv.image is None:
-                raise CaptureError(source, f"test_views[{j}]", "needs a c2w, an image, or both")
-            if tv.c2w is not None:
-                check_rigid(tv.c2w, source, f"test_views[{j}].c2w")
-            if tv.image is not None:
-                im = tv.image
-                if not isinstance(im, np.ndarray) or im.shape != f.shape[1:] or im.dtype != np.float32:
-                    raise CaptureError(source, f"test_views[{j}].image",
-                                       f"must be float32 {f.shape[1:]}, got {getattr(im, 'dtype', None)} "
-                                       f"{getattr(im, 'shape', None)}")
-                if not np.isfinite(im).all() or im.min() < 0 or im.max() > 1:
-                    raise CaptureError(source, f"test_views[{j}].image", "must be finite and in [0, 1]")
-        return self
+
+
+def _check_test_view(tv: TestView, j: int, image_shape: tuple[int, ...], source: str | None) -> None:
+    """Test view ``j``: a finite t, a rigid c2w and/or a float32 image of the frames' [H, W, D] in [0, 1]."""
+    if not np.isfinite(float(tv.t)):
+        raise CaptureError(source, f"test_views[{j}].t", "must be finite")
+    if tv.c2w is None and tv.image is None:
+        raise CaptureError(source, f"test_views[{j}]", "needs a c2w, an image, or both")
+    if tv.c2w is not None:
+        check_rigid(tv.c2w, source, f"test_views[{j}].c2w")
+    if tv.image is not None:
+        im = tv.image
+        if not isinstance(im, np.ndarray) or im.shape != image_shape or im.dtype != np.float32:
+            raise CaptureError(source, f"test_views[{j}].image",
+                               f"must be float32 {image_shape}, got {getattr(im, 'dtype', None)} "
+                               f"{getattr(im, 'shape', None)}")
+        if not np.isfinite(im).all() or im.min() < 0 or im.max() > 1:
+            raise CaptureError(source, f"test_views[{j}].image", "must be finite and in [0, 1]")

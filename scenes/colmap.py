@@ -21,11 +21,13 @@ import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from edi import deblur as edi_deblur
+from edi import estimate_c
 from edi.errors import EbadError
 
 from .capture import Capture
@@ -93,20 +95,13 @@ def _sfm_frames(capture: Capture, deblur: bool, report: dict, polarity: bool = F
     if not deblur:
         report["deblur_note"] = "deblurring disabled"
         return frames
-    try:
-        from edi import deblur as edi_deblur
-    except ImportError:
-        report["deblur_note"] = "edi.deblur not available: raw frames used"
-        return frames
-    c = None
+    c: float | tuple[float, float] | None = None
     if capture.num_frames >= 2 and len(capture.events):
         # one c for the whole capture from the consistency between frames: cheaper and far
         # more reliable than a single-frame estimate per frame
-        from edi import estimate_c
-
         try:
-            c = estimate_c(capture.frames, capture.exposures, capture.events, polarity=polarity)
-            c = tuple(float(v) for v in c) if polarity else float(c)
+            est = estimate_c(capture.frames, capture.exposures, capture.events, pair=polarity)
+            c = (float(est.pos), float(est.neg)) if polarity else float(est.mean)
             report["c_estimated"] = c
         except ValueError as exc:  # no pixel fired between frames: fall back to per frame
             report["c_note"] = f"joint estimate failed ({exc}); per-frame estimates"
@@ -323,7 +318,7 @@ def estimate_poses(capture: Capture, config: ColmapConfig | None = None, frames:
                         test_c2w=test_c2w, test_unregistered=test_unreg)
 
 
-def _match_test_views(pycolmap, db: Path, names: list[str], test_names: list[str], mopt) -> None:
+def _match_test_views(pycolmap: Any, db: Path, names: list[str], test_names: list[str], mopt: Any) -> None:
     """Match every test image against every frame (after sequential matching of the frames)."""
     pairs = db.parent / "test_pairs.txt"
     pairs.write_text("".join(f"{t} {n}\n" for t in test_names for n in names))

@@ -46,16 +46,19 @@ from __future__ import annotations
 import math
 import os
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from edi import EventStream, seconds_to_us
 
-from .capture import Capture, TestView
+from .capture import Capture, TestView, nearest_rigid
 from .errors import CaptureError
 from .images import read_image
+from .jsonio import read_json_object
 from .poses import interpolate_poses, opengl_to_opencv, read_poses_bounds
+from .truth import GroundTruth
 
 __all__ = ["load_ebad_nerf", "load_e2nerf", "read_event_bins", "events_from_bins", "nominal_exposures",
            "detect_e2nerf", "ground_truth_blur", "BIN_S", "LLFF_HOLD", "EVENTS_FILE"]
@@ -75,7 +78,7 @@ def _first(root: Path, names: tuple[str, ...]) -> Path | None:
     return next((root / n for n in names if (root / n).is_file()), None)
 
 
-def detect_e2nerf(root: Path) -> str | None:
+def detect_e2nerf(root: str | os.PathLike) -> Literal["ebad-nerf", "e2nerf"] | None:
     """"ebad-nerf" (LLFF poses), "e2nerf" (transforms json) or None."""
     root = Path(root)
     if not (root / EVENTS_FILE).is_file():
@@ -210,8 +213,6 @@ def load_ebad_nerf(root: str | os.PathLike, llffhold: int = LLFF_HOLD) -> Captur
     slots = nominal_exposures(n, counts.shape[1])  # every view keeps its slot on the clock
     exposures = slots[keep]
     events = events_from_bins(counts, exposures, w, h)
-    from .format import nearest_rigid
-
     c2w = np.stack([nearest_rigid(c2w_all[i], str(pb_path), f"poses_bounds[{i}]") for i in range(n)])
     f = hwf[0, 2] * w / hwf[0, 1]  # focal of the stored size, scaled to the images
     if abs(hwf[0, 0] / hwf[0, 1] - h / w) > 0.02:
@@ -229,8 +230,6 @@ def load_ebad_nerf(root: str | os.PathLike, llffhold: int = LLFF_HOLD) -> Captur
 
 
 def _transforms(path: Path) -> tuple[dict, list]:
-    from .format import read_json_object
-
     doc = read_json_object(path)
     if not isinstance(doc.get("frames"), list) or not doc["frames"]:
         raise CaptureError(str(path), "frames", "must be a non-empty list")
@@ -238,8 +237,6 @@ def _transforms(path: Path) -> tuple[dict, list]:
 
 
 def _pose_list(v: Any, jf: str, field: str) -> np.ndarray:  # -> [S, 4, 4] OpenCV, rigid
-    from .format import nearest_rigid
-
     try:
         a = np.array(v, dtype=np.float64)
     except (TypeError, ValueError):
@@ -254,8 +251,6 @@ def _pose_list(v: Any, jf: str, field: str) -> np.ndarray:  # -> [S, 4, 4] OpenC
 def _mid_pose(poses: np.ndarray) -> np.ndarray:  # [S, 4, 4] over the exposure -> [4, 4] at its middle
     if len(poses) == 1:
         return poses[0]
-    from scipy.spatial.transform import Rotation
-
     s = np.linspace(0.0, 1.0, len(poses))
     out, _ = interpolate_poses(np.array([0.5]), s, poses[:, :3, 3], Rotation.from_matrix(poses[:, :3, :3]).as_quat())
     return out[0]
@@ -286,7 +281,9 @@ def load_e2nerf(root: str | os.PathLike) -> Capture:
     if not with_path and len(files) != len(frames_doc):
         raise CaptureError(str(root / "train"), "images", f"{len(files)} images for {len(frames_doc)} frames in "
                                                           f"{tj.name} (and no file_path to match them)")
-    images, c2w, names = [], [], []
+    images: list[np.ndarray] = []
+    c2w: list[np.ndarray] = []
+    names: list[str] = []
     for k, fr in enumerate(frames_doc):
         if not isinstance(fr, dict) or "transform_matrix" not in fr:
             raise CaptureError(jf, f"frames[{k}].transform_matrix", "missing")
@@ -335,12 +332,10 @@ def load_e2nerf(root: str | os.PathLike) -> Capture:
                    split=["train"] * len(frames), test_views=test_views, names=names, meta=meta)
 
 
-def ground_truth_blur(root: str | os.PathLike, llffhold: int = LLFF_HOLD):
-    """A :class:`scenes.format.GroundTruth` mapping the training frames of an EBAD-NeRF folder
+def ground_truth_blur(root: str | os.PathLike, llffhold: int = LLFF_HOLD) -> GroundTruth:
+    """A :class:`scenes.truth.GroundTruth` mapping the training frames of an EBAD-NeRF folder
     (names as :func:`load_ebad_nerf` gives them) to the sharp images of ``images_gt_blur/``
     (sorted, one per training view, in the same order)."""
-    from .format import GroundTruth
-
     root = Path(root)
     all_files = _images(root / "images")
     held = set(range(0, len(all_files), llffhold)) if _images(root / "images_gt_novel") else set()

@@ -14,31 +14,30 @@ import os
 import shutil
 import tempfile
 import zipfile
-from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Final
 
 import numpy as np
 
 from edi import CorruptFileError, EbadError, EventStream, read_events
 
-from .capture import Capture, TestView, check_rigid
+from .capture import EXACT_RIGID_TOL, ROTATION_REPAIR_TOL, Capture, TestView, nearest_rigid
+from .e2nerf import ground_truth_blur
 from .errors import CaptureError
 from .images import read_image, write_image
+from .jsonio import read_json_object
+from .truth import GT_FILE, GroundTruth
 
+# nearest_rigid, ROTATION_REPAIR_TOL (scenes.capture), read_json_object (scenes.jsonio) and GroundTruth
+# (scenes.truth) are re-exported under their old import paths
 __all__ = ["FORMAT", "load_capture_folder", "save", "read_event_file", "nearest_rigid", "ROTATION_REPAIR_TOL",
-           "read_ground_truth", "GroundTruth"]
+           "EXACT_RIGID_TOL", "read_json_object", "read_ground_truth", "GroundTruth", "GT_FILE"]
 
-FORMAT = "ebad-capture/1"
+FORMAT: Final = "ebad-capture/1"
 T_UNITS = ("us", "ns", "ms", "s")
 EVENT_SUFFIXES = (".npz", ".h5", ".hdf5")
 # What numpy, zipfile and h5py raise on a truncated or corrupt file (h5py raises OSError).
 CORRUPT_FILE_ERRORS = (OSError, EOFError, ValueError, zipfile.BadZipFile)
-# Largest deviation of a pose's rotation from orthonormal (|singular value - 1|) that is
-# repaired (re-orthonormalised by SVD) instead of refused. Poses written with 5 decimals are
-# off by ~1e-5; 1e-3 still refuses any real scale (a 0.1% zoom) and every reflection.
-ROTATION_REPAIR_TOL = 1e-3
-EXACT_RIGID_TOL = 1e-9  # a pose this close to rigid is kept bit for bit (float64 round trips of rigid poses)
 
 
 def _req(d: dict, key: str, file: str, where: str) -> Any:
@@ -88,57 +87,6 @@ def read_event_file(path: Path, t_unit: str, width: int, height: int, t0_us: int
     return events
 
 
-def nearest_rigid(m: Any,  # [4, 4]
-                  file: str | None, field_name: str, tol: float = ROTATION_REPAIR_TOL) -> np.ndarray:
-    """A camera pose read from a file as a float64 [4, 4] rigid transform.
-
-    A pose already orthonormal to ``EXACT_RIGID_TOL`` is returned unchanged (so save -> load
-    stays lossless). A rotation block within ``tol`` of orthonormal (every singular value in [1 - tol, 1 + tol],
-    det > 0; e.g. poses rounded to 5 decimals) is replaced by the nearest rotation (SVD:
-    R = U V^T); a scale, a shear or a reflection is refused, as is a last row that is not
-    [0, 0, 0, 1] within ``tol``.
-
-    Raises:
-        CaptureError: naming ``file`` and ``field_name`` and what is wrong.
-    """
-    try:
-        a = np.array(m, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise CaptureError(file, field_name, "must be a 4x4 list of numbers") from None
-    if a.shape != (4, 4):
-        raise CaptureError(file, field_name, f"must be a 4x4 matrix, got shape {a.shape}")
-    if not np.isfinite(a).all():
-        raise CaptureError(file, field_name, "has a non-finite entry")
-    if np.abs(a[3] - np.array([0.0, 0.0, 0.0, 1.0])).max() > tol:
-        raise CaptureError(file, field_name, f"last row must be [0, 0, 0, 1], got {a[3].tolist()}")
-    u, sv, vt = np.linalg.svd(a[:3, :3])
-    det = float(np.linalg.det(a[:3, :3]))
-    if det <= 0:
-        raise CaptureError(file, field_name, f"is not a rigid transform: the rotation is a reflection (det R = {det:.6f})")
-    dev = float(np.abs(sv - 1.0).max())
-    if dev > tol:
-        raise CaptureError(file, field_name, f"is not a rigid transform: the rotation block scales by "
-                                             f"{sv.min():.6f}..{sv.max():.6f} (repaired only within {tol:g} of 1)")
-    if dev > EXACT_RIGID_TOL or np.abs(a[3] - np.array([0.0, 0.0, 0.0, 1.0])).max() > EXACT_RIGID_TOL:
-        a[:3, :3] = u @ vt
-        a[3] = (0.0, 0.0, 0.0, 1.0)
-    return check_rigid(a, file, field_name)
-
-
-def read_json_object(path: Path) -> dict:
-    """A JSON file whose top level is an object; CaptureError naming the file otherwise."""
-    path = Path(path)
-    if not path.is_file():
-        raise CaptureError(str(path), None, "file not found")
-    try:
-        doc = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise CaptureError(str(path), None, f"not valid JSON ({exc})") from None
-    if not isinstance(doc, dict):
-        raise CaptureError(str(path), None, "top level must be an object")
-    return doc
-
-
 def _matrix(v: Any, file: str, field: str) -> np.ndarray:
     return nearest_rigid(v, file, field)
 
@@ -149,13 +97,36 @@ def _str(v: Any, file: str, field: str) -> str:
     return v
 
 
-def load_capture_folder(path: Path) -> Capture:
-    """Read an ``ebad-capture/1`` folder (``path`` is the folder or its capture.json)."""
+def load_capture_folder(path: str | os.PathLike) -> Capture:
+    """Read an ``ebad-capture/1`` folder (``path`` is the folder or its capture.json).
+
+    Raises:
+        CaptureError: a missing or malformed field, naming capture.json (or the frame's file) and the field.
+    """
     path = Path(path)
     root = path.parent if path.is_file() else path
     js = root / "capture.json"
     jf = str(js)
     doc = read_json_object(js)
+    width, height = _read_size(doc, jf)
+    K, distortion = _read_camera(doc, jf)
+    events = _read_events_entry(doc, root, jf, width, height)
+    frames, exposures, c2ws, split, names = _read_frames(doc, root, jf, width, height)
+    test_views = _read_test_views(doc, root, jf, width, height)
+    meta = doc.get("meta", {}) or {}
+    if not isinstance(meta, dict):
+        raise CaptureError(jf, "meta", f"must be an object, got {type(meta).__name__}")
+    meta = dict(meta)
+    if len(set(names)) != len(names):
+        names = [f"{i:04d}" for i in range(len(names))]
+    cap = Capture(frames=np.stack(frames).astype(np.float32), exposures=np.array(exposures, dtype=np.float64),
+                  events=events, K=K, distortion=distortion, c2w=np.stack(c2ws) if c2ws else None,
+                  split=split, test_views=test_views, names=names, meta=meta, pose_trust=doc.get("pose_trust"))
+    return cap.validate(jf)
+
+
+def _read_size(doc: dict, jf: str) -> tuple[int, int]:
+    """capture.json's format (must be ``FORMAT``), width and height (positive integers)."""
     fmt = _req(doc, "format", jf, "")
     if fmt != FORMAT:
         raise CaptureError(jf, "format", f"expected {FORMAT!r}, got {fmt!r}")
@@ -164,6 +135,11 @@ def load_capture_folder(path: Path) -> Capture:
     for name, v in (("width", width), ("height", height)):
         if isinstance(v, bool) or not isinstance(v, int) or v <= 0:
             raise CaptureError(jf, name, f"must be a positive integer, got {v!r}")
+    return width, height
+
+
+def _read_camera(doc: dict, jf: str) -> tuple[np.ndarray, np.ndarray | None]:
+    """K [3, 3] from ``intrinsics`` and the optional ``distortion`` [5] (k1 k2 p1 p2 k3)."""
     intr = _req(doc, "intrinsics", jf, "")
     fx, fy, cx, cy = (_num(_req(intr, k, jf, "intrinsics"), jf, f"intrinsics.{k}") for k in ("fx", "fy", "cx", "cy"))
     if fx <= 0 or fy <= 0:
@@ -175,7 +151,11 @@ def load_capture_folder(path: Path) -> Capture:
         if not isinstance(dv, list) or len(dv) != 5:
             raise CaptureError(jf, "distortion", "must be a list of 5 numbers k1 k2 p1 p2 k3")
         distortion = np.array([_num(x, jf, f"distortion[{i}]") for i, x in enumerate(dv)])
+    return K, distortion
 
+
+def _read_events_entry(doc: dict, root: Path, jf: str, width: int, height: int) -> EventStream:
+    """The stream the ``events`` entry names (file, t_unit, t0_us)."""
     evd = _req(doc, "events", jf, "")
     ev_file = _str(_req(evd, "file", jf, "events"), jf, "events.file")
     t_unit = evd.get("t_unit", "us")
@@ -185,12 +165,21 @@ def load_capture_folder(path: Path) -> Capture:
     if isinstance(t0_us, bool) or not isinstance(t0_us, int):
         raise CaptureError(jf, "events.t0_us", f"must be an integer, got {t0_us!r}")
     # t0_us is the stream's reference: stored times are relative, so t0 is re-attached, not subtracted
-    events = read_event_file(root / ev_file, t_unit, width, height, t0_us=t0_us)
+    return read_event_file(root / ev_file, t_unit, width, height, t0_us=t0_us)
 
+
+def _read_frames(doc: dict, root: Path, jf: str, width: int,
+                 height: int) -> tuple[list[np.ndarray], list[tuple[float, float]], list[np.ndarray], list[str], list[str]]:
+    """The ``frames`` entries: images [H, W, D], exposures (t_start, t_end), poses [4, 4] (every
+    frame has one or none does), splits and names."""
     frames_doc = _req(doc, "frames", jf, "")
     if not isinstance(frames_doc, list) or not frames_doc:
         raise CaptureError(jf, "frames", "must be a non-empty list")
-    frames, exposures, c2ws, split, names = [], [], [], [], []
+    frames: list[np.ndarray] = []
+    exposures: list[tuple[float, float]] = []
+    c2ws: list[np.ndarray] = []
+    split: list[str] = []
+    names: list[str] = []
     have_pose = ["c2w" in fr for fr in frames_doc if isinstance(fr, dict)]
     if any(have_pose) and not all(have_pose):
         i = have_pose.index(False)
@@ -202,13 +191,7 @@ def load_capture_folder(path: Path) -> Capture:
         t1 = _num(_req(fr, "t_end", jf, where), jf, f"{where}.t_end")
         if t1 < t0:
             raise CaptureError(jf, f"{where}.t_end", f"{t1} is before t_start {t0}")
-        img = read_image(root / file, f"{where}.file")
-        if img.shape[:2] != (height, width):
-            raise CaptureError(str(root / file), f"{where}.file",
-                               f"frame is {img.shape[1]}x{img.shape[0]}, capture.json says {width}x{height}")
-        if frames and img.shape[2] != frames[0].shape[2]:
-            raise CaptureError(str(root / file), f"{where}.file",
-                               f"has {img.shape[2]} channels, frame 0 has {frames[0].shape[2]}")
+        img = _read_frame_image(root, file, where, width, height, frames[0] if frames else None)
         frames.append(img)
         exposures.append((t0, t1))
         if "c2w" in fr:
@@ -218,6 +201,24 @@ def load_capture_folder(path: Path) -> Capture:
             raise CaptureError(jf, f"{where}.split", f"must be a string, got {s!r}")
         split.append(s)
         names.append(_str(fr.get("name", Path(file).stem), jf, f"{where}.name"))
+    return frames, exposures, c2ws, split, names
+
+
+def _read_frame_image(root: Path, file: str, where: str, width: int, height: int,
+                      first: np.ndarray | None) -> np.ndarray:  # -> [H, W, D]
+    """A frame's image, of the capture's size and of the first frame's channels."""
+    img = read_image(root / file, f"{where}.file")
+    if img.shape[:2] != (height, width):
+        raise CaptureError(str(root / file), f"{where}.file",
+                           f"frame is {img.shape[1]}x{img.shape[0]}, capture.json says {width}x{height}")
+    if first is not None and img.shape[2] != first.shape[2]:
+        raise CaptureError(str(root / file), f"{where}.file",
+                           f"has {img.shape[2]} channels, frame 0 has {first.shape[2]}")
+    return img
+
+
+def _read_test_views(doc: dict, root: Path, jf: str, width: int, height: int) -> list[TestView]:
+    """The ``test_views`` entries: a name, a time and a c2w, an image file or both."""
     test_views = []
     tv_doc = doc.get("test_views", []) or []
     if not isinstance(tv_doc, list):
@@ -236,16 +237,7 @@ def load_capture_folder(path: Path) -> Capture:
                 raise CaptureError(str(tv_file), f"{where}.file",
                                    f"image is {image.shape[1]}x{image.shape[0]}, capture.json says {width}x{height}")
         test_views.append(TestView(name=name, t=t, c2w=c2w, image=image))
-    meta = doc.get("meta", {}) or {}
-    if not isinstance(meta, dict):
-        raise CaptureError(jf, "meta", f"must be an object, got {type(meta).__name__}")
-    meta = dict(meta)
-    if len(set(names)) != len(names):
-        names = [f"{i:04d}" for i in range(len(names))]
-    cap = Capture(frames=np.stack(frames).astype(np.float32), exposures=np.array(exposures, dtype=np.float64),
-                  events=events, K=K, distortion=distortion, c2w=np.stack(c2ws) if c2ws else None,
-                  split=split, test_views=test_views, names=names, meta=meta, pose_trust=doc.get("pose_trust"))
-    return cap.validate(jf)
+    return test_views
 
 
 def _jsonable(meta: dict) -> dict:
@@ -344,40 +336,6 @@ def _write(cap: Capture, root: Path) -> None:
 
 # --------------------------------------------------------------------------- ground truth
 
-GT_FILE = "gt.json"
-
-
-@dataclass
-class GroundTruth:
-    """What a synthetic scene's ``gt/`` folder records (``scenes.write_scene``), for evaluation
-    only: no code path of the method reads it.
-
-    ``frame_files`` maps a frame name to its sharp mid-exposure image; ``trajectories`` maps a
-    frame name to its true in-exposure trajectory (times [S] seconds, c2w [S, 4, 4]).
-    """
-
-    root: Path
-    frame_files: dict[str, Path] = field(default_factory=dict)
-    trajectories: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
-    meta: dict[str, Any] = field(default_factory=dict)
-
-    def frames(self, names: list[str]) -> np.ndarray | None:  # -> [F, H, W, D] float32
-        """The sharp frames of ``names`` (in that order), or None when one is not recorded."""
-        if not all(n in self.frame_files for n in names):
-            return None
-        return np.stack([read_image(self.frame_files[n], f"{GT_FILE}: frames[{n!r}].file") for n in names])
-
-    def trajectory_c2w(self, names: list[str]) -> np.ndarray | None:  # -> [F, S, 4, 4]
-        """The true trajectories of ``names`` (in that order), or None when one is missing or
-        they have different sample counts."""
-        if not all(n in self.trajectories for n in names):
-            return None
-        c2ws = [self.trajectories[n][1] for n in names]
-        if len({c.shape for c in c2ws}) != 1:
-            return None
-        return np.stack(c2ws)
-
-
 def read_ground_truth(gt_dir: str | os.PathLike) -> GroundTruth:
     """Parse ``gt_dir/gt.json`` (the one parser of that file; ``scenes.write_scene`` writes it),
     or, for an EBAD-NeRF folder without one, map its training frames to ``images_gt_blur/``.
@@ -389,8 +347,6 @@ def read_ground_truth(gt_dir: str | os.PathLike) -> GroundTruth:
     path = root / GT_FILE
     jf = str(path)
     if not path.is_file() and (root / "images_gt_blur").is_dir():
-        from .e2nerf import ground_truth_blur
-
         return ground_truth_blur(root)
     doc = read_json_object(path)
     frames_doc = doc.get("frames", []) or []

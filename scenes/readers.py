@@ -17,28 +17,32 @@ import math
 import os
 import zipfile
 from pathlib import Path
+from typing import Literal, Sequence, get_args
 
 import numpy as np
 
 from edi import CorruptFileError, EbadError, EventStream, read_aedat4
 
-from .capture import Capture
+from .capture import Capture, guess_K
 from .e2nerf import LLFF_HOLD, detect_e2nerf, load_e2nerf, load_ebad_nerf
 from .errors import CaptureError
 from .format import FORMAT, decode_events, load_capture_folder, nearest_rigid
 from .images import read_image
 from .poses import interpolate_poses, read_poses_bounds
+from .rosbag import load_rosbag
 from .undistort import undistort_events, undistort_frames
 
 __all__ = ["load", "load_ecd", "load_aedat4", "load_evdeblurnerf", "detect_layout", "interpolate_poses", "LAYOUTS",
            "AEDAT_INSTALL"]
 
 ECD_CLAMP_S = 0.05  # frames up to this far outside the ground-truth time range take the end pose
-LAYOUTS = (FORMAT, "aedat4", "ecd", "evdeblurnerf", "ebad-nerf", "e2nerf", "rosbag1")
+#: the layouts ``load`` reads (``detect_layout`` names one)
+Layout = Literal["ebad-capture/1", "aedat4", "ecd", "evdeblurnerf", "ebad-nerf", "e2nerf", "rosbag1"]
+LAYOUTS: tuple[Layout, ...] = get_args(Layout)
 AEDAT_INSTALL = "pip install aedat (part of ebad's install)"
 
 
-def detect_layout(path: Path) -> str:
+def detect_layout(path: str | os.PathLike) -> Layout:
     """One of :data:`LAYOUTS`; CaptureError if none fits."""
     path = Path(path)
     if not path.exists():
@@ -60,7 +64,8 @@ def detect_layout(path: Path) -> str:
         return e2
     if (path / "poses_bounds.npy").is_file() and any((path / n).is_file() for n in ("events.h5", "events.npz", "events.txt")):
         return "evdeblurnerf"
-    for suffix, layout in ((".aedat4", "aedat4"), (".bag", "rosbag1")):
+    single_files: tuple[tuple[str, Layout], ...] = ((".aedat4", "aedat4"), (".bag", "rosbag1"))
+    for suffix, layout in single_files:
         found = sorted(path.glob(f"*{suffix}"))
         if len(found) == 1:
             return layout
@@ -101,8 +106,6 @@ def load(path: str | os.PathLike, undistort: bool = True, K: np.ndarray | None =
     elif layout == "aedat4":
         cap = load_aedat4(_single_file(path, ".aedat4"), K=K)
     elif layout == "rosbag1":
-        from .rosbag import load_rosbag
-
         cap = load_rosbag(_single_file(path, ".bag"), K=K, exposure_us=exposure_us)
     elif layout == "ebad-nerf":
         cap = load_ebad_nerf(path, llffhold=llffhold)
@@ -124,7 +127,7 @@ def load(path: str | os.PathLike, undistort: bool = True, K: np.ndarray | None =
 # --------------------------------------------------------------------------- ECD
 
 
-def _loadtxt(path: Path, ncols: int, field: str, usecols=None) -> np.ndarray:
+def _loadtxt(path: Path, ncols: int, field: str, usecols: Sequence[int] | None = None) -> np.ndarray:
     if not path.is_file():
         raise CaptureError(str(path), field, "file not found")
     try:
@@ -138,7 +141,7 @@ def _loadtxt(path: Path, ncols: int, field: str, usecols=None) -> np.ndarray:
     return a
 
 
-def load_ecd(root: Path) -> Capture:
+def load_ecd(root: str | os.PathLike) -> Capture:
     """The Event Camera Dataset text layout (images.txt, events.txt, groundtruth.txt, calib.txt).
 
     Convention changes on load: calib.txt's principal point (OpenCV, pixel centres at integers)
@@ -226,17 +229,7 @@ def _read_events(path: Path, t_unit: str | None, width: int, height: int) -> Eve
     return decode_events(path, t_unit, width, height, "events")
 
 
-DAVIS_DEFAULT_HFOV_DEG = 70.0  # used only when a recording comes with no K
-
-
-def guess_K(width: int, height: int) -> np.ndarray:  # -> [3, 3]
-    """Pinhole intrinsics from a 70-degree horizontal field of view (DAVIS346 with its usual
-    lens), for recordings that carry no calibration; callers set ``meta['K_guessed']``."""
-    fx = 0.5 * width / math.tan(math.radians(DAVIS_DEFAULT_HFOV_DEG) / 2)
-    return np.array([[fx, 0, width / 2], [0, fx, height / 2], [0, 0, 1.0]])
-
-
-def load_aedat4(path: Path, K: np.ndarray | None = None) -> Capture:
+def load_aedat4(path: str | os.PathLike, K: np.ndarray | None = None) -> Capture:  # K [3, 3]
     """An AEDAT4 recording: APS frames with exposure begin/end and events, no poses. AEDAT4
     holds no calibration: pass ``K``, or a guess from a 70-degree horizontal field of view is
     used and ``meta['K_guessed'] = True``. Needs the ``aedat`` package (the ``aedat`` extra):
@@ -265,7 +258,7 @@ def load_aedat4(path: Path, K: np.ndarray | None = None) -> Capture:
                    meta=meta)
 
 
-def load_evdeblurnerf(root: Path) -> Capture:
+def load_evdeblurnerf(root: str | os.PathLike) -> Capture:
     """An EvDeblurNeRF-style folder: ``events.h5`` (or .npz/.txt), LLFF ``poses_bounds.npy``
     (see scenes.poses) and ``images_1/`` frames with ``images_1/timestamps.npz`` holding start
     and end times (seconds)."""

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import os
 import struct
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -31,7 +32,7 @@ import numpy as np
 
 from edi import EventStream
 
-from .capture import Capture
+from .capture import Capture, guess_K
 from .errors import CaptureError
 
 __all__ = ["load_rosbag", "dvs_typestore", "decode_event_array", "exposure_window_us", "ROS_INSTALL",
@@ -52,7 +53,7 @@ IMAGE_ENCODINGS = {"mono8": (1, np.uint8, False), "mono16": (1, np.uint16, False
 DISTORTION_MODELS = ("plumb_bob", "rational_polynomial")
 
 
-def _rosbags():
+def _rosbags() -> tuple[Any, Any]:  # (rosbags.rosbag1, rosbags.typesys), or (None, None) without the extra
     try:
         import rosbags.rosbag1 as rosbag1
         import rosbags.typesys as typesys
@@ -61,7 +62,7 @@ def _rosbags():
     return rosbag1, typesys
 
 
-def dvs_typestore():
+def dvs_typestore() -> Any:  # a rosbags Typestore
     """A ROS1 (Noetic) rosbags typestore with ``dvs_msgs/msg/Event`` and ``EventArray`` registered."""
     _, typesys = _rosbags()
     if typesys is None:
@@ -109,7 +110,7 @@ def _pick(connections: list, kind: str, path: Path) -> Any | None:
     return found[0] if found else None
 
 
-def _stamp_ns(header) -> int:
+def _stamp_ns(header: Any) -> int:
     return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
 
 
@@ -117,7 +118,7 @@ def _ns_to_us(ns: np.ndarray) -> np.ndarray:
     return (np.asarray(ns, dtype=np.int64) + NS_PER_US // 2) // NS_PER_US
 
 
-def _image(msg, path: Path, k: int) -> np.ndarray:  # -> [H, W, D] float32
+def _image(msg: Any, path: Path, k: int) -> np.ndarray:  # -> [H, W, D] float32
     enc = IMAGE_ENCODINGS.get(msg.encoding)
     if enc is None:
         raise CaptureError(str(path), f"image[{k}].encoding",
@@ -136,15 +137,31 @@ def _image(msg, path: Path, k: int) -> np.ndarray:  # -> [H, W, D] float32
     return (a.astype(np.float32) / np.float32(np.iinfo(dtype).max)).astype(np.float32)
 
 
+@dataclass
+class _BagMessages:
+    """What ``load_rosbag`` reads from a bag, before any check across topics."""
+
+    connections: dict[str, Any]  # kind -> the connection picked (None: the bag has no such topic)
+    event_chunks: list[np.ndarray]  # per EventArray message: [M] EVENT_DTYPE
+    sensor_size: tuple[int, int] | None  # (width, height) of the first EventArray
+    images: list[np.ndarray]  # [H, W, D] float32 per image message
+    stamps_ns: list[int]  # per image, the header stamp
+    exposures_us: list[int]  # per exposure message
+    camera_info: Any | None  # the first CameraInfo message
+
+
 def load_rosbag(path: str | os.PathLike, K: np.ndarray | None = None, exposure_us: int | None = None) -> Capture:
     """Read a rpg_dvs_ros ROS1 bag (module docstring) into a Capture without poses.
+
+    Args:
+        path: the .bag file.
+        K: [3, 3] intrinsics when the bag has no camera_info (else a guess, ``meta['K_guessed']``).
+        exposure_us: the APS exposure (microseconds) when the bag did not record ``/dvs/exposure``.
 
     Raises:
         CaptureError: ``rosbags`` missing (with the pip command), an unreadable bag, a missing
             topic, no exposure (neither ``/dvs/exposure`` nor ``exposure_us``), bad messages.
     """
-    from .readers import guess_K  # readers imports this module lazily
-
     path = Path(path)
     rosbag1, _ = _rosbags()
     if rosbag1 is None:
@@ -152,6 +169,32 @@ def load_rosbag(path: str | os.PathLike, K: np.ndarray | None = None, exposure_u
     if exposure_us is not None and (isinstance(exposure_us, bool) or not isinstance(exposure_us, (int, np.integer))
                                     or exposure_us < 0):
         raise CaptureError(str(path), "exposure_us", f"must be a non-negative integer (microseconds), got {exposure_us!r}")
+    bag = _read_bag(rosbag1, path)
+    frames = _stack_images(bag, path)
+    f, h, w, _ = frames.shape
+    if bag.sensor_size is not None and bag.sensor_size != (w, h):
+        raise CaptureError(str(path), "events", f"sensor {bag.sensor_size[0]}x{bag.sensor_size[1]} differs from the "
+                                                f"images' {w}x{h}")
+    meta: dict[str, Any] = {"source_layout": "rosbag1", "source": str(path),
+                            "exposure_rule": "image stamp = mid-exposure (libcaer); window [s - e//2, s - e//2 + e)"}
+    exp_us = _exposure_times_us(bag, exposure_us, f, path, meta)
+    window_us = exposure_window_us(_ns_to_us(np.array(bag.stamps_ns, dtype=np.int64)), exp_us)
+    events = _event_stream(bag.event_chunks, window_us, w, h, path)
+    exposures = (window_us - events.t0).astype(np.float64) * 1e-6
+    distortion = None
+    if bag.camera_info is not None:
+        K, distortion = _calibration(bag.camera_info, w, h, path)
+        meta["calibration"] = bag.connections["camera_info"].topic
+    elif K is None:
+        K = guess_K(w, h)
+        meta["K_guessed"] = True
+    return Capture(frames=frames, exposures=exposures, events=events, K=np.asarray(K, dtype=np.float64),
+                   distortion=distortion, split=["train"] * f, names=[f"{i:05d}" for i in range(f)], meta=meta)
+
+
+def _read_bag(rosbag1: Any, path: Path) -> _BagMessages:
+    """Every message ``load_rosbag`` uses, by topic (``_pick``); a missing event or image topic and
+    an unreadable bag raise CaptureError."""
     store = dvs_typestore()
     try:
         with rosbag1.Reader(path) as reader:
@@ -161,44 +204,47 @@ def load_rosbag(path: str | os.PathLike, K: np.ndarray | None = None, exposure_u
                 if picked[kind] is None:
                     raise CaptureError(str(path), kind, f"no {MSGTYPES[kind]} topic (expected {TOPICS[kind]}); "
                                                         f"topics: {', '.join(sorted({c.topic for c in conns}))}")
-            ev_chunks, size = [], None
+            bag = _BagMessages(picked, [], None, [], [], [], None)
             for _, _, raw in reader.messages(connections=[picked["events"]]):
                 arr, w, h = decode_event_array(raw)
-                size = size or (w, h)
-                ev_chunks.append(arr)
-            images, stamps = [], []
+                bag.sensor_size = bag.sensor_size or (w, h)
+                bag.event_chunks.append(arr)
             for k, (conn, _, raw) in enumerate(reader.messages(connections=[picked["image"]])):
                 msg = store.deserialize_ros1(raw, conn.msgtype)
-                images.append(_image(msg, path, k))
-                stamps.append(_stamp_ns(msg.header))
-            exposures_msg = []
+                bag.images.append(_image(msg, path, k))
+                bag.stamps_ns.append(_stamp_ns(msg.header))
             if picked["exposure"] is not None:
                 for conn, _, raw in reader.messages(connections=[picked["exposure"]]):
-                    exposures_msg.append(int(store.deserialize_ros1(raw, conn.msgtype).data))
-            info = None
+                    bag.exposures_us.append(int(store.deserialize_ros1(raw, conn.msgtype).data))
             if picked["camera_info"] is not None:
                 for conn, _, raw in reader.messages(connections=[picked["camera_info"]]):
-                    info = store.deserialize_ros1(raw, conn.msgtype)
+                    bag.camera_info = store.deserialize_ros1(raw, conn.msgtype)
                     break
     except CaptureError:
         raise
     except (rosbag1.ReaderError, OSError, ValueError, struct.error) as exc:
         raise CaptureError(str(path), None, f"unreadable ROS bag ({type(exc).__name__}: {exc})") from None
-    if not images:
-        raise CaptureError(str(path), "image", f"no messages on {picked['image'].topic}")
-    if len({im.shape for im in images}) != 1:
+    return bag
+
+
+def _stack_images(bag: _BagMessages, path: Path) -> np.ndarray:  # -> [F, H, W, D] float32
+    """The image messages as frames, all of one size and channel count."""
+    if not bag.images:
+        raise CaptureError(str(path), "image", f"no messages on {bag.connections['image'].topic}")
+    if len({im.shape for im in bag.images}) != 1:
         raise CaptureError(str(path), "image", "images differ in size or channels")
-    frames = np.stack(images)
-    f, h, w, _ = frames.shape
-    if size is not None and size != (w, h):
-        raise CaptureError(str(path), "events", f"sensor {size[0]}x{size[1]} differs from the images' {w}x{h}")
-    meta: dict[str, Any] = {"source_layout": "rosbag1", "source": str(path),
-                            "exposure_rule": "image stamp = mid-exposure (libcaer); window [s - e//2, s - e//2 + e)"}
-    if exposures_msg:
-        if len(exposures_msg) < f:
-            raise CaptureError(str(path), "exposure", f"{len(exposures_msg)} exposure messages for {f} images")
-        exp_us = np.asarray(exposures_msg[:f], dtype=np.int64)
-        meta["exposure_source"] = picked["exposure"].topic
+    return np.stack(bag.images)
+
+
+def _exposure_times_us(bag: _BagMessages, exposure_us: int | None, f: int, path: Path,
+                       meta: dict[str, Any]) -> np.ndarray:  # -> [F] int64
+    """Each frame's exposure in microseconds: the bag's exposure messages (matched in order), else
+    ``exposure_us``; ``meta['exposure_source']`` says which."""
+    if bag.exposures_us:
+        if len(bag.exposures_us) < f:
+            raise CaptureError(str(path), "exposure", f"{len(bag.exposures_us)} exposure messages for {f} images")
+        exp_us = np.asarray(bag.exposures_us[:f], dtype=np.int64)
+        meta["exposure_source"] = bag.connections["exposure"].topic
     elif exposure_us is not None:
         exp_us = np.full(f, int(exposure_us), np.int64)
         meta["exposure_source"] = "exposure_us argument"
@@ -207,36 +253,38 @@ def load_rosbag(path: str | os.PathLike, K: np.ndarray | None = None, exposure_u
                                                   "(exposure_us=..., on the command line --exposure-us)")
     if np.any(exp_us < 0):
         raise CaptureError(str(path), "exposure", "negative exposure time")
-    window_us = exposure_window_us(_ns_to_us(np.array(stamps, dtype=np.int64)), exp_us)
-    ev = np.concatenate(ev_chunks) if ev_chunks else np.zeros(0, EVENT_DTYPE)
+    return exp_us
+
+
+def _event_stream(chunks: list[np.ndarray], window_us: np.ndarray, w: int, h: int, path: Path) -> EventStream:
+    """The decoded events as a stream whose t0 is the earliest event or exposure start (window_us [F, 2])."""
+    ev = np.concatenate(chunks) if chunks else np.zeros(0, EVENT_DTYPE)
     t_us = _ns_to_us(ev["sec"].astype(np.int64) * 1_000_000_000 + ev["nsec"].astype(np.int64))
     t0 = int(min(window_us[:, 0].min(), t_us.min() if len(t_us) else window_us[:, 0].min()))
     order = np.argsort(t_us, kind="stable")  # messages are in order; guard against a reordered bag
     try:
-        events = EventStream(t_us[order], ev["x"][order], ev["y"][order], ev["p"][order].astype(np.int8), w, h, t0=t0)
+        return EventStream(t_us[order], ev["x"][order], ev["y"][order], ev["p"][order].astype(np.int8), w, h, t0=t0)
     except ValueError as exc:
         raise CaptureError(str(path), "events", str(exc)) from None
-    exposures = (window_us - t0).astype(np.float64) * 1e-6
+
+
+def _calibration(info: Any, w: int, h: int, path: Path) -> tuple[np.ndarray, np.ndarray | None]:
+    """K [3, 3] (principal point moved to our pixel-centre convention) and distortion [5] or None
+    from a CameraInfo message."""
+    Kr = np.asarray(info.K, dtype=np.float64).reshape(3, 3)
+    if (int(info.width), int(info.height)) != (w, h):
+        raise CaptureError(str(path), "camera_info", f"calibrated for {info.width}x{info.height}, images are {w}x{h}")
+    if Kr[0, 0] <= 0 or Kr[1, 1] <= 0:
+        raise CaptureError(str(path), "camera_info.K", f"focal lengths must be positive, got {Kr[0, 0]}, {Kr[1, 1]}")
+    K = np.array([[Kr[0, 0], 0.0, Kr[0, 2] + 0.5], [0.0, Kr[1, 1], Kr[1, 2] + 0.5], [0.0, 0.0, 1.0]])
+    D = np.asarray(info.D, dtype=np.float64)
+    if len(D) and info.distortion_model not in DISTORTION_MODELS:
+        raise CaptureError(str(path), "camera_info.distortion_model",
+                           f"{info.distortion_model!r} is not supported (plumb_bob k1 k2 p1 p2 k3)")
+    if len(D) > 5 and np.any(D[5:] != 0):
+        raise CaptureError(str(path), "camera_info.D", "only k1 k2 p1 p2 k3 are supported; k4.. are not zero")
     distortion = None
-    if info is not None:
-        Kr = np.asarray(info.K, dtype=np.float64).reshape(3, 3)
-        if (int(info.width), int(info.height)) != (w, h):
-            raise CaptureError(str(path), "camera_info", f"calibrated for {info.width}x{info.height}, images are {w}x{h}")
-        if Kr[0, 0] <= 0 or Kr[1, 1] <= 0:
-            raise CaptureError(str(path), "camera_info.K", f"focal lengths must be positive, got {Kr[0, 0]}, {Kr[1, 1]}")
-        K = np.array([[Kr[0, 0], 0.0, Kr[0, 2] + 0.5], [0.0, Kr[1, 1], Kr[1, 2] + 0.5], [0.0, 0.0, 1.0]])
-        D = np.asarray(info.D, dtype=np.float64)
-        if len(D) and info.distortion_model not in DISTORTION_MODELS:
-            raise CaptureError(str(path), "camera_info.distortion_model",
-                               f"{info.distortion_model!r} is not supported (plumb_bob k1 k2 p1 p2 k3)")
-        if len(D) > 5 and np.any(D[5:] != 0):
-            raise CaptureError(str(path), "camera_info.D", "only k1 k2 p1 p2 k3 are supported; k4.. are not zero")
-        if np.any(D != 0):
-            distortion = np.zeros(5)
-            distortion[: min(5, len(D))] = D[:5]
-        meta["calibration"] = picked["camera_info"].topic
-    elif K is None:
-        K = guess_K(w, h)
-        meta["K_guessed"] = True
-    return Capture(frames=frames, exposures=exposures, events=events, K=np.asarray(K, dtype=np.float64),
-                   distortion=distortion, split=["train"] * f, names=[f"{i:05d}" for i in range(f)], meta=meta)
+    if np.any(D != 0):
+        distortion = np.zeros(5)
+        distortion[: min(5, len(D))] = D[:5]
+    return K, distortion

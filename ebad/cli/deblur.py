@@ -157,7 +157,8 @@ def _estimate(frames, exposures, events, counts, c_arg, gamma):
     use = counts > 0
     if frames.shape[0] >= 2:
         try:
-            c, rep = edi.estimate_c(frames, exposures, events, pair=True, gamma=gamma, return_report=True)
+            rep = edi.estimate_contrast(frames, exposures, events, pair=True, gamma=gamma)
+            c = rep.c
         except edi.InputError:
             return None, "estimated on each frame", None
         return c, f"estimated jointly ({rep.method}, {rep.energy_name})", rep
@@ -238,7 +239,7 @@ def run(args) -> int:
         sharp_frame = t_e <= t_s or counts[i] == 0
         if sharp_frame and args.skip_sharp:
             continue
-        lat, rep = edi.deblur(frames[i], (t_s, t_e), events, c=c_all, gamma=gamma, return_report=True)
+        lat, rep = edi.deblur_with_report(frames[i], (t_s, t_e), events, c=c_all, gamma=gamma)
         if rep.c_report is not None:
             print(f"ebad deblur: {names[i]}: c {rep.c.mean:.4f} ({c_source})")
             _say_unreliable(rep.c_report, names[i])

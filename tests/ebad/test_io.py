@@ -30,6 +30,24 @@ def test_ply_roundtrip(tmp_path, D):
 
 
 @pytest.mark.parametrize("D", [1, 3])
+def test_ply_bytes_are_the_inria_layout(tmp_path, D):
+    """The file byte for byte: the 3DGS header (with ebad's channel comment) and float32 rows."""
+    n = 5
+    p = _params(n, D=D)
+    blob = write_ply(tmp_path / "point_cloud.ply", p).read_bytes()
+    names = (["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2", "opacity"]
+             + [f"scale_{i}" for i in range(3)] + [f"rot_{i}" for i in range(4)])
+    header = (f"ply\nformat binary_little_endian 1.0\ncomment ebad channels {D}\nelement vertex {n}\n"
+              + "".join(f"property float {name}\n" for name in names) + "end_header\n").encode("ascii")
+    assert blob[: len(header)] == header
+    colors = p["colors"].detach().numpy()
+    rows = np.concatenate([p["means"].detach().numpy(), np.zeros((n, 3)), np.repeat(colors, 3 // D, axis=1),
+                           p["opacities"].detach().numpy()[:, None], p["scales"].detach().numpy(),
+                           p["quats"].detach().numpy()], axis=1).astype("<f4")
+    assert blob[len(header):] == rows.tobytes()
+
+
+@pytest.mark.parametrize("D", [1, 3])
 def test_png16_roundtrip(tmp_path, D):
     img = np.random.default_rng(0).random((5, 7, D))
     back = read_png16(write_png16(tmp_path / "a.png", img))

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 import torch
 
-from edi import Contrast, EbadError, EventStream, InputError, LOG_EPS, deblur, estimate_c, events_in_window, moving_texture
+from edi import (Contrast, EbadError, EventStream, InputError, LOG_EPS, deblur_with_report, estimate_c, estimate_contrast,
+                 events_in_window, moving_texture)
 
 C_BY_SEED = (0.15, 0.2, 0.3)
 
@@ -34,7 +35,8 @@ def test_single_frame_flow_energy_on_the_benchmark_textures():
         c = C_BY_SEED[seed % 3]
         for kw, out in ((dict(sigma_c=0.0, lead=0.1), uniform), (dict(sigma_c=0.03), no_lead)):
             s = moving_texture(num_frames=1, seed=seed, c=c, **kw)
-            est, rep = estimate_c(s.frames[0], s.exposures[0], s.events, return_report=True)
+            rep = estimate_contrast(s.frames[0], s.exposures[0], s.events)
+            est = rep.c.mean
             assert rep.method == "single" and rep.energy_name == "flow" and not rep.at_bound
             assert rep.reliable and rep.explained > 0.9, rep.explained  # its own events: no unreliable flag
             out.append(est / c)
@@ -85,11 +87,11 @@ def test_the_bias_rising_with_c_was_the_sensors_hysteresis(monkeypatch):
         c = C_BY_SEED[seed % 3]
         s = moving_texture(num_frames=1, seed=seed, c=c, lead=0.1, height=24, width=32)
         B, ex = s.frames[0], s.exposures[0]
-        dvs.append(estimate_c(B, ex, s.events) / c)
+        dvs.append(estimate_c(B, ex, s.events).mean / c)
         with monkeypatch.context() as m:
             m.setattr(contrast, "_with_hidden_crossings", raw)
-            fixed.append(estimate_c(B, ex, fixed_level_events(s, c, 0.1, seed)) / c)
-            dvs_raw.append(estimate_c(B, ex, s.events) / c)
+            fixed.append(estimate_c(B, ex, fixed_level_events(s, c, 0.1, seed)).mean / c)
+            dvs_raw.append(estimate_c(B, ex, s.events).mean / c)
     fixed, dvs_raw, dvs = np.array(fixed), np.array(dvs_raw), np.array(dvs)
     assert (np.abs(fixed - 1) <= 0.03).all(), np.round(fixed, 3)
     assert (np.abs(dvs - 1) <= 0.03).all(), np.round(dvs, 3)
@@ -100,9 +102,9 @@ def test_single_frame_estimate_sharpens_the_frame():
     s = moving_texture(num_frames=1, seed=0, c=0.2)
     B, ex = s.frames[0], s.exposures[0]
     gt = s.sharp(ex.mean())
-    L, rep = deblur(B, ex, s.events, return_report=True)  # c=None: estimated on this frame
+    L, rep = deblur_with_report(B, ex, s.events)  # c=None: estimated on this frame
     assert rep.c_report is not None and rep.c_report.method == "single"
-    assert rep.c == Contrast(*(2 * [estimate_c(B, ex, s.events)]))
+    assert rep.c == Contrast(*(2 * [estimate_c(B, ex, s.events).mean]))
     assert rmse(L, gt) < 0.4 * rmse(B, gt)
 
 
@@ -112,7 +114,8 @@ def test_paper_energy_has_no_interior_minimum():
     end for every seed, and the report says so."""
     for seed in range(5):
         s = moving_texture(num_frames=1, seed=seed, c=C_BY_SEED[seed % 3], sigma_c=0.03)
-        est, rep = estimate_c(s.frames[0], s.exposures[0], s.events, energy="paper", return_report=True)
+        rep = estimate_contrast(s.frames[0], s.exposures[0], s.events, energy="paper")
+        est = rep.c.mean
         assert rep.at_bound and est == pytest.approx(rep.bracket[0], rel=0.02)
         assert "no interior minimum" in rep.message and "--c" in rep.message
         cs, es = zip(*sorted(rep.evals))
@@ -155,7 +158,8 @@ def test_consistency_is_unbiased_under_mismatch():
         mid = s.exposures.mean(axis=1)
         sharp = np.stack([s.sharp(t) for t in mid])
         ex = np.stack([mid, mid], axis=1)
-        c, rep = estimate_c(sharp, ex, s.events, return_report=True)
+        rep = estimate_contrast(sharp, ex, s.events)
+        c = rep.c.mean
         assert rep.method == "consistency"
         ours.append(c / 0.15)
         naive.append(naive_least_squares(sharp, mid, s.events) / 0.15)
@@ -174,7 +178,8 @@ def test_consistency_blurry_frames():
     for c_true in (0.15, 0.2, 0.3):
         for seed in range(5):
             s = moving_texture(num_frames=4, seed=seed, c=c_true, sigma_c=0.03, exposure=0.02)
-            c, rep = estimate_c(s.frames, s.exposures, s.events, return_report=True)
+            rep = estimate_contrast(s.frames, s.exposures, s.events)
+            c = rep.c.mean
             assert rep.method == "consistency" and not rep.at_bound
             ratios.append(c / c_true)
     err = np.abs(np.array(ratios) - 1)
@@ -186,7 +191,8 @@ def test_consistency_pair():
     """c = (0.15, 0.3), mismatch 0.03: measured 0.99-1.03x (c_pos), 1.03-1.05x (c_neg), seeds 0-4."""
     for seed in range(5):
         s = moving_texture(num_frames=4, seed=seed, c=(0.15, 0.3), sigma_c=0.03, exposure=0.02)
-        est, rep = estimate_c(s.frames, s.exposures, s.events, pair=True, return_report=True)
+        rep = estimate_contrast(s.frames, s.exposures, s.events, pair=True)
+        est = rep.c
         assert rep.method == "consistency" and isinstance(est, Contrast)
         assert abs(est.pos / 0.15 - 1) < 0.1 and abs(est.neg / 0.3 - 1) < 0.1, (seed, est)
 
@@ -198,7 +204,8 @@ def test_auto_falls_back_to_one_frame_when_the_frames_contradict_the_events():
     shuffled = s.frames[[1, 0, 2]]
     with pytest.raises(InputError, match="do not follow the frames' changes"):
         estimate_c(shuffled, s.exposures, s.events, method="consistency")
-    c, rep = estimate_c(shuffled, s.exposures, s.events, return_report=True)
+    rep = estimate_contrast(shuffled, s.exposures, s.events)
+    c = rep.c.mean
     assert rep.method == "single" and "used the single-frame energy" in rep.message
 
 
@@ -206,7 +213,7 @@ def test_sharp_frames_torch_input():
     s = moving_texture(num_frames=3, seed=3, c=0.25)
     sharp = np.stack([s.sharp(t) for t in s.exposures.mean(axis=1)])
     ex = np.repeat(s.exposures.mean(axis=1)[:, None], 2, axis=1)
-    c = estimate_c(torch.from_numpy(sharp), ex, s.events)
+    c = estimate_c(torch.from_numpy(sharp), ex, s.events).mean
     assert abs(c - 0.25) < 0.1 * 0.25, c  # measured 1.061x (ideal sensor, c 0.25: see above)
 
 
@@ -256,8 +263,9 @@ def test_ray_cast_scenes_single_and_consistency():
             sc = make_scene(name, "tiny", seed=seed, rgb=rgb, n_frames=3, n_test=0, sensor="ideal")
             cap = sc.capture
             c_true = 0.5 * (sc.c_pos.mean() + sc.c_neg.mean())  # truth: read here only
-            single, rep = estimate_c(cap.frames[0], cap.exposures[0], cap.events, return_report=True)
-            multi = estimate_c(cap.frames, cap.exposures, cap.events)
+            rep = estimate_contrast(cap.frames[0], cap.exposures[0], cap.events)
+            single = rep.c.mean
+            multi = estimate_c(cap.frames, cap.exposures, cap.events).mean
             assert not rep.at_bound and rep.reliable, rep.explained
             assert abs(single / c_true - 1) <= 0.1, (name, seed, single)
             multis.append(multi / c_true)
@@ -328,7 +336,8 @@ def test_consistency_pair_on_blurry_texture_with_a_running_sensor():
     for seed in range(10):
         c = C_BY_SEED[seed % 3]
         s = moving_texture(num_frames=4, seed=seed, c=c, sigma_c=0.03, lead=0.1)
-        est, rep = estimate_c(s.frames, s.exposures, s.events, pair=True, return_report=True)
+        rep = estimate_contrast(s.frames, s.exposures, s.events, pair=True)
+        est = rep.c
         assert rep.method == "consistency" and not rep.at_bound
         worst.append(max(abs(est.pos / c - 1), abs(est.neg / c - 1)))
     worst = np.array(worst)
@@ -344,7 +353,8 @@ def test_single_frame_with_a_running_sensor():
     for seed in range(10):
         c = C_BY_SEED[seed % 3]
         s = moving_texture(num_frames=1, seed=seed, c=c, sigma_c=0.03, lead=0.1)
-        est, rep = estimate_c(s.frames[0], s.exposures[0], s.events, return_report=True)
+        rep = estimate_contrast(s.frames[0], s.exposures[0], s.events)
+        est = rep.c.mean
         assert rep.method == "single" and not rep.at_bound
         ratios.append(est / c)
     ratios = np.array(ratios)
@@ -367,7 +377,7 @@ def test_single_frame_low_reads_come_from_the_mismatch():
         c = C_BY_SEED[seed % 3]
         for sigma, out in ((0.0, ideal), (0.03, mismatch)):
             s = moving_texture(num_frames=1, seed=seed, c=c, sigma_c=sigma)
-            out.append(estimate_c(s.frames[0], s.exposures[0], s.events) / c)
+            out.append(estimate_c(s.frames[0], s.exposures[0], s.events).mean / c)
     ideal, mismatch = np.array(ideal), np.array(mismatch)
     assert (np.abs(ideal - 1) <= 0.05).all(), np.round(ideal, 3)
     assert (mismatch <= ideal + 0.01).all() and 0.02 < (ideal - mismatch).mean() < 0.07, np.round(ideal - mismatch, 3)
@@ -380,12 +390,14 @@ def test_low_end_message_says_the_events_do_not_explain_the_blur():
     sits at the low end: tests/edi/test_real_data.py.)"""
     s = moving_texture(num_frames=1, seed=2, c=0.3, sigma_c=0.03)
     B, ex = s.frames[0], s.exposures[0]
-    est, rep = estimate_c(B, ex, s.events, bracket=(0.6, 1.5), return_report=True)
+    rep = estimate_contrast(B, ex, s.events, bracket=(0.6, 1.5))
+    est = rep.c.mean
     assert rep.at_bound and est < 0.6 * 1.02
     assert "no interior minimum" in rep.message and "cover the whole exposure" in rep.message
-    est, rep = estimate_c(B, ex, s.events, bracket=(0.03, 0.1), return_report=True)
+    rep = estimate_contrast(B, ex, s.events, bracket=(0.03, 0.1))
+    est = rep.c.mean
     assert rep.at_bound and est > 0.1 / 1.02 and "cover the whole exposure" not in rep.message
-    _, rep = estimate_c(B, ex, s.events, energy="paper", return_report=True)
+    rep = estimate_contrast(B, ex, s.events, energy="paper")
     assert rep.at_bound and "cover the whole exposure" not in rep.message
 
 
@@ -404,11 +416,11 @@ def test_events_unrelated_to_the_frame_explain_nothing():
         t = np.sort(rng.integers(round(ex[0] * 1e6), round(ex[1] * 1e6), n))
         ev = EventStream(t, rng.integers(0, 56, n), rng.integers(0, 40, n),
                          np.where(rng.random(n) < 0.5, 1, -1).astype(np.int8), 56, 40)
-        _, rep = estimate_c(s.frames[0], ex, ev, return_report=True)
+        rep = estimate_contrast(s.frames[0], ex, ev)
         assert min(e for _, e in rep.evals) > 0.9, sorted(rep.evals)
         assert not rep.reliable and rep.explained < 0.1 and "do not follow the frame's blur" in rep.message
         assert "--c" in rep.message
-        _, own = estimate_c(s.frames[0], ex, s.events, return_report=True)
+        own = estimate_contrast(s.frames[0], ex, s.events)
         assert own.energy < 0.02, own.energy
         assert own.reliable and own.explained > 0.98 and own.message == ""
 
@@ -425,7 +437,8 @@ def test_gamma_frames_read_gamma_times_c_unless_gamma_is_given():
     for seed in range(3):
         s = moving_texture(num_frames=3, seed=seed, c=0.2, lead=0.1)
         lin = estimate_c(s.frames, s.exposures, s.events, pair=True)
-        given, rep = estimate_c(s.frames**g, s.exposures, s.events, pair=True, gamma=g, return_report=True)
+        rep = estimate_contrast(s.frames**g, s.exposures, s.events, pair=True, gamma=g)
+        given = rep.c
         assumed = estimate_c(s.frames**g, s.exposures, s.events, pair=True)
         assert rep.gamma == g
         np.testing.assert_allclose(given, lin, rtol=1e-6)
@@ -438,3 +451,14 @@ def test_estimate_c_bad_gamma_names_it():
     for bad in (0.0, float("inf"), "estimate", None):
         with pytest.raises(InputError, match="gamma"):
             estimate_c(s.frames[0], s.exposures[0], s.events, gamma=bad)
+
+
+def test_estimate_c_returns_the_reports_contrast():
+    """One return type: estimate_c gives an edi.Contrast, pair or not, and it is what
+    estimate_contrast reports; with one c fitted both thresholds are that c (``.mean``)."""
+    s = moving_texture(num_frames=1, seed=1, c=0.25)
+    for pair in (False, True):
+        c = estimate_c(s.frames[0], s.exposures[0], s.events, pair=pair)
+        rep = estimate_contrast(s.frames[0], s.exposures[0], s.events, pair=pair)
+        assert type(c) is Contrast and c == rep.c
+        assert (c.pos == c.neg) is (not pair) and c.mean == 0.5 * (c.pos + c.neg)

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 import torch
 
-from edi import LOG_EPS, EbadError, EventStream, InputError, deblur, moving_texture
+from edi import LOG_EPS, EbadError, EventStream, InputError, deblur, deblur_with_report, moving_texture
 
 
 @pytest.fixture(scope="module")
@@ -84,11 +84,11 @@ def test_torch_in_torch_out(seq1):
 
 def test_sharp_frame_or_no_events_returns_blur(seq1):
     B = seq1.frames[0]
-    out, rep = deblur(B, (0.01, 0.01), seq1.events, c=0.2, return_report=True)
+    out, rep = deblur_with_report(B, (0.01, 0.01), seq1.events, c=0.2)
     np.testing.assert_allclose(out, B)
     assert "sharp frame" in rep.notes[0]
     far = (10.0, 10.04)
-    out, rep = deblur(B, far, seq1.events, return_report=True)  # c=None, no events: no estimate needed
+    out, rep = deblur_with_report(B, far, seq1.events)  # c=None, no events: no estimate needed
     np.testing.assert_allclose(out, B)
     assert rep.num_events == 0
     np.testing.assert_allclose(deblur(B, (0.0, 0.04), EventStream.empty(56, 40), c=0.3), B)
@@ -109,7 +109,7 @@ def test_zero_pixel_gives_zero_not_nan():
 def test_saturated_pixels_are_kept_and_reported(seq1):
     B = seq1.frames[0].copy()
     B[5:8, 5:8] = 1.0
-    L, rep = deblur(B, seq1.exposures[0], seq1.events, c=0.2, return_report=True)
+    L, rep = deblur_with_report(B, seq1.exposures[0], seq1.events, c=0.2)
     np.testing.assert_allclose(L[5:8, 5:8], 1.0)
     assert rep.saturated[5:8, 5:8].all() and rep.saturated.sum() == 9
 
@@ -191,9 +191,9 @@ def test_an_event_at_t_start_is_in_and_one_at_t_end_is_out():
     ex = (100e-6, 200e-6)
     at_start = EventStream([100], [0], [0], [1], 2, 1)
     at_end = EventStream([200], [0], [0], [1], 2, 1)
-    _, rep = deblur(B, ex, at_start, c=0.5, return_report=True)
+    _, rep = deblur_with_report(B, ex, at_start, c=0.5)
     assert rep.num_events == 1
-    L, rep = deblur(B, ex, at_end, c=0.5, return_report=True)
+    L, rep = deblur_with_report(B, ex, at_end, c=0.5)
     assert rep.num_events == 0 and "no events" in rep.notes[0]
     np.testing.assert_allclose(L, B)
     # the event at t_start is in: the whole exposure after it is brighter, so every instant
@@ -214,7 +214,7 @@ def test_gamma_deblurs_the_linearised_frame_and_maps_the_latent_back(seq1, gamma
     """deblur(B ** g, gamma=g) is deblur(B) ** g: the frame is linearised, the latent re-encoded."""
     B, ex = seq1.frames[0], seq1.exposures[0]
     times = np.linspace(ex[0], ex[1], 3)
-    got, rep = deblur(B**gamma, ex, seq1.events, times=times, c=0.2, gamma=gamma, return_report=True)
+    got, rep = deblur_with_report(B**gamma, ex, seq1.events, times=times, c=0.2, gamma=gamma)
     want = deblur(B, ex, seq1.events, times=times, c=0.2) ** gamma
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
     assert not rep.saturated.any()
@@ -223,7 +223,7 @@ def test_gamma_deblurs_the_linearised_frame_and_maps_the_latent_back(seq1, gamma
 def test_gamma_keeps_saturated_recorded_pixels(seq1):
     B, ex = seq1.frames[0].copy(), seq1.exposures[0]
     B[3, 4] = 0.995  # recorded at or above SATURATION: left as it is, whatever gamma
-    out, rep = deblur(B, ex, seq1.events, c=0.2, gamma=0.5, return_report=True)
+    out, rep = deblur_with_report(B, ex, seq1.events, c=0.2, gamma=0.5)
     assert rep.saturated[3, 4] and out[3, 4, 0] == pytest.approx(0.995, abs=1e-12)
     assert rep.saturated.sum() == 1
 
@@ -232,3 +232,16 @@ def test_gamma_keeps_saturated_recorded_pixels(seq1):
 def test_bad_gamma_is_refused_naming_it(seq1, bad):
     with pytest.raises(InputError, match="gamma"):
         deblur(seq1.frames[0], seq1.exposures[0], seq1.events, c=0.2, gamma=bad)
+
+
+def test_deblur_with_report_gives_deblurs_latents(seq1):
+    """deblur_with_report returns deblur's latents (the input's kind) and the report; deblur
+    returns the latents alone, whatever the arguments."""
+    B, ex = seq1.frames[0], seq1.exposures[0]
+    times = [ex[0], 0.5 * (ex[0] + ex[1])]
+    for blur in (B, torch.from_numpy(B).float()):
+        L = deblur(blur, ex, seq1.events, times=times, c=(0.2, 0.25))
+        L2, rep = deblur_with_report(blur, ex, seq1.events, times=times, c=(0.2, 0.25))
+        assert type(L) is type(L2) is type(blur)
+        np.testing.assert_array_equal(np.asarray(L), np.asarray(L2))
+        assert rep.c == (0.2, 0.25) and rep.num_events > 0

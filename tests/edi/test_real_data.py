@@ -33,7 +33,8 @@ def test_street_reads_frames_and_events(street):
 @needs_street
 def test_street_events_predict_the_next_frame(street):
     fr, ex, ev = street.frames[..., 0].astype(np.float64), street.exposures, street.events
-    c, rep = edi.estimate_c(fr, ex, ev, return_report=True)
+    rep = edi.estimate_contrast(fr, ex, ev)
+    c = rep.c.mean
     assert rep.method == "consistency" and 0.05 < c < 1.0
     centres = ex.mean(axis=1)
     err_pred, err_hold, n = 0.0, 0.0, 0
@@ -83,7 +84,7 @@ def test_ni_joint_estimate_does_not_amplify_noise(name):
     stays within NOISE_GAIN_MAX of the frame's; a c at the top of the bracket fails both
     ways (the test checks that too). An estimate at a bracket end is reported with what to do."""
     B, ev, ex = read_ni(name)
-    L, rep = edi.deblur(B, ex, ev, return_report=True)
+    L, rep = edi.deblur_with_report(B, ex, ev)
     assert np.isfinite(L).all() and L.shape == B.shape and rep.num_events == len(ev)
     s_b, n_b = sharpness_and_noise(B / 255.0)
     s_l, n_l = sharpness_and_noise(L)
@@ -106,7 +107,8 @@ def test_ni_joint_estimates_are_reported_unreliable(name):
     blur (test_ni_joint_low_end_frames_have_events_that_do_not_cover_the_blur), so even an
     estimate inside the bracket (badminton, night_run) is reported unreliable, with what to do."""
     B, ev, ex = read_ni(name)
-    c, rep = edi.estimate_c(B, ex, ev, return_report=True)
+    rep = edi.estimate_contrast(B, ex, ev)
+    c = rep.c.mean
     assert not rep.reliable and rep.explained < 0.3, (c, rep.explained)
     assert "unreliable" in rep.message and "--c" in rep.message
 
@@ -125,7 +127,8 @@ def test_ni_joint_low_end_frames_have_events_that_do_not_cover_the_blur(name):
     wide, the ni-joint repository's own kernels). No c makes EDI explain a blur the events did not
     see; the estimate stays at the bracket end and the report says why and what to do."""
     B, ev, ex = read_ni(name)
-    c, rep = edi.estimate_c(B, ex, ev, return_report=True)
+    rep = edi.estimate_contrast(B, ex, ev)
+    c = rep.c.mean
     assert rep.at_bound and c < rep.bracket[0] * 1.02
     assert "cover the whole exposure" in rep.message and "--c" in rep.message
     moved = events_displacement(ev)
@@ -145,7 +148,8 @@ def test_ni_joint_top_end_frame_is_reported(name):
     pixels, the noise of the events' part, squared, made the energy rise again and the estimate
     stopped at 0.59, with 3.5 times the frame's impulse noise.)"""
     B, ev, ex = read_ni(name)
-    c, rep = edi.estimate_c(B, ex, ev, return_report=True)
+    rep = edi.estimate_contrast(B, ex, ev)
+    c = rep.c.mean
     assert rep.at_bound and c > rep.bracket[1] / 1.02
     assert "no interior minimum" in rep.message and "--c" in rep.message
     cs, es = zip(*sorted(rep.evals))
