@@ -104,7 +104,7 @@ def test_gaussian_beyond_the_frustum_limit_has_the_clamped_spread(path):
     assert (u - w / 2) / f > lim
     var_x = (f * s / z) ** 2 * (1 + lim**2) + COV2D_BLUR
     var_y = (f * s / z) ** 2 + COV2D_BLUR
-    img, alpha, meta = PATHS[path](*inputs, w, h)
+    _, alpha, meta = PATHS[path](*inputs, w, h)
     extend = 2 * math.log(255 * o)
     assert meta["radii"][0, 0].tolist() == [math.ceil(math.sqrt(extend * var_x)), math.ceil(math.sqrt(extend * var_y))]
     for px, py in [(31, 16), (31, 3), (20, 16), (12, 25)]:
