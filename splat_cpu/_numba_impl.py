@@ -92,6 +92,7 @@ class _Project(torch.autograd.Function):
         valid = np.empty((n_cam, n), dtype=np.bool_)
         P.project_forward(*arrs, width, height, means2d, conics, depths, radii, box, valid)
         ctx.arrs, ctx.conics, ctx.valid, ctx.timings = arrs, conics, valid, timings
+        ctx.width, ctx.height = width, height
         dt = means.dtype
         out.update(depths=_tensor(depths, dt), radii=torch.from_numpy(radii), pix_box=box, valid=valid)
         return _tensor(means2d, dt), _tensor(conics, dt)
@@ -106,8 +107,8 @@ class _Project(torch.autograd.Function):
         v_co = _np(v_conics).astype(np.float64) if v_conics is not None else zeros(n_cam, n, 3)
         v_means, v_quats, v_scales = np.empty((n, 3)), np.empty((n, 4)), np.empty((n, 3))
         v_view = np.empty((_PROJECT_CHUNKS, n_cam, 3, 4))
-        P.project_backward(means, quats, scales, viewmats, ks, ctx.valid, ctx.conics, v_m2, v_co,
-                           v_means, v_quats, v_scales, v_view)
+        P.project_backward(means, quats, scales, viewmats, ks, ctx.width, ctx.height, ctx.valid, ctx.conics,
+                           v_m2, v_co, v_means, v_quats, v_scales, v_view)
         v_vm = np.zeros((n_cam, 4, 4))
         v_vm[:, :3, :] = v_view.sum(axis=0)
         dt = v_means2d.dtype if v_means2d is not None else v_conics.dtype

@@ -5,7 +5,7 @@ rotation and the 3D covariance are computed once and shared by the C cameras (th
 virtual views of one exposure). Arithmetic is float64 whatever the input dtype, so scales
 up to `constants.SCALE_MAX` stay finite. The backward follows gsplat's
 `fully_fused_projection` VJPs: conic -> 2D covariance -> (J W, Sigma) -> (mean, pose,
-quaternion, scale).
+quaternion, scale), with its frustum clamp of x/z and y/z in the Jacobian (`_project.frustum_limits`).
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from .constants import ALPHA_MIN, COV2D_BLUR, NEAR
+from .constants import ALPHA_MIN, COV2D_BLUR, FRUSTUM_MARGIN, NEAR
 
 _INT32_MAX = 2**31 - 1
 _FORWARD_CHUNKS = 64  # Gaussians are projected in this many chunks (scratch arrays once per chunk)
@@ -58,9 +58,24 @@ def _camera_point(viewmats, c, means, g, p):  # p = W mean + t [3] written
 
 
 @njit(cache=True, inline="always")
-def _jw(viewmats, c, fx, fy, x, y, z, t):  # t = J W [2, 3] written (J at the mean)
-    j00, j02 = fx / z, -fx * x / (z * z)
-    j11, j12 = fy / z, -fy * y / (z * z)
+def _frustum_limits(ks, c, width, height):  # -> (x neg, x pos, y neg, y pos): `_project.frustum_limits`
+    fx, fy = np.float64(ks[c, 0, 0]), np.float64(ks[c, 1, 1])
+    cx, cy = np.float64(ks[c, 0, 2]), np.float64(ks[c, 1, 2])
+    tan_x, tan_y = 0.5 * width / fx, 0.5 * height / fy
+    return (cx / fx + FRUSTUM_MARGIN * tan_x, (width - cx) / fx + FRUSTUM_MARGIN * tan_x,
+            cy / fy + FRUSTUM_MARGIN * tan_y, (height - cy) / fy + FRUSTUM_MARGIN * tan_y)
+
+
+@njit(cache=True, inline="always")
+def _clamped(x, z, lim_neg, lim_pos):  # -> (x/z clamped to [-lim_neg, lim_pos], whether it was inside)
+    r = x / z
+    return min(max(r, -lim_neg), lim_pos), -lim_neg <= r <= lim_pos
+
+
+@njit(cache=True, inline="always")
+def _jw(viewmats, c, fx, fy, xc, yc, z, t):  # t = J W [2, 3] written (J at the mean, x/z and y/z clamped)
+    j00, j02 = fx / z, -fx * xc / z
+    j11, j12 = fy / z, -fy * yc / z
     for k in range(3):
         t[0, k] = j00 * viewmats[c, 0, k] + j02 * viewmats[c, 2, k]
         t[1, k] = j11 * viewmats[c, 1, k] + j12 * viewmats[c, 2, k]
@@ -93,7 +108,10 @@ def _project_one(means, quats, scales, opacities, viewmats, ks, width, height, g
         if not z > NEAR or op < ALPHA_MIN:
             continue
         fx, fy = np.float64(ks[c, 0, 0]), np.float64(ks[c, 1, 1])
-        _jw(viewmats, c, fx, fy, x, y, z, t)
+        lxn, lxp, lyn, lyp = _frustum_limits(ks, c, width, height)
+        xc = _clamped(x, z, lxn, lxp)[0]
+        yc = _clamped(y, z, lyn, lyp)[0]
+        _jw(viewmats, c, fx, fy, xc, yc, z, t)
         ca = COV2D_BLUR
         cb = 0.0
         cc = COV2D_BLUR
@@ -168,6 +186,8 @@ def project_backward(
     scales,  # [N, 3]
     viewmats,  # [C, 4, 4]
     ks,  # [C, 3, 3]
+    width,
+    height,
     valid,  # [C, N] bool
     conics,  # [C, N, 3] the forward's conics (float64)
     v_means2d,  # [C, N, 2]
@@ -203,7 +223,10 @@ def project_backward(
                 _camera_point(viewmats, c, means, g, p)
                 x, y, z = p[0], p[1], p[2]
                 fx, fy = np.float64(ks[c, 0, 0]), np.float64(ks[c, 1, 1])
-                _jw(viewmats, c, fx, fy, x, y, z, t)
+                lxn, lxp, lyn, lyp = _frustum_limits(ks, c, width, height)
+                xc, x_in = _clamped(x, z, lxn, lxp)
+                yc, y_in = _clamped(y, z, lyn, lyp)
+                _jw(viewmats, c, fx, fy, xc, yc, z, t)
                 # conic Q = Sigma2d^-1 with Q01 used once: dL = tr(G dQ), G = [[va, vb/2], [vb/2, vc]]
                 qa, qb, qc = conics[c, g, 0], conics[c, g, 1], conics[c, g, 2]
                 ga, gb, gc = v_conics[c, g, 0], 0.5 * v_conics[c, g, 1], v_conics[c, g, 2]
@@ -227,8 +250,8 @@ def project_backward(
                         v_cov[i, j] += (t[0, i] * (w00 * t[0, j] + w01 * t[1, j])
                                         + t[1, i] * (w01 * t[0, j] + w11 * t[1, j]))
                 # T = J W: v_J = v_T W^T, v_W += J^T v_T
-                j00, j02 = fx / z, -fx * x / (z * z)
-                j11, j12 = fy / z, -fy * y / (z * z)
+                j00, j02 = fx / z, -fx * xc / z
+                j11, j12 = fy / z, -fy * yc / z
                 vj00 = 0.0
                 vj02 = 0.0
                 vj11 = 0.0
@@ -242,14 +265,16 @@ def project_backward(
                     out_view[ch, c, 0, k] += j00 * v_t[0, k]
                     out_view[ch, c, 1, k] += j11 * v_t[1, k]
                     out_view[ch, c, 2, k] += j02 * v_t[0, k] + j12 * v_t[1, k]
-                # p = (x, y, z): through J and through (u, v) = (fx x / z + cx, fy y / z + cy)
+                # p = (x, y, z): through J and through (u, v) = (fx x / z + cx, fy y / z + cy); J02 = -fx x / z^2
+                # inside the frustum's limits, -fx xc / z with a constant xc outside them (gsplat's clamp)
                 vu, vv = v_means2d[c, g, 0], v_means2d[c, g, 1]
                 iz = 1.0 / z
                 iz2 = iz * iz
-                vx = vu * fx * iz - vj02 * fx * iz2
-                vy = vv * fy * iz - vj12 * fy * iz2
+                vx = vu * fx * iz - (vj02 * fx * iz2 if x_in else 0.0)
+                vy = vv * fy * iz - (vj12 * fy * iz2 if y_in else 0.0)
                 vz = (-vu * fx * x * iz2 - vv * fy * y * iz2 - vj00 * fx * iz2 - vj11 * fy * iz2
-                      + 2.0 * (vj02 * fx * x + vj12 * fy * y) * iz2 * iz)
+                      + vj02 * fx * (2.0 * x * iz2 * iz if x_in else xc * iz2)
+                      + vj12 * fy * (2.0 * y * iz2 * iz if y_in else yc * iz2))
                 # p = W mean + t
                 for k in range(3):
                     out_view[ch, c, k, 0] += (vx if k == 0 else vy if k == 1 else vz) * means[g, 0]

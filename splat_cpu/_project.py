@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from .constants import ALPHA_MIN, COV2D_BLUR, NEAR
+from .constants import ALPHA_MIN, COV2D_BLUR, FRUSTUM_MARGIN, NEAR
 
 
 @dataclass
@@ -46,6 +46,19 @@ def covariances3d(quats: Tensor, scales: Tensor) -> Tensor:  # [N, 4], [N, 3] ->
     return m @ m.transpose(-1, -2)
 
 
+def frustum_limits(Ks: Tensor, width: int, height: int) -> tuple[Tensor, Tensor, Tensor, Tensor]:  # [C, 3, 3]
+    """gsplat's limits of x/z and y/z for the projection's Jacobian, each [C, 1]: (x neg, x pos, y neg, y pos).
+
+    The image's extent on each side of the principal point, in units of z, plus FRUSTUM_MARGIN of the half
+    field of view (1.3 half fields of view each way for a centred principal point).
+    """
+    fx, fy = Ks[:, 0, 0, None], Ks[:, 1, 1, None]
+    cx, cy = Ks[:, 0, 2, None], Ks[:, 1, 2, None]
+    tan_x, tan_y = 0.5 * width / fx, 0.5 * height / fy
+    return (cx / fx + FRUSTUM_MARGIN * tan_x, (width - cx) / fx + FRUSTUM_MARGIN * tan_x,
+            cy / fy + FRUSTUM_MARGIN * tan_y, (height - cy) / fy + FRUSTUM_MARGIN * tan_y)
+
+
 def project(
     means: Tensor,  # [N, 3]
     quats: Tensor,  # [N, 4]
@@ -57,6 +70,9 @@ def project(
     height: int,
 ) -> Projected:
     """EWA splatting with the Jacobian at the mean, + COV2D_BLUR on the 2D diagonal.
+
+    The Jacobian is gsplat's: x/z and y/z in it are clamped to `frustum_limits` (the mean itself
+    is not), so a Gaussian far outside the image does not spread over it.
 
     Computed in float64 (except on MPS, which has none) and returned in the input dtype, as
     the numba twin does: in float32 the 2D covariance of a Gaussian a few thousand pixels
@@ -79,10 +95,14 @@ def project(
     fx, fy = Ks[:, 0, 0, None], Ks[:, 1, 1, None]  # [C, 1]
     cx, cy = Ks[:, 0, 2, None], Ks[:, 1, 2, None]
     xz, yz = x / zs, y / zs
-    # Jacobian of (fx x/z + cx, fy y/z + cy) at the mean, rows [C, N, 3]
+    # Jacobian of (fx x/z + cx, fy y/z + cy) at the mean, rows [C, N, 3], with x/z and y/z clamped to the
+    # frustum's limits (gsplat's clamp: beyond them the Jacobian stops growing, and passes no gradient to x, y)
+    lim_x_neg, lim_x_pos, lim_y_neg, lim_y_pos = frustum_limits(Ks, width, height)
+    xzc = torch.clamp(xz, min=-lim_x_neg, max=lim_x_pos)
+    yzc = torch.clamp(yz, min=-lim_y_neg, max=lim_y_pos)
     zero = torch.zeros_like(zs)
-    j0 = torch.stack([fx / zs, zero, -fx * xz / zs], dim=-1)
-    j1 = torch.stack([zero, fy / zs, -fy * yz / zs], dim=-1)
+    j0 = torch.stack([fx / zs, zero, -fx * xzc / zs], dim=-1)
+    j1 = torch.stack([zero, fy / zs, -fy * yzc / zs], dim=-1)
     jac = torch.stack([j0, j1], dim=-2)  # [C, N, 2, 3]
     jw = jac @ rot[:, None]  # [C, N, 2, 3]: J W
     cov3 = covariances3d(quats, scales)  # [N, 3, 3]

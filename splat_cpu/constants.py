@@ -19,6 +19,11 @@ COV2D_BLUR = 0.3
 NEAR = 0.01
 """Gaussians whose camera-space depth z is not greater than NEAR (scene units) are culled."""
 
+FRUSTUM_MARGIN = 0.3
+"""The projection's Jacobian clamps x/z and y/z to the image's extent plus this fraction of the half field of
+view on each side (gsplat's `lim_x`, `lim_y`: 1.3 half fields of view for a centred principal point); beyond it
+the 2D spread of a Gaussian stops growing with its distance from the image, and x, y get no gradient through it."""
+
 TILE = 16
 """Tile edge in pixels for the tiled paths (16 x 16 tiles)."""
 

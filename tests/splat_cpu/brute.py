@@ -2,7 +2,7 @@
 
 Written independently of splat_cpu (own projection, own quaternion formula, a plain loop
 over depth-sorted Gaussians), following the same rules (gsplat classic mode):
-EWA with the Jacobian at the mean, +0.3 px^2 on the 2D diagonal, z > 0.01,
+EWA with the Jacobian at the mean (x/z, y/z in it clamped as gsplat does), +0.3 px^2 on the 2D diagonal, z > 0.01,
 alpha = min(0.999, o exp(-sigma)), skip sigma < 0 or alpha < 1/255, stop a pixel before the
 Gaussian that would bring T to 1e-4 or below, background added as T_final * bg.
 """
@@ -51,8 +51,12 @@ def brute_render(means, quats, scales, opacities, colors, viewmats, Ks, width, h
             if not z > 0.01:
                 continue
             fx, fy, cx, cy = k[0, 0], k[1, 1], k[0, 2], k[1, 2]
-            jac = torch.stack([torch.stack([fx / z, 0 * z, -fx * x / z**2]),
-                               torch.stack([0 * z, fy / z, -fy * y / z**2])])
+            # gsplat's frustum clamp: x/z, y/z inside the Jacobian limited to the image plus 0.3 half fields of view
+            tan_x, tan_y = 0.5 * width / fx, 0.5 * height / fy
+            xj = z * torch.clamp(x / z, min=-(cx / fx + 0.3 * tan_x), max=(width - cx) / fx + 0.3 * tan_x)
+            yj = z * torch.clamp(y / z, min=-(cy / fy + 0.3 * tan_y), max=(height - cy) / fy + 0.3 * tan_y)
+            jac = torch.stack([torch.stack([fx / z, 0 * z, -fx * xj / z**2]),
+                               torch.stack([0 * z, fy / z, -fy * yj / z**2])])
             cov2 = jac @ w2c[:3, :3] @ cov3[i] @ w2c[:3, :3].T @ jac.T + 0.3 * torch.eye(2, dtype=torch.float64)
             if not torch.linalg.det(cov2) > 0:
                 continue

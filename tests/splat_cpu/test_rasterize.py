@@ -113,6 +113,65 @@ def test_gradcheck_tiny_scene(path):
     assert torch.autograd.gradcheck(f, args, eps=1e-6, atol=1e-6, rtol=1e-4, fast_mode=path == "torch")
 
 
+def _beyond_the_frustum(n: int, width: int, height: int, seed: int = 0) -> list[torch.Tensor]:
+    """n Gaussians whose x/z or y/z lies beyond the Jacobian's frustum limits (1.3 half fields of view),
+    wide enough to reach into the image, seen by two cameras (the second turned a little), float64."""
+    g = torch.Generator().manual_seed(seed)
+    f = 0.9 * width
+    z = 2.0 + torch.rand(n, generator=g, dtype=torch.float64)
+    side = torch.where(torch.arange(n) % 2 == 0, 1.0, -1.0).double()
+    beyond = 0.7 + 0.4 * torch.rand(n, generator=g, dtype=torch.float64)  # |offset| / half image: 1.4 .. 2.2
+    inside = 0.6 * torch.rand(n, generator=g, dtype=torch.float64) - 0.3
+    on_x = torch.arange(n) % 3 != 0  # every third one beyond the y limits instead
+    u = torch.where(on_x, side * beyond * width, inside * width)
+    v = torch.where(on_x, inside * height, side * beyond * height)
+    means = torch.stack([u / f * z, v / f * z, z], -1)
+    quats = torch.randn(n, 4, generator=g, dtype=torch.float64)
+    scales = 0.25 + 0.3 * torch.rand(n, 3, generator=g, dtype=torch.float64)
+    opac = 0.3 + 0.5 * torch.rand(n, generator=g, dtype=torch.float64)
+    colors = torch.rand(n, 1, generator=g, dtype=torch.float64)
+    viewmats = torch.eye(4, dtype=torch.float64)[None].repeat(2, 1, 1)
+    viewmats[1, 0, 0], viewmats[1, 0, 2], viewmats[1, 2, 0], viewmats[1, 2, 2] = 0.995, 0.0998, -0.0998, 0.995
+    viewmats[1, :3, 3] = torch.tensor([0.05, -0.03, 0.1], dtype=torch.float64)
+    ks = torch.tensor([[f, 0, width / 2], [0, f, height / 2], [0, 0, 1]], dtype=torch.float64)[None].repeat(2, 1, 1)
+    return [means, quats, scales, opac, colors, viewmats, ks]
+
+
+@pytest.mark.parametrize("path", list(PATHS))
+def test_beyond_the_frustum_limits_matches_brute_force(path):
+    # gsplat's clamp of x/z, y/z in the Jacobian, forward and gradients (zero through the clamped coordinate)
+    width, height = 24, 18
+    inputs = _beyond_the_frustum(12, width, height)
+    bg = torch.tensor([0.3], dtype=torch.float64)
+    gen = torch.Generator().manual_seed(2)
+    cot_img = torch.randn(2, height, width, 1, generator=gen, dtype=torch.float64)
+    cot_alpha = torch.randn(2, height, width, 1, generator=gen, dtype=torch.float64)
+    img, alpha, grads = _grads(PATHS[path], inputs, bg, width, height, cot_img, cot_alpha)
+    img_b, alpha_b, grads_b = _grads(brute_render, inputs, bg, width, height, cot_img, cot_alpha)
+    assert float(alpha_b.detach().amax(dim=(1, 2, 3)).min()) > 0.2  # the clamped Gaussians reach the image
+    _close(img, img_b, 1e-10, "images")
+    _close(alpha, alpha_b, 1e-10, "alphas")
+    for name, gr, gb in zip(NAMES, grads, grads_b):
+        if name != "Ks":
+            _close(gr, gb, 1e-10, f"d/d{name}")
+
+
+@pytest.mark.parametrize("path", list(PATHS))
+def test_gradcheck_beyond_the_frustum_limits(path):
+    means, quats, scales, opac, colors, viewmats, ks = _beyond_the_frustum(4, 10, 8, seed=1)
+    fn = PATHS[path]
+
+    def f(means, quats, scales, top):
+        vm = torch.cat([top, viewmats[:, 3:]], dim=1)
+        img, alpha, _ = fn(means, quats, scales, opac, colors, vm, ks, 10, 8)
+        return img, alpha
+
+    args = [t.clone().requires_grad_() for t in (means, quats, scales, viewmats[:, :3])]
+    _, alpha = f(*args)
+    assert float(alpha.detach().amax(dim=(1, 2, 3)).min()) > 0.2
+    assert torch.autograd.gradcheck(f, args, eps=1e-6, atol=1e-6, rtol=1e-4, fast_mode=path == "torch")
+
+
 def _se3_exp(xi: torch.Tensor) -> torch.Tensor:  # [6] (rho, omega) -> [4, 4]
     m = torch.zeros(4, 4, dtype=xi.dtype)
     w = xi[3:]
