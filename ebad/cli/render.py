@@ -5,26 +5,31 @@ renders go through the sRGB transfer curve), or 16-bit linear intensity ``round(
 with ``--bits 16`` (for measurements; written by ``scenes.images.write_png16``)."""
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated, Literal
 
 import numpy as np
+import tyro
 
 NAME = "render"
 HELP = "render a run's test views, training frames or a smooth camera path as PNGs (8-bit sRGB or 16-bit linear)"
-DESCRIPTION = __doc__
 
 
-def add_arguments(parser) -> None:
-    parser.add_argument("run", help="run folder written by 'ebad reconstruct'")
-    parser.add_argument("--capture", default=None, help="capture whose views to render (needed for --split test)")
-    parser.add_argument("--split", default="test", choices=["test", "train"],
-                        help="test: the capture's test views; train: the training frames at mid-exposure")
-    parser.add_argument("--path", type=int, default=0, metavar="N",
-                        help="instead, N frames along a smooth path through the training cameras")
-    parser.add_argument("--out", required=True, help="folder for the PNGs")
-    parser.add_argument("--bits", type=int, choices=(8, 16), default=8,
-                        help="8 (default): sRGB-encoded 8-bit PNG, shows correctly in any viewer; "
-                             "16: linear intensity round(v * 65535), for measurements")
+@dataclass
+class Args:
+    run: Annotated[tyro.conf.Positional[str], tyro.conf.arg(metavar="RUN")]
+    """run folder written by 'ebad reconstruct'"""
+    out: str
+    """folder for the PNGs"""
+    capture: str | None = None
+    """capture whose views to render (needed for --split test)"""
+    split: Literal["test", "train"] = "test"
+    """test: the capture's test views; train: the training frames at mid-exposure"""
+    path: Annotated[int, tyro.conf.arg(metavar="N")] = 0
+    """instead, N frames along a smooth path through the training cameras"""
+    bits: Literal[8, 16] = 8
+    """8: sRGB-encoded 8-bit PNG, shows correctly in any viewer; 16: linear intensity round(v * 65535) to measure"""
 
 
 def smooth_path(c2w: np.ndarray, n: int) -> np.ndarray:  # [F, 4, 4] -> [n, 4, 4]
@@ -54,7 +59,7 @@ def smooth_path(c2w: np.ndarray, n: int) -> np.ndarray:  # [F, 4, 4] -> [n, 4, 4
     return out
 
 
-def run(args) -> int:
+def run(args: Args) -> int:
     from ..errors import UserError
     from ..export import write_render
     from ..runfolder import load_run

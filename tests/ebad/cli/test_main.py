@@ -21,7 +21,6 @@ def test_os_error_names_the_path(tmp_path, capsys, monkeypatch):
         raise PermissionError(13, "Permission denied", str(tmp_path / "locked"))
 
     monkeypatch.setattr(eval_cmd, "run", fail)
-    monkeypatch.setattr("ebad.cli._commands", lambda: [eval_cmd])
     assert main(["eval", "a", "b"]) == 2
     assert f"{tmp_path / 'locked'}: Permission denied" in capsys.readouterr().err
 
@@ -33,7 +32,6 @@ def test_internal_error_is_not_disguised(monkeypatch, exc):
         raise exc
 
     monkeypatch.setattr(eval_cmd, "run", fail)
-    monkeypatch.setattr("ebad.cli._commands", lambda: [eval_cmd])
     with pytest.raises(type(exc)):
         main(["eval", "a", "b"])
 
