@@ -3,7 +3,8 @@
 Two modes:
 
 * **Fly-through** (default): ``--frames N`` views along a smooth path through the training
-  cameras (Catmull-Rom through the mid-exposure centres, rotations slerped), or the cameras
+  cameras (``render.smooth_path``: a cubic spline through the mid-exposure centres, rotations
+  slerped), or the cameras
   of a nerfstudio-style ``--camera-path camera_path.json`` (``camera_to_world`` 4x4 row-major
   in nerfstudio's OpenGL axes, vertical ``fov`` in degrees, ``render_width`` /
   ``render_height``; poses in the run's world frame).
