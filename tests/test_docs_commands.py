@@ -1,6 +1,6 @@
-"""Every command the README and docs/ show parses: each ``ebad SUBCOMMAND ...`` and ``python -m
-benchmarks.NAME ...`` in backticks is handed to its own argument parser (nothing runs), so a
-renamed or removed option fails here instead of in a user's shell."""
+"""Every command the README and docs/ show parses: each ``ebad SUBCOMMAND ...`` (by ``ebad.cli.parse``,
+tyro's parser of every subcommand) and ``python -m benchmarks.NAME ...`` in backticks is handed to its own
+argument parser (nothing runs), so a renamed or removed option fails here instead of in a user's shell."""
 from __future__ import annotations
 
 import argparse
@@ -56,21 +56,50 @@ def test_the_documents_show_commands():
     assert len(EBAD) >= 5 and len(BENCHMARKS) >= 30
 
 
+def _ebad_parse_error(cmd: str) -> str | None:
+    """Why ``cmd`` (``ebad SUBCOMMAND ...``) does not parse with ``ebad``'s parser, or None when it parses
+    (``--help`` included); ``reconstruct`` also resolves its config (preset, ranges)."""
+    from ebad.cli import parse
+    from ebad.cli.reconstruct import resolve
+    from ebad.errors import EbadError
+
+    try:
+        parsed = parse(shlex.split(cmd)[1:])
+        if parsed.command.NAME == "reconstruct":
+            resolve(parsed.args)
+    except SystemExit as exc:
+        return None if exc.code == 0 else f"exit {exc.code}"
+    except EbadError as exc:
+        return str(exc)
+    return None
+
+
 @pytest.mark.parametrize("doc, cmd", EBAD, ids=[c for _, c in EBAD])
 def test_ebad_command_parses(doc, cmd, capsys):
-    from ebad.cli import build_parser
-    from ebad.cli.reconstruct import parse
+    error = _ebad_parse_error(cmd)
+    assert error is None, f"{doc}: `{cmd}` does not parse: {error} {capsys.readouterr().err.strip()}"
 
-    argv = shlex.split(cmd)[1:]
-    try:
-        if argv[0] == "reconstruct":  # its own front parser and tyro's generated options
-            parse(argv[1:])
-        else:
-            build_parser().parse_args(argv)
-    except SystemExit as exc:
-        if exc.code == 0:  # --help
-            return
-        pytest.fail(f"{doc}: `{cmd}` does not parse (exit {exc.code}): {capsys.readouterr().err.strip()}")
+
+def _misspelt(cmd: str) -> str | None:
+    """``cmd`` with its first ``--option`` misspelt (two letters swapped) and without ``--help`` (which
+    would print the help before the parser looks further), or None if it has no option."""
+    words = [w for w in cmd.split() if w not in ("--help", "-h")]
+    i = next((i for i, w in enumerate(words) if w.startswith("--") and len(w) > 4), None)
+    if i is None:
+        return None
+    w = words[i]
+    words[i] = w[:2] + w[3] + w[2] + w[4:]
+    return " ".join(words)
+
+
+@pytest.mark.parametrize("doc, cmd", EBAD, ids=[c for _, c in EBAD])
+def test_a_misspelt_option_fails(doc, cmd):
+    # the check above can fail: the same command with one option misspelt does not parse
+    bad = _misspelt(cmd)
+    if bad is None:
+        pytest.skip(f"`{cmd}` has no --option to misspell")
+    error = _ebad_parse_error(bad)
+    assert error is not None, bad
 
 
 @pytest.mark.parametrize("doc, cmd", BENCHMARKS, ids=[c for _, c in BENCHMARKS])

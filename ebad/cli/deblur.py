@@ -3,60 +3,56 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated, Literal
 
 import numpy as np
+import tyro
 
 from ..errors import UserError
 
 NAME = "deblur"
 HELP = "deblur frames with their events (EDI or mEDI): sharp frames, sharp instants, side-by-side images"
-DESCRIPTION = """Deblur APS frames with the events of their exposures (Event-based Double Integral).
-
-INPUT is one of
-  * a capture folder (ebad-capture/1, with capture.json),
-  * an AEDAT4 recording (.aedat4): its frames and events,
-  * a frame image (.png ...) with --events FILE and, optionally, --exposure T0 T1 (seconds
-    on the events' clock; default: the span of the events, as for the ni-joint data).
-
-Writes DIR/sharp/NAME.png (mid-exposure), DIR/instants/NAME_KK.png (with --times N: N
-instants per exposure at the centres of N equal sub-intervals), DIR/side_by_side/NAME.png
-(blurry | sharp) and DIR/c.json (the contrast thresholds used, per frame, and how they were
-found). PNG values are linear intensity; the sharp frames and instants are 16-bit (``--bits
-8`` for 8-bit), the side-by-side images 8-bit.
-
-The contrast threshold is estimated unless --c is given: jointly from consecutive frames when
-there are two or more (c_pos and c_neg), else from the one frame (brightness constancy of the
-latent video). When that estimate has no interior minimum the command says so: give --c
-(DAVIS sensors: 0.1 to 0.5) or more frames. The frames are taken as linear unless --gamma G
-says recorded = irradiance ** G (they are linearised for EDI and the output mapped back);
-with linear frames assumed on a non-linear camera the estimated c is in the frames' units
-(about G x c), which deblurs those frames as well as the true c and response do (measured in
-benchmarks/calibration.py) but is not the events' threshold: the frames and events do not
-tell G apart from c, so give --gamma for c in the events' units. --medi solves all frames
-jointly (mEDI: each pixel's log intensities follow the events between frames; saturated
-pixels are carried by their neighbours in time)."""
 
 _IMAGE_EXT = {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".pgm", ".npy"}
 
 
-def add_arguments(p) -> None:
-    p.add_argument("input", help="capture folder, .aedat4 file, or a frame image (with --events)")
-    p.add_argument("--out", required=True, help="output folder (created)")
-    p.add_argument("--c", default="auto", help="contrast threshold: 'auto' (estimated), a float, or 'c_pos,c_neg'")
-    p.add_argument("--gamma", default="1",
-                   help="the frames' response, recorded = irradiance ** GAMMA (default 1: linear)")
-    p.add_argument("--medi", action="store_true",
-                   help="solve all frames jointly (mEDI; needs two or more frames) instead of one by one")
-    p.add_argument("--times", type=int, default=0, metavar="N", help="also write N sharp instants per exposure")
-    p.add_argument("--events", help="event file for a frame image (.npz, .h5, .txt, .mat, .aedat4)")
-    p.add_argument("--exposure", type=float, nargs=2, metavar=("T0", "T1"), help="exposure of a frame image, seconds")
-    p.add_argument("--t-unit", choices=["s", "ms", "us", "ns"],
-                   help="time unit of --events (default: inferred from the timestamps' magnitude and span)")
-    p.add_argument("--max-frames", type=int, default=0, help="deblur only the first N frames (0: all)")
-    p.add_argument("--skip-sharp", action="store_true", help="skip frames without events or with t_start == t_end")
-    p.add_argument("--bits", type=int, choices=(8, 16), default=16,
-                   help="bit depth of the sharp frames and instants (default 16; side-by-side images are 8-bit)")
+@dataclass
+class Args:
+    input: Annotated[tyro.conf.Positional[str], tyro.conf.arg(metavar="INPUT")]
+    ("a capture folder (ebad-capture/1, with capture.json), an AEDAT4 recording (.aedat4: its frames and events), "
+     "or a frame image (.png ...) with --events FILE and, optionally, --exposure T0 T1")
+    out: str
+    ("output folder (created): sharp/NAME.png (mid-exposure), instants/NAME_KK.png (with --times), "
+     "side_by_side/NAME.png (blurry | sharp), c.json (the contrast thresholds used, per frame, and how they were "
+     "found); PNG values are linear intensity")
+    c: str = "auto"
+    ("contrast threshold: a float, 'c_pos,c_neg', or 'auto': estimated jointly from consecutive frames when there "
+     "are two or more (c_pos and c_neg), else from the one frame (brightness constancy of the latent video); when "
+     "that estimate has no interior minimum the command says so: give --c (DAVIS sensors: 0.1 to 0.5) or more frames")
+    gamma: str = "1"
+    ("the frames' response, recorded = irradiance ** GAMMA (1: linear); the frames are linearised for EDI and the "
+     "output mapped back. With linear frames assumed on a non-linear camera the estimated c is in the frames' units "
+     "(about G x c): it deblurs those frames as well as the true c and response do, but is not the events' "
+     "threshold (the frames and events do not tell G apart from c); give --gamma for c in the events' units")
+    medi: bool = False
+    ("solve all frames jointly (mEDI, two or more frames: each pixel's log intensities follow the events between "
+     "frames; saturated pixels are carried by their neighbours in time) instead of one by one")
+    times: Annotated[int, tyro.conf.arg(metavar="N")] = 0
+    """also write N sharp instants per exposure, at the centres of N equal sub-intervals"""
+    events: Annotated[str | None, tyro.conf.arg(metavar="FILE")] = None
+    """event file for a frame image (.npz, .h5, .txt, .mat, .aedat4)"""
+    exposure: Annotated[tuple[float, float] | None, tyro.conf.arg(metavar="T0 T1")] = None
+    """exposure of a frame image, seconds on the events' clock (None: the span of the events, as for ni-joint data)"""
+    t_unit: Literal["s", "ms", "us", "ns"] | None = None
+    """time unit of --events (None: inferred from the timestamps' magnitude and span)"""
+    max_frames: Annotated[int, tyro.conf.arg(metavar="N")] = 0
+    """deblur only the first N frames (0: all)"""
+    skip_sharp: bool = False
+    """skip frames without events or with t_start == t_end"""
+    bits: Literal[8, 16] = 16
+    """bit depth of the sharp frames and instants (side-by-side images are 8-bit)"""
 
 
 def _parse_c(s: str):
@@ -187,11 +183,12 @@ def _say_unreliable(rep, where: str) -> None:
         print(f"ebad deblur: warning: {where}: {rep.message}")
 
 
-def run(args) -> int:
+def run(args: Args) -> int:
     import logging
 
-    import edi
     from tqdm import tqdm
+
+    import edi
 
     # estimate_c logs a warning when its estimate is unreliable; this command prints that
     # message itself (with what to do), so the library's copy would repeat it

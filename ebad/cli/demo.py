@@ -5,7 +5,9 @@ from __future__ import annotations
 
 import json
 import time
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 
@@ -15,18 +17,26 @@ HELP = "reconstruct a synthetic blurry scene with ebad and with 3dgs, and compar
 METHODS = (("3dgs", "3dgs (blurry frames)"), ("ebad", "ebad (EBAD-Gaussian)"))
 
 
-def add_arguments(parser) -> None:
-    parser.add_argument("--out", default="ebad_demo", help="output folder (default ./ebad_demo)")
-    parser.add_argument("--scene", default="boxes", help="synthetic scene name (default boxes)")
-    parser.add_argument("--size", default="small", choices=["tiny", "small", "davis"],
-                        help="frame size: tiny 64x48, small 160x120 (default), davis 346x260")
-    parser.add_argument("--sensor", default="realistic", choices=["realistic", "ideal"],
-                        help="the simulated camera (default realistic: non-linear APS, noisy thresholds and poses)")
-    parser.add_argument("--rgb", action="store_true", help="a colour scene (default grey, like a DAVIS346)")
-    parser.add_argument("--seconds", type=float, default=50.0, help="training time per method (default 50)")
-    parser.add_argument("--iters", type=int, default=100_000, help="at most this many steps per method")
-    parser.add_argument("--seed", type=int, default=0, help="scene seed")
-    parser.add_argument("--no-progress", action="store_true", help="no progress bars")
+@dataclass
+class Args:
+    out: str = "ebad_demo"
+    """output folder"""
+    scene: str = "boxes"
+    """synthetic scene name"""
+    size: Literal["tiny", "small", "davis"] = "small"
+    """frame size: tiny 64x48, small 160x120, davis 346x260"""
+    sensor: Literal["realistic", "ideal"] = "realistic"
+    """the simulated camera (realistic: non-linear APS, noisy thresholds and poses)"""
+    rgb: bool = False
+    """a colour scene instead of grey (a DAVIS346 records grey)"""
+    seconds: float = 50.0
+    """training time per method"""
+    iters: int = 100_000
+    """at most this many steps per method"""
+    seed: int = 0
+    """scene seed"""
+    no_progress: bool = False
+    """no progress bars"""
 
 
 def _upscale(img: np.ndarray, k: int) -> np.ndarray:
@@ -49,7 +59,7 @@ def comparison_image(rows: list[list[np.ndarray]], k: int = 4, gap: int = 2) -> 
     return (np.concatenate(out_rows[:-1], 0) * 255 + 0.5).astype(np.uint8)
 
 
-def run(args) -> int:
+def run(args: Args) -> int:
     from PIL import Image
 
     import scenes

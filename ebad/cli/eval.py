@@ -5,27 +5,36 @@ The protocol (which poses, refinement, metric conventions) is ``ebad.evaluate``'
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated
+
+import tyro
 
 NAME = "eval"
 HELP = "PSNR/SSIM of a run on the capture's test views (optionally pose-refined) and deblurred frames"
 
 
-def add_arguments(parser) -> None:
-    parser.add_argument("run", help="run folder written by 'ebad reconstruct'")
-    parser.add_argument("capture", help="the capture (its test views carry the images)")
-    parser.add_argument("--refine-poses", action="store_true",
-                        help="also refine each test pose against its image with the scene frozen, until the loss "
-                             "stops improving (BAD-Gaussians / EBAD-NeRF protocol); scores before and after")
-    parser.add_argument("--refine-iters", type=int, default=300, help="at most this many Adam steps per test pose")
-    parser.add_argument("--renders", default=None, help="write each test render (refined when refining) here, "
-                                                         "one 16-bit linear PNG per view, named by the view")
-    parser.add_argument("--gt", default=None,
-                        help="ground-truth folder with gt.json (default: CAPTURE/../gt when present)")
-    parser.add_argument("--out", default=None, help="write the results as JSON here (default RUN/eval.json)")
+@dataclass
+class Args:
+    run: Annotated[tyro.conf.Positional[str], tyro.conf.arg(metavar="RUN")]
+    """run folder written by 'ebad reconstruct'"""
+    capture: Annotated[tyro.conf.Positional[str], tyro.conf.arg(metavar="CAPTURE")]
+    """the capture (its test views carry the images)"""
+    refine_poses: bool = False
+    ("also refine each test pose against its image with the scene frozen, until the loss stops improving "
+     "(BAD-Gaussians / EBAD-NeRF protocol); scores before and after")
+    refine_iters: int = 300
+    """at most this many Adam steps per test pose"""
+    renders: str | None = None
+    """write each test render (refined when refining) here, one 16-bit linear PNG per view, named by the view"""
+    gt: str | None = None
+    """ground-truth folder with gt.json (None: CAPTURE/../gt when present)"""
+    out: str | None = None
+    """write the results as JSON here (None: RUN/eval.json)"""
 
 
-def run(args) -> int:
+def run(args: Args) -> int:
     import scenes
 
     from ..errors import UserError

@@ -9,60 +9,89 @@ evaluation and checkpoint intervals) and refuses the others, naming them.
 """
 from __future__ import annotations
 
-import argparse
 import sys
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Annotated, Literal
+
+import tyro
+
+from ..config import PRESETS, Config
 
 NAME = "reconstruct"
 HELP = "reconstruct a sharp 3D Gaussian scene and camera trajectories from a capture"
 
 
-def _front_parser():
-    from ..config import PRESETS
+@dataclass
+class Args:
+    capture: Annotated[tyro.conf.Positional[str], tyro.conf.arg(metavar="CAPTURE")]
+    """capture folder or file (any layout scenes.load reads)"""
+    out: str
+    """run folder to write"""
+    preset: Literal[tuple(sorted(PRESETS))] | None = None  # type: ignore[valid-type]
+    ("the method whose settings are the defaults of the options below (None: ebad, or the resumed run's); "
+     "with --help, the defaults shown are this preset's")
+    config: Annotated[str | None, tyro.conf.arg(metavar="JSON")] = None
+    """a config.json to start from instead of the preset"""
+    resume: bool = False
+    ("continue the run folder's checkpoint; only the iterations, time budget, progress, evaluation and checkpoint "
+     "intervals can change (ebad.config.RESUMABLE_FIELDS)")
+    no_progress: bool = False
+    """no progress bar (same as --train.progress False)"""
+    settings: Annotated[Config, tyro.conf.arg(name=""), tyro.conf.FlagConversionOff] = field(default_factory=Config)
+    """the reconstruction settings (ebad.config.Config), one option per field"""
 
-    p = argparse.ArgumentParser(prog="ebad reconstruct", add_help=False,
-                                description=HELP + ". Every config field below is an option as well.")
-    p.add_argument("capture", nargs="?", help="capture folder or file (any layout scenes.load reads)")
-    p.add_argument("--out", help="run folder to write (required)")
-    p.add_argument("--preset", default=None, choices=sorted(PRESETS), help="method (default ebad)")
-    p.add_argument("--config", default=None, help="a config.json to start from instead of the preset")
-    p.add_argument("--resume", action="store_true", help="continue the run folder's checkpoint")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar (same as --train.progress False)")
-    p.add_argument("-h", "--help", action="store_true", help="show this help and the config options")
-    return p
+
+def _value(argv: list[str], option: str) -> str | None:
+    """The last value given to ``option`` (``--option V`` or ``--option=V``), else None."""
+    found = None
+    for i, a in enumerate(argv):
+        if a == option and i + 1 < len(argv):
+            found = argv[i + 1]
+        elif a.startswith(option + "="):
+            found = a.split("=", 1)[1]
+    return found
 
 
-def parse(argv: list[str]):
-    """(front arguments, resolved Config, changes applied on resume) from the command line."""
-    import tyro
+def _base(config: str | None, preset_name: str | None, saved: Config | None) -> Config:
+    """The config the options start from: --config, else --preset, else the resumed run's, else ebad's."""
+    from ..config import load_config, preset
 
-    from ..config import RESUMABLE_FIELDS, config_diff, load_config, preset
+    if config:
+        return load_config(config)
+    if preset_name:
+        return preset(preset_name)
+    return saved if saved is not None else preset("ebad")
+
+
+def _saved(out: str | None, resume: bool) -> Config | None:
+    """The config of the run being resumed (OUT/config.json), when there is one."""
+    from ..config import load_config
+
+    if resume and out is not None and (Path(out) / "config.json").exists():
+        return load_config(Path(out) / "config.json")
+    return None
+
+
+def default_args(argv: list[str]) -> Args:
+    """The defaults of the options, read from the command line before tyro parses it: the generated
+    config options default to the settings of --config, --preset, or the run being resumed."""
+    resume = "--resume" in argv
+    base = _base(_value(argv, "--config"), _value(argv, "--preset"), _saved(_value(argv, "--out"), resume))
+    return Args(capture=tyro.MISSING, out=tyro.MISSING, settings=base)
+
+
+def resolve(args: Args) -> tuple[Config, dict]:
+    """(the checked Config, the changes applied on resume) of parsed arguments."""
+    from ..config import RESUMABLE_FIELDS, config_diff
     from ..errors import ConfigError
 
-    front = _front_parser()
-    args, rest = front.parse_known_args(argv)
-    out = Path(args.out) if args.out else None
-    saved = None
-    if args.resume and out is not None and (out / "config.json").exists():
-        saved = load_config(out / "config.json")
-    if args.config:
-        base = load_config(args.config)
-    elif args.preset:
-        base = preset(args.preset)
-    else:
-        base = saved if saved is not None else preset("ebad")
-    if args.help:
-        front.print_help()
-        print()
-        rest = ["--help"]
+    cfg = args.settings
     if args.no_progress:
-        rest = rest + ["--train.progress", "False"]
-    cfg = tyro.cli(type(base), default=base, args=rest, prog="ebad reconstruct", use_underscores=True,
-                   config=(tyro.conf.FlagConversionOff,))
-    if args.capture is None or out is None:
-        front.error("the capture and --out are required")
+        cfg.train.progress = False
     cfg.check()
+    saved = _saved(args.out, args.resume)
     applied = {}
     if saved is not None:
         diff = config_diff(saved, cfg)
@@ -72,10 +101,19 @@ def parse(argv: list[str]):
             raise ConfigError(f"--resume cannot change {what}: they change what is being optimised; start a new "
                               f"run folder instead (only {', '.join(sorted(RESUMABLE_FIELDS))} can change on resume)")
         applied = diff
+    return cfg, applied
+
+
+def parse(argv: list[str]) -> tuple[Args, Config, dict]:
+    """(arguments, resolved Config, changes applied on resume) from the words after ``ebad reconstruct``."""
+    from . import parse as parse_command_line
+
+    args = parse_command_line([NAME, *argv]).args
+    cfg, applied = resolve(args)
     return args, cfg, applied
 
 
-def main(argv: list[str]) -> int:
+def run(args: Args) -> int:
     import scenes
 
     from ..config import save_config
@@ -84,7 +122,7 @@ def main(argv: list[str]) -> int:
     from ..state import capture_fingerprint, read_checkpoint
     from ..trainer import reconstruct
 
-    args, cfg, applied = parse(argv)
+    cfg, applied = resolve(args)
     out = Path(args.out)
     check_out_dir(out)
     ckpt = out / "checkpoints" / "last.pt"

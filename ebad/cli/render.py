@@ -5,56 +5,58 @@ renders go through the sRGB transfer curve), or 16-bit linear intensity ``round(
 with ``--bits 16`` (for measurements; written by ``scenes.images.write_png16``)."""
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated, Literal
 
 import numpy as np
+import tyro
 
 NAME = "render"
 HELP = "render a run's test views, training frames or a smooth camera path as PNGs (8-bit sRGB or 16-bit linear)"
-DESCRIPTION = __doc__
 
 
-def add_arguments(parser) -> None:
-    parser.add_argument("run", help="run folder written by 'ebad reconstruct'")
-    parser.add_argument("--capture", default=None, help="capture whose views to render (needed for --split test)")
-    parser.add_argument("--split", default="test", choices=["test", "train"],
-                        help="test: the capture's test views; train: the training frames at mid-exposure")
-    parser.add_argument("--path", type=int, default=0, metavar="N",
-                        help="instead, N frames along a smooth path through the training cameras")
-    parser.add_argument("--out", required=True, help="folder for the PNGs")
-    parser.add_argument("--bits", type=int, choices=(8, 16), default=8,
-                        help="8 (default): sRGB-encoded 8-bit PNG, shows correctly in any viewer; "
-                             "16: linear intensity round(v * 65535), for measurements")
+@dataclass
+class Args:
+    run: Annotated[tyro.conf.Positional[str], tyro.conf.arg(metavar="RUN")]
+    """run folder written by 'ebad reconstruct'"""
+    out: str
+    """folder for the PNGs"""
+    capture: str | None = None
+    """capture whose views to render (needed for --split test)"""
+    split: Literal["test", "train"] = "test"
+    """test: the capture's test views; train: the training frames at mid-exposure"""
+    path: Annotated[int, tyro.conf.arg(metavar="N")] = 0
+    """instead, N frames along a smooth path through the training cameras"""
+    bits: Literal[8, 16] = 8
+    """8: sRGB-encoded 8-bit PNG, shows correctly in any viewer; 16: linear intensity round(v * 65535) to measure"""
 
 
 def smooth_path(c2w: np.ndarray, n: int) -> np.ndarray:  # [F, 4, 4] -> [n, 4, 4]
-    """Catmull-Rom through the camera centres (ordered as given); rotations slerped between
-    neighbours through so(3)."""
-    import torch
+    """n camera-to-world poses along a smooth path through the cameras ``c2w`` (in the order given),
+    at uniform steps of the camera index s in [0, F - 1]; camera k is passed at s = k.
 
-    from ..lie import so3_exp, so3_log
+    Centres: a cubic spline (``scipy.interpolate.CubicSpline``, not-a-knot ends: twice continuously
+    differentiable, and cameras on a line at constant spacing give a straight path at constant speed;
+    two cameras: the straight line, three: a parabola). Rotations: slerp between neighbouring cameras
+    (``scipy.spatial.transform.Slerp``: the geodesic, at constant angular speed within each step)."""
+    from scipy.interpolate import CubicSpline
+    from scipy.spatial.transform import Rotation, Slerp
 
+    c2w = np.asarray(c2w, dtype=np.float64)
     F = len(c2w)
     if F == 1:
         return np.repeat(c2w, n, 0)
+    knots = np.arange(F, dtype=np.float64)
     s = np.linspace(0, F - 1, n)
     out = np.zeros((n, 4, 4))
-    P = c2w[:, :3, 3]
-    for j, sj in enumerate(s):
-        i = min(int(np.floor(sj)), F - 2)
-        u = sj - i
-        p0, p1, p2, p3 = P[max(i - 1, 0)], P[i], P[i + 1], P[min(i + 2, F - 1)]
-        pos = 0.5 * ((2 * p1) + (-p0 + p2) * u + (2 * p0 - 5 * p1 + 4 * p2 - p3) * u ** 2 + (-p0 + 3 * p1 - 3 * p2 + p3) * u ** 3)
-        R0 = torch.tensor(c2w[i, :3, :3])
-        R1 = torch.tensor(c2w[i + 1, :3, :3])
-        R = (R0 @ so3_exp(u * so3_log(R0.T @ R1))).numpy()
-        out[j, :3, :3] = R
-        out[j, :3, 3] = pos
-        out[j, 3, 3] = 1
+    out[:, :3, 3] = CubicSpline(knots, c2w[:, :3, 3], axis=0)(s)
+    out[:, :3, :3] = Slerp(knots, Rotation.from_matrix(c2w[:, :3, :3]))(s).as_matrix()
+    out[:, 3, 3] = 1
     return out
 
 
-def run(args) -> int:
+def run(args: Args) -> int:
     from ..errors import UserError
     from ..export import write_render
     from ..runfolder import load_run

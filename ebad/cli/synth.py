@@ -2,47 +2,67 @@
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
+from typing import Annotated, Literal
+
+import tyro
 
 NAME = "synth"
 HELP = "build a synthetic blurry event capture (capture/ for training, gt/ for evaluation)"
 
 
-def add_arguments(parser) -> None:
-    from scenes.synth import SCENES, SENSORS, SIZES
-
-    parser.add_argument("name", choices=sorted(SCENES), help="scene to build")
-    parser.add_argument("--out", required=True, help="output folder (gets capture/ and gt/)")
-    parser.add_argument("--size", choices=sorted(SIZES), default="tiny", help="image size (default tiny, 64x48)")
-    parser.add_argument("--seed", type=int, default=0, help="random seed (shake, tremor, thresholds, noise, pose errors)")
-    parser.add_argument("--rgb", action="store_true", help="colour frames (default grey)")
-    parser.add_argument("--sensor", choices=sorted(SENSORS), default="realistic",
-                        help="camera model: realistic (default: non-linear saturating APS with read noise, "
-                             "c_pos != c_neg, noise events, hand tremor, noisy poses) or ideal (linear APS, "
-                             "symmetric thresholds, constant-velocity shake, exact poses)")
-    parser.add_argument("--poses", choices=["exact", "noisy", "none"], default=None,
-                        help="poses given with the capture (default: the sensor's; realistic: noisy, ideal: exact)")
-    parser.add_argument("--noise-hz", type=float, default=None, help="shot-noise events per pixel per second "
-                                                                     "(default: the sensor's)")
-    parser.add_argument("--c", type=float, nargs="+", default=None, metavar="C",
-                        help="contrast threshold (log units): one value, or two for c_pos c_neg "
-                             "(default: the sensor's; realistic 0.24 0.18, ideal 0.2)")
-    parser.add_argument("--shake", type=float, default=1.0, help="camera shake scale (0: no shake)")
-    parser.add_argument("--tremor", type=float, default=None,
-                        help="accelerating hand-tremor strength (default: the sensor's; realistic 1, ideal 0)")
-    parser.add_argument("--frames", type=int, default=None, help="number of training frames (default 10)")
-    parser.add_argument("--test-views", type=int, default=None, help="number of held-out views (default 3)")
-    parser.add_argument("--exposure", type=float, default=None, help="exposure in seconds (default 0.05)")
-    parser.add_argument("--sharp-fraction", type=float, default=0.0, help="fraction of frames without shake")
-    parser.add_argument("--overwrite", action="store_true", help="replace an existing output folder")
+# the registries of scenes.synth (SCENES, SIZES, SENSORS), written out so that ``ebad --help`` does not import
+# the scene builder; tests/ebad/cli/test_synth.py checks that they agree
+SceneName = Literal["boxes", "spheres"]
+SizeName = Literal["davis", "small", "tiny"]
+SensorName = Literal["ideal", "realistic"]
 
 
-def run(args) -> int:
+@dataclass
+class Args:
+    name: Annotated[tyro.conf.Positional[SceneName], tyro.conf.arg(metavar="NAME")]
+    """scene to build (boxes, spheres)"""
+    out: str
+    """output folder (gets capture/ and gt/)"""
+    size: SizeName = "tiny"
+    """image size (tiny 64x48, small 160x120, davis 346x260)"""
+    seed: int = 0
+    """random seed (shake, tremor, thresholds, noise, pose errors)"""
+    rgb: bool = False
+    """colour frames instead of grey"""
+    sensor: SensorName = "realistic"
+    ("camera model: realistic (non-linear saturating APS with read noise, c_pos != c_neg, noise events, hand "
+     "tremor, noisy poses) or ideal (linear APS, symmetric thresholds, constant-velocity shake, exact poses)")
+    poses: Literal["exact", "noisy", "none"] | None = None
+    """poses given with the capture (None: the sensor's; realistic: noisy, ideal: exact)"""
+    noise_hz: float | None = None
+    """shot-noise events per pixel per second (None: the sensor's)"""
+    c: Annotated[tuple[float, ...] | None, tyro.conf.arg(metavar="C [C]")] = None
+    ("contrast threshold (log units): one value, or two for c_pos c_neg (None: the sensor's; realistic 0.24 0.18, "
+     "ideal 0.2)")
+    shake: float = 1.0
+    """camera shake scale (0: no shake)"""
+    tremor: float | None = None
+    """accelerating hand-tremor strength (None: the sensor's; realistic 1, ideal 0)"""
+    frames: int | None = None
+    """number of training frames (None: 10)"""
+    test_views: int | None = None
+    """number of held-out views (None: 3)"""
+    exposure: float | None = None
+    """exposure in seconds (None: 0.05)"""
+    sharp_fraction: float = 0.0
+    """fraction of frames without shake"""
+    overwrite: bool = False
+    """replace an existing output folder"""
+
+
+def run(args: Args) -> int:
     from ebad.errors import UserError
     from scenes.synth import make_scene, write_scene
 
     c = args.c
     if c is not None:
-        if len(c) > 2:
+        if len(c) not in (1, 2):
             raise UserError(f"--c takes one value or two (c_pos c_neg), got {len(c)}")
         c = c[0] if len(c) == 1 else (c[0], c[1])
     t0 = time.perf_counter()

@@ -3,7 +3,8 @@
 Two modes:
 
 * **Fly-through** (default): ``--frames N`` views along a smooth path through the training
-  cameras (Catmull-Rom through the mid-exposure centres, rotations slerped), or the cameras
+  cameras (``render.smooth_path``: a cubic spline through the mid-exposure centres, rotations
+  slerped), or the cameras
   of a nerfstudio-style ``--camera-path camera_path.json`` (``camera_to_world`` 4x4 row-major
   in nerfstudio's OpenGL axes, vertical ``fov`` in degrees, ``render_width`` /
   ``render_height``; poses in the run's world frame).
@@ -23,15 +24,17 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated
 
 import numpy as np
+import tyro
 
 from ..errors import UserError
 
 NAME = "video"
 HELP = "a video (mp4, GIF or PNGs) along a camera path, or the sharp video of one blurry exposure"
-DESCRIPTION = __doc__
 
 DEFAULT_FRAMES = 60
 DEFAULT_FPS_PATH = 30.0
@@ -45,22 +48,30 @@ _INSTALL_VIDEO = "pip install imageio-ffmpeg (or the 'video' extra)"
 _GL_TO_CV = np.diag([1.0, -1.0, -1.0, 1.0])
 
 
-def add_arguments(p) -> None:
-    p.add_argument("run", help="run folder written by 'ebad reconstruct'")
-    p.add_argument("--out", required=True,
-                   help="FILE.mp4 (needs imageio-ffmpeg), FILE.gif, or a folder for a PNG sequence")
-    p.add_argument("--frames", type=int, default=DEFAULT_FRAMES, help="frames along the smooth training-camera path")
-    p.add_argument("--camera-path", default=None, metavar="JSON",
-                   help="nerfstudio-style camera_path.json to follow instead of the smooth path")
-    p.add_argument("--exposure", default=None, metavar="NAME",
-                   help="instead: the sharp video of this training frame's exposure")
-    p.add_argument("--instants", type=int, default=DEFAULT_INSTANTS,
-                   help="with --exposure: instants rendered inside the exposure")
-    p.add_argument("--capture", default=None,
-                   help="with --exposure: the capture, to show the blurry frame and EDI's latents beside the renders")
-    p.add_argument("--fps", type=float, default=None,
-                   help=f"frames per second (default {DEFAULT_FPS_PATH:g}; {DEFAULT_FPS_EXPOSURE:g} with --exposure)")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+@dataclass
+class Args:
+    run: Annotated[tyro.conf.Positional[str], tyro.conf.arg(metavar="RUN")]
+    """run folder written by 'ebad reconstruct'"""
+    out: str
+    ("FILE.mp4 (H.264, needs imageio-ffmpeg), FILE.gif, or a folder (no suffix) for a PNG sequence; frames are "
+     "8-bit sRGB-encoded from the linear renders")
+    frames: int = DEFAULT_FRAMES
+    """frames along a smooth path through the training cameras (their mid-exposure poses)"""
+    camera_path: Annotated[str | None, tyro.conf.arg(metavar="JSON")] = None
+    ("a nerfstudio-style camera_path.json to follow instead of the smooth path (camera_to_world 4x4 row-major in "
+     "nerfstudio's OpenGL axes, vertical fov in degrees, render_width / render_height; poses in the run's frame)")
+    exposure: Annotated[str | None, tyro.conf.arg(metavar="NAME")] = None
+    ("instead: the sharp video of this training frame's exposure, its recovered trajectory rendered at the centres "
+     "of --instants equal sub-intervals")
+    instants: int = DEFAULT_INSTANTS
+    """with --exposure: instants rendered inside the exposure"""
+    capture: str | None = None
+    ("with --exposure: the capture; each video frame is then the blurry frame | EDI's latent at the same instant "
+     "(the run's contrast threshold, else one estimated from the capture) | the render")
+    fps: float | None = None
+    """frames per second (None: 30; 10 with --exposure)"""
+    no_progress: bool = False
+    """no progress bar"""
 
 
 # --------------------------------------------------------------------------- writing
@@ -238,7 +249,7 @@ def exposure_frames(run, name: str, instants: int, capture=None,
     return panels, f"blurry | EDI latent (c_pos {c[0]:.3f}, c_neg {c[1]:.3f}) | render, at the same instants"
 
 
-def run(args) -> int:
+def run(args: Args) -> int:
     from ..export import to_display8
     from ..runfolder import load_run
 

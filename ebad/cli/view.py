@@ -17,14 +17,16 @@ sees the scene). Needs ``viser``: ``pip install viser`` (or the ``view`` extra).
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
+from typing import Annotated
 
 import numpy as np
+import tyro
 
 from ..errors import UserError
 
 NAME = "view"
 HELP = "interactive 3D viewer of a run in the browser (viser): Gaussians, cameras, exposure trajectories"
-DESCRIPTION = __doc__
 
 DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 8080
@@ -38,13 +40,18 @@ TRAJECTORY_COLOR = (220, 40, 40)
 TEST_COLOR = (30, 170, 60)
 
 
-def add_arguments(p) -> None:
-    p.add_argument("run", help="run folder written by 'ebad reconstruct'")
-    p.add_argument("--capture", default=None, help="capture whose test views to show")
-    p.add_argument("--host", default=DEFAULT_HOST,
-                   help=f"interface to listen on (default {DEFAULT_HOST}: this machine only; reach it over "
-                        "SSH with 'ssh -L 8080:localhost:8080 HOST'; 0.0.0.0: every interface)")
-    p.add_argument("--port", type=int, default=DEFAULT_PORT, help=f"port (default {DEFAULT_PORT})")
+@dataclass
+class Args:
+    run: Annotated[tyro.conf.Positional[str], tyro.conf.arg(metavar="RUN")]
+    """run folder written by 'ebad reconstruct'"""
+    capture: str | None = None
+    """capture whose test views to show"""
+    host: str = DEFAULT_HOST
+    ("interface to listen on (127.0.0.1: this machine only; from another computer, forward the port with "
+     "'ssh -L 8080:localhost:8080 HOST' and open http://localhost:8080 there; 0.0.0.0: every interface, anyone who "
+     "can reach the port sees the scene)")
+    port: int = DEFAULT_PORT
+    """port"""
 
 
 def import_viser():
@@ -131,7 +138,7 @@ def serve(run, host: str = DEFAULT_HOST, port: int = DEFAULT_PORT, test_views=()
     return server, build_scene(server, run, test_views)
 
 
-def run(args) -> int:
+def run(args: Args) -> int:
     from ..runfolder import load_run
 
     import_viser()  # fail before loading anything

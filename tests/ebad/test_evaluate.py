@@ -58,18 +58,6 @@ def test_test_poses_in_another_frame_are_aligned_by_sim3(tiny_run):
     assert all(np.allclose(poses[v.name], v.c2w) for v in cap.test_views)
 
 
-def test_eval_cli_reports_before_and_after_and_writes_renders(tiny_run, tmp_path, capsys):
-    out = tmp_path / "renders"
-    assert main(["eval", str(tiny_run.run), str(tiny_run.capture), "--refine-poses", "--refine-iters", "30",
-                 "--renders", str(out), "--out", str(tmp_path / "e.json")]) == 0
-    text = capsys.readouterr().out
-    assert "test views, poses refined" in text and "deblurred training frames" in text
-    res = json.loads((tmp_path / "e.json").read_text())
-    assert res["test_refined"]["psnr"] >= res["test"]["psnr"] - 1e-6  # the best pose seen is kept
-    assert set(res["refine_steps"]) == set(res["poses"]) and max(res["refine_steps"].values()) <= 30
-    assert sorted(p.stem for p in out.glob("*.png")) == sorted(res["poses"])
-
-
 @pytest.mark.slow
 def test_a_capture_without_poses_runs_and_evaluates_end_to_end(tmp_path, capsys):
     """SfM poses the frames and registers the test images; the run keeps their poses by name, and

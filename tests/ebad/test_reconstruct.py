@@ -1,8 +1,6 @@
-"""End-to-end: a short reconstruction on the tiny synthetic scene, the skip rules, and the
-command line (reconstruct with --resume, render, eval) on a written capture."""
+"""End-to-end: a short reconstruction on the tiny synthetic scene and the skip rules (the command
+line, reconstruct with --resume, render, eval on a written capture: tests/ebad/cli/test_reconstruct.py)."""
 from __future__ import annotations
-
-import json
 
 import numpy as np
 import pytest
@@ -10,11 +8,9 @@ import torch
 
 import scenes
 from ebad import reconstruct
-from ebad.cli import main
 from ebad.config import preset
 from ebad.errors import ConfigError, UserError
 from scenes import CaptureError
-from ebad.io import read_png16
 from ebad.metrics import psnr
 from ebad.data import prepare
 
@@ -98,55 +94,6 @@ def test_bad_capture_errors_name_the_field(tiny):
     cfg.loss.ssim_window = 4
     with pytest.raises(ConfigError, match="--loss.ssim_window"):
         reconstruct(tiny.capture, cfg)
-
-
-@pytest.mark.slow
-def test_cli_reconstruct_resume_render_eval(tiny, tmp_path, capsys):
-    scenes.write_scene(tiny, tmp_path / "scene")
-    cap = str(tmp_path / "scene" / "capture")
-    run = tmp_path / "run"
-    args = ["reconstruct", cap, "--out", str(run), "--train.iters", "20", "--no-progress", "--train.checkpoint_every", "10"]
-    assert main(args) == 0
-    for name in ["config.json", "metrics.json", "point_cloud.ply", "trajectories.json", "trajectories.png",
-                 "checkpoints/last.pt", "model.json", "history.json"]:
-        assert (run / name).exists(), name
-    assert len(list((run / "deblurred").glob("*.png"))) == 6
-    m = json.loads((run / "metrics.json").read_text())
-    assert m["steps"] == 20 and m["complete"] is True and m["prepare"]["train_frames"] == 6
-    assert not (run / ".lock").exists() and not list(run.rglob("*.tmp*"))
-    assert main(args) == 2  # refuses to overwrite a run without --resume
-    assert "--resume" in capsys.readouterr().err
-    assert main(["reconstruct", cap, "--out", str(run), "--train.iters", "30", "--no-progress", "--resume"]) == 0
-    m = json.loads((run / "metrics.json").read_text())
-    assert m["steps"] == 30 and m["resumed_from"] == 20
-    out = tmp_path / "renders"
-    assert main(["render", str(run), "--capture", cap, "--split", "test", "--out", str(out)]) == 0
-    names = sorted(p.stem for p in out.glob("*.png"))
-    assert names == sorted(v.name for v in tiny.capture.test_views)
-    img = read_png16(out / f"{names[0]}.png")
-    assert img.shape == (48, 64, 1)
-    assert main(["render", str(run), "--path", "5", "--out", str(tmp_path / "path")]) == 0
-    assert len(list((tmp_path / "path").glob("path_*.png"))) == 5
-    assert main(["eval", str(run), cap, "--refine-poses", "--refine-iters", "5"]) == 0
-    res = json.loads((run / "eval.json").read_text())
-    assert {"test", "test_refined", "deblurred"} <= set(res)
-    assert res["test_refined"]["psnr"] >= res["test"]["psnr"] - 1e-6  # refinement keeps the best pose
-    assert main(["render", str(tmp_path / "nope"), "--out", str(out)]) == 2
-
-
-@pytest.mark.slow
-def test_demo_smoke(tmp_path, capsys):
-    out = tmp_path / "demo"
-    assert main(["demo", "--out", str(out), "--iters", "5", "--no-progress"]) == 0
-    text = capsys.readouterr().out
-    assert "novel views" in text and "ebad (EBAD-Gaussian)" in text
-    res = json.loads((out / "results.json").read_text())
-    assert {"blurry_input", "3dgs", "ebad"} <= set(res)
-    from PIL import Image
-    im = np.array(Image.open(out / "comparison.png"))
-    assert im.ndim == 3 and im.shape[2] == 3 and im.shape[0] > 48 * 4
-    assert len(list((out / "renders" / "ebad").glob("*.png"))) == 3
-    assert (out / "run_ebad" / "point_cloud.ply").exists()
 
 
 def test_captures_that_cannot_work_are_refused_with_the_reason(tiny):

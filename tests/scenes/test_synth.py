@@ -1,4 +1,5 @@
-"""Synthetic scenes: blur, ground truth, events consistent with the renders, writing, the CLI;
+"""Synthetic scenes: blur, ground truth, events consistent with the renders, writing (the CLI:
+tests/ebad/cli/test_synth.py);
 the realistic sensor (response, thresholds, noise, tremor, poses) and the no-leak property."""
 import json
 import math
@@ -8,7 +9,6 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation, Slerp
 
-from ebad.cli import main
 from edi.deblur import LOG_EPS
 from scenes import SCENES, CaptureError, load, make_scene, write_scene
 from scenes.synth import SENSORS, TRUTH_KEYS, Sensor, aps_record, aps_response, sensor_events
@@ -181,46 +181,6 @@ def test_write_scene_keeps_ground_truth_apart(tmp_path, boxes):
     assert len(doc["test_views"]) == 3
     with pytest.raises(CaptureError, match="out_dir"):
         write_scene(boxes, tmp_path / "s")
-
-
-def test_cli_synth(tmp_path, capsys):
-    rc = main(["synth", "spheres", "--out", str(tmp_path / "o"), "--frames", "3", "--test-views", "1", "--seed", "2"])
-    assert rc == 0
-    cap = load(tmp_path / "o" / "capture")
-    assert cap.num_frames == 3 and len(cap.test_views) == 1 and cap.meta["sensor"] == "realistic"
-    truth = json.loads((tmp_path / "o" / "gt" / "gt.json").read_text())["truth"]
-    assert truth["seed"] == 2 and truth["sensor"]["c_pos"] == REALISTIC.c_pos
-    assert "3 frames" in capsys.readouterr().out
-    rc = main(["synth", "spheres", "--out", str(tmp_path / "o")])
-    assert rc == 2
-    assert "out_dir" in capsys.readouterr().err
-    rc = main(["synth", "boxes", "--out", str(tmp_path / "i"), "--frames", "2", "--test-views", "1", "--sensor", "ideal",
-               "--poses", "none", "--c", "0.3", "0.25"])
-    assert rc == 0
-    cap = load(tmp_path / "i" / "capture")
-    assert cap.c2w is None and cap.test_views[0].c2w is None and cap.test_views[0].image is not None
-    assert cap.pose_trust == "none" and cap.effective_pose_trust == "none"
-    assert json.loads((tmp_path / "i" / "gt" / "gt.json").read_text())["truth"]["c"] == [0.3, 0.25]
-    assert main(["synth", "boxes", "--out", str(tmp_path / "j"), "--c", "0.1", "0.2", "0.3"]) == 2
-    assert "--c" in capsys.readouterr().err
-
-
-def test_overwrite_replaces_only_a_synthetic_scene(tmp_path, capsys):
-    args = ["synth", "boxes", "--size", "tiny", "--frames", "2", "--test-views", "1"]
-    assert main(args + ["--out", str(tmp_path / "s")]) == 0
-    assert main(args + ["--out", str(tmp_path / "s"), "--overwrite", "--seed", "3"]) == 0  # an ebad synth output
-    assert json.loads((tmp_path / "s" / "gt" / "gt.json").read_text())["truth"]["seed"] == 3
-    precious = tmp_path / "home"
-    (precious / "photos").mkdir(parents=True)
-    (precious / "photos" / "a.jpg").write_bytes(b"x")
-    capsys.readouterr()
-    assert main(args + ["--out", str(precious), "--overwrite"]) == 2
-    err = capsys.readouterr().err
-    assert "refusing to overwrite" in err and "photos" in err
-    assert (precious / "photos" / "a.jpg").read_bytes() == b"x"  # nothing deleted
-    (tmp_path / "f").write_text("x")
-    assert main(args + ["--out", str(tmp_path / "f"), "--overwrite"]) == 2
-    assert (tmp_path / "f").read_text() == "x"
 
 
 def test_write_scene_failing_midway_leaves_nothing(tmp_path, boxes, monkeypatch):

@@ -7,7 +7,7 @@ import pytest
 
 from ebad.cli import main
 
-SHARED = Path(__file__).parents[2].parent / "shared" / "data"
+SHARED = Path(__file__).parents[3].parent / "shared" / "data"
 STREET = SHARED / "davis346_street" / "davis346_street.aedat4"
 NI = SHARED / "ni_joint_blur"
 needs_street = pytest.mark.skipif(not STREET.exists(), reason=f"real data not found: {STREET}")

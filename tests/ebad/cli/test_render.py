@@ -4,8 +4,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from PIL import Image
+from scipy.spatial.transform import Rotation
 
 from ebad.cli import main
+from ebad.cli.render import smooth_path
 from ebad.export import to_display8
 from ebad.io import read_png16
 from ebad.runfolder import load_run
@@ -53,3 +55,51 @@ def test_render_test_views_and_path(tiny_run, tmp_path):
 def test_render_user_errors_exit_2_naming_the_option(tiny_run, tmp_path, capsys, argv, needle):
     assert main(["render", str(tiny_run.run), "--out", str(tmp_path / "x"), *argv]) == 2
     assert needle in capsys.readouterr().err
+
+
+# --------------------------------------------------------------------------- the smooth camera path
+
+def _cameras(F: int, seed: int = 0) -> np.ndarray:  # -> [F, 4, 4]
+    rng = np.random.default_rng(seed)
+    c2w = np.tile(np.eye(4), (F, 1, 1))
+    c2w[:, :3, :3] = Rotation.from_rotvec(rng.normal(scale=0.6, size=(F, 3))).as_matrix()
+    c2w[:, :3, 3] = rng.normal(size=(F, 3))
+    return c2w
+
+
+def test_smooth_path_passes_through_every_camera():
+    c2w = _cameras(5)
+    path = smooth_path(c2w, 4 * 4 + 1)  # s = 0, 0.25, ..., 4: camera k at sample 4 k
+    np.testing.assert_allclose(path[::4], c2w, atol=1e-12)
+    np.testing.assert_array_equal(path[:, 3], np.tile([0.0, 0.0, 0.0, 1.0], (len(path), 1)))
+    R = path[:, :3, :3]
+    np.testing.assert_allclose(R @ R.transpose(0, 2, 1), np.tile(np.eye(3), (len(path), 1, 1)), atol=1e-12)
+    assert np.allclose(np.linalg.det(R), 1.0)
+
+
+def test_smooth_path_rotations_are_the_geodesic_between_neighbours():
+    # the same rotations as the hand-written slerp before (R_i exp(u log(R_i^T R_i+1)) at s = i + u)
+    c2w = _cameras(4, seed=1)
+    n = 23
+    path = smooth_path(c2w, n)
+    for j, s in enumerate(np.linspace(0, 3, n)):
+        i = min(int(np.floor(s)), 2)
+        R0, R1 = Rotation.from_matrix(c2w[i, :3, :3]), Rotation.from_matrix(c2w[i + 1, :3, :3])
+        want = (R0 * Rotation.from_rotvec((s - i) * (R0.inv() * R1).as_rotvec())).as_matrix()
+        np.testing.assert_allclose(path[j, :3, :3], want, atol=1e-10)
+
+
+@pytest.mark.parametrize("F", [2, 3, 6])
+def test_smooth_path_keeps_a_straight_constant_speed_track_straight(F):
+    # cameras on a line at constant spacing: the path runs along it at constant speed, ends included
+    c2w = _cameras(F, seed=2)
+    a, d = np.array([0.3, -1.0, 2.0]), np.array([0.5, 0.25, -0.1])
+    c2w[:, :3, 3] = a + np.arange(F)[:, None] * d
+    n = 7 * (F - 1) + 1
+    path = smooth_path(c2w, n)
+    np.testing.assert_allclose(path[:, :3, 3], a + np.linspace(0, F - 1, n)[:, None] * d, atol=1e-12)
+
+
+def test_smooth_path_of_one_camera_stays_there():
+    c2w = _cameras(1)
+    np.testing.assert_array_equal(smooth_path(c2w, 3), np.repeat(c2w, 3, 0))
