@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 import torch
 
-from ebad.metrics import psnr, ssim
 from ebad.losses import ssim_map
+from ebad.metrics import psnr, ssim
 
 C1, C2 = 0.01**2, 0.03**2  # SSIM's constants for a data range of 1
 
@@ -64,7 +64,7 @@ def test_ssim_equals_kornia_called_directly_with_its_11_pixel_window(D):
     import kornia
 
     a, b = _pair(shape=(32, 40, D))
-    to_bchw = lambda x: torch.from_numpy(x).permute(2, 0, 1)[None].double()  # noqa: E731
+    to_bchw = lambda x: torch.from_numpy(x).permute(2, 0, 1)[None].double()
     expected = float(kornia.metrics.ssim(to_bchw(a), to_bchw(b), 11).mean())
     assert 0.3 < expected < 0.95  # an informative pair
     assert ssim(a, b) == pytest.approx(expected, abs=1e-5)
