@@ -25,17 +25,26 @@ from splat_cpu._omp import openmp_threads_sleep as _openmp_threads_sleep  # noqa
 #: torch's OpenMP threads sleep when idle (OMP_WAIT_POLICY=PASSIVE was in force when torch loaded)
 OMP_PASSIVE = _openmp_threads_sleep()
 
+from typing import TYPE_CHECKING  # noqa: E402
+
 from .errors import ConfigError, EbadError, UserError  # noqa: E402
+
+if TYPE_CHECKING:  # what ``__getattr__`` loads on first use, for type checkers and IDEs
+    from .config import PRESETS, Config, preset
+    from .data import prepare
+    from .run import Run, reconstruct
+    from .runfolder import load_run
+    from .state import TrainState
 
 __all__ = ["EbadError", "UserError", "ConfigError", "reconstruct", "Run", "Config", "preset", "PRESETS", "load_run",
            "prepare", "TrainState"]
 __version__ = "0.1.0"
 
 _LAZY = {
-    "reconstruct": ("trainer", "reconstruct"),
+    "reconstruct": ("run", "reconstruct"),
     "prepare": ("data", "prepare"),
     "TrainState": ("state", "TrainState"),
-    "Run": ("trainer", "Run"),
+    "Run": ("run", "Run"),
     "Config": ("config", "Config"),
     "preset": ("config", "preset"),
     "PRESETS": ("config", "PRESETS"),
@@ -43,7 +52,7 @@ _LAZY = {
 }
 
 
-def __getattr__(name):
+def __getattr__(name: str):
     if name in _LAZY:
         import importlib
 

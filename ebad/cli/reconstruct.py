@@ -82,7 +82,7 @@ def main(argv: list[str]) -> int:
     from ..errors import UserError
     from ..runfolder import RunLock, check_out_dir, write_run
     from ..state import capture_fingerprint, read_checkpoint
-    from ..trainer import reconstruct
+    from ..run import reconstruct
 
     args, cfg, applied = parse(argv)
     out = Path(args.out)

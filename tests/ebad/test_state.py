@@ -12,7 +12,7 @@ from ebad.data import prepare
 from ebad.errors import UserError
 from ebad.state import TrainState, capture_fingerprint, max_gaussians
 from ebad.strategy import make_strategy
-from ebad.trainer import train_step
+from ebad.loop import train_step
 
 
 @pytest.fixture(scope="module")
@@ -100,7 +100,7 @@ def test_learning_rates_decay_over_the_run_to_their_final_fractions(tiny):
 
 
 def test_the_run_s_trajectories_are_the_mean_of_the_knots_since_average_from(tiny):
-    from ebad.trainer import reconstruct
+    from ebad.run import reconstruct
 
     cfg = preset("ebad")
     cfg.train.iters, cfg.train.progress, cfg.train.eval_every = 10, False, 0

@@ -10,7 +10,8 @@ import sys, {first}, {second}
 import ebad, torch
 import scenes
 from ebad.config import preset
-from ebad.trainer import StepHook, reconstruct
+from ebad.callbacks import StepHook
+from ebad.run import reconstruct
 seen = []
 cfg = preset("3dgs"); cfg.train.iters, cfg.train.progress, cfg.train.eval_every = 2, False, 0
 torch.set_num_threads(2)
