@@ -237,11 +237,9 @@ class _Interrupts:
 def _torch_single_threaded():
     """torch single-threaded for the duration, its thread count restored after. A step's torch
     operations are small: on one thread they neither spin between parallel regions (when
-    ``ebad.OMP_PASSIVE`` is False, see the ``ebad`` package docstring) nor wait for sleeping
-    threads to wake, and the parallel work is numba's (rasteriser, SSIM), whose threads are
-    its own. On the numba omp layer (``splat_cpu._numba_impl``) a step at 346x260 took 14.2
-    against 15.7 ms at half resolution and 30.2 against 33.1 ms at full resolution with torch on
-    one thread rather than two (realistic capture, seed 0, one 70-step run each)."""
+    OpenMP's threads do not sleep, ``ebad.threads``) nor wait for sleeping threads to wake, and
+    the parallel work is numba's (rasteriser, SSIM), whose threads are its own; measured faster
+    than two threads (docs/results.md)."""
     n = torch.get_num_threads()
     torch.set_num_threads(1)
     try:

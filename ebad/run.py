@@ -27,6 +27,7 @@ from .response import Response
 from .scoring import ViewScores, render_images
 from .state import StepStats, TrainState, capture_fingerprint, max_gaussians
 from .strategy import make_strategy
+from .threads import configure as configure_threads
 from .trajectory import ExposureTrajectories
 
 if TYPE_CHECKING:
@@ -171,9 +172,12 @@ def reconstruct(capture: Capture, config: Config | str | None = None, out_dir: s
         gt_views: test views with images to report PSNR on (default: the capture's).
         on_step: optional callback(step, stats) after every step.
         callbacks: more ``Callback`` objects, called after the built-in ones (they see the state).
+
+    It first calls ``ebad.threads.configure()``; torch is loaded by then, so a program that wants
+    OpenMP's threads to sleep (and numba on its faster "omp" layer) calls it before importing torch.
     """
+    configure_threads()
     cfg = _resolve(config)
-    torch.manual_seed(cfg.train.seed)
     t_prep = time.perf_counter()
     data = prepare(capture, cfg)
     prep_s = time.perf_counter() - t_prep

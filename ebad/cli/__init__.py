@@ -17,20 +17,13 @@ exits 2. Anything else is a bug and shows its traceback.
 """
 from __future__ import annotations
 
-import os
+import argparse
+import importlib
+import pkgutil
+import sys
 
-# Idle OpenMP threads sleep: torch's own work on a shared machine no longer wastes the cores
-# between parallel regions, and splat_cpu runs its numba kernels on OpenMP too, which wakes
-# its threads sooner than numba's workqueue layer (splat_cpu._numba_impl). Only effective
-# before torch is imported; a user's own setting wins.
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
-
-import argparse  # noqa: E402
-import importlib  # noqa: E402
-import pkgutil  # noqa: E402
-import sys  # noqa: E402
-
-from ..errors import EbadError  # noqa: E402
+from ..errors import EbadError
+from ..threads import configure as configure_threads  # called first thing in main(), never on import
 
 
 def _commands():
@@ -63,6 +56,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    configure_threads()  # OMP_WAIT_POLICY before any command loads torch, numba's layer (ebad.threads)
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser()
     own = {m.NAME for m in _commands() if hasattr(m, "main")}
