@@ -374,7 +374,7 @@ def config_from_dict(data: dict[str, Any]) -> Config:
 
 def save_config(cfg: Config, path: str | Path) -> None:
     """Write ``cfg`` as JSON, atomically (a temporary file renamed into place)."""
-    from .runfolder import write_text_atomic
+    from scenes._atomic import write_text_atomic  # here, not at the top: ``scenes`` loads scipy, the config nothing heavy
 
     write_text_atomic(Path(path), json.dumps(config_to_dict(cfg), indent=2) + "\n")
 

@@ -19,6 +19,7 @@ The protocol (``evaluate``), as in BAD-Gaussians / EBAD-NeRF:
 from __future__ import annotations
 
 import copy
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 import torch
@@ -28,18 +29,21 @@ from .errors import UserError
 from .gaussians import render
 from .lie import compose_pose, so3_exp
 from .losses import l1_ssim
-from .metrics import psnr, ssim
-from .trainer import ViewScores, score_views, with_poses
+from .run import Run
+from .scoring import ViewScores, score_frames, score_views, with_poses
 
-__all__ = ["refine_pose", "evaluate", "eval_poses", "sharp_capture", "score_frames", "REFINE_TOL",
-           "REFINE_WINDOW", "REFINE_LR"]
+if TYPE_CHECKING:
+    from scenes import Capture, SynthScene
+
+__all__ = ["refine_pose", "evaluate", "eval_poses", "sharp_capture", "score_frames", "score_views", "ViewScores",
+           "REFINE_TOL", "REFINE_WINDOW", "REFINE_LR"]
 
 REFINE_TOL = 1e-4  # refinement stops when the loss improved by less than this fraction ...
 REFINE_WINDOW = 20  # ... over this many steps
 REFINE_LR = 2e-3  # Adam step of the correction (radians; translation in units of the run's scene scale)
 
 
-def refine_pose(run, c2w: np.ndarray, image: np.ndarray, iters: int = 300, lr: float = REFINE_LR,
+def refine_pose(run: Run, c2w: np.ndarray, image: np.ndarray, iters: int = 300, lr: float = REFINE_LR,
                 tol: float = REFINE_TOL, window: int = REFINE_WINDOW) -> tuple[np.ndarray, int]:
     """Align one test camera [4, 4] to its image [H, W, D] with the Gaussians frozen.
 
@@ -69,7 +73,7 @@ def refine_pose(run, c2w: np.ndarray, image: np.ndarray, iters: int = 300, lr: f
     return best.numpy().astype(np.float64), step
 
 
-def eval_poses(run, capture) -> tuple[dict[str, np.ndarray], dict[str, str]]:
+def eval_poses(run: Run, capture: Capture) -> tuple[dict[str, np.ndarray], dict[str, str]]:
     """Each test view's pose in the run's frame, and how it was found: 'run' (registered by the
     run's SfM), 'capture' (the run trained on the capture's poses) or 'aligned' (Sim(3) from the
     training cameras). Views with neither are left out (named in the second dict as 'none')."""
@@ -92,8 +96,8 @@ def eval_poses(run, capture) -> tuple[dict[str, np.ndarray], dict[str, str]]:
     return poses, how
 
 
-def evaluate(run, capture=None, refine: bool = False, gt_frames: np.ndarray | None = None,
-             refine_iters: int = 300, renders_to=None) -> dict:
+def evaluate(run: Run, capture: Capture | None = None, refine: bool = False, gt_frames: np.ndarray | None = None,
+             refine_iters: int = 300, renders_to: Callable[[str, np.ndarray], None] | None = None) -> dict:
     """The protocol of the module docstring. Returns ``{"test": ViewScores, "test_refined":
     ViewScores, "deblurred": ViewScores}`` (those that apply), plus "poses" (how each test pose
     was found) and "refine_steps" (per view). ``renders_to(name, image)`` receives each test
@@ -122,14 +126,7 @@ def evaluate(run, capture=None, refine: bool = False, gt_frames: np.ndarray | No
     return out
 
 
-def score_frames(images: np.ndarray, truth: np.ndarray) -> ViewScores:  # [F, H, W, D] x2
-    """Mean PSNR / SSIM of frames against their ground truth, in order."""
-    ps = [psnr(a, b) for a, b in zip(images, truth)]
-    ss = [ssim(a, b) for a, b in zip(images, truth)]
-    return ViewScores(psnr=float(np.mean(ps)), ssim=float(np.mean(ss)), n=len(ps))
-
-
-def sharp_capture(scene):
+def sharp_capture(scene: SynthScene) -> Capture:
     """The ``3dgs-sharp`` preset's input: a synthetic capture whose frames are the sharp
     mid-exposure ground truth with zero-length exposures (its poses as the capture gives them)."""
     cap = copy.copy(scene.capture)

@@ -37,6 +37,7 @@ from .errors import UserError
 from .export import write_exports
 from .io import plot_trajectories, read_ply, write_png16, write_ply, write_trajectories
 from .response import Response
+from .run import Run, RunMetrics
 from .trajectory import ExposureTrajectories
 
 __all__ = ["write_run", "load_run", "json_safe", "write_text_atomic", "RunLock", "check_out_dir"]
@@ -187,10 +188,8 @@ def write_run(run, out: str | Path, gt_trajectories: np.ndarray | None = None) -
     return out
 
 
-def load_run(path: str | Path):
+def load_run(path: str | Path) -> Run:
     """A ``Run`` from a finished run folder (for rendering and evaluation)."""
-    from .trainer import Run, RunMetrics
-
     path = Path(path)
     if not path.is_dir():
         raise UserError(f"{path} is not a run folder (run 'ebad reconstruct CAPTURE --out {path}' first)")

@@ -225,7 +225,6 @@ class TrainState:
             "order": list(self.order),
             "order_rng": self.order_rng.bit_generator.state,
             "generator": self.generator.get_state(),
-            "torch_rng": torch.get_rng_state(),
             "history": [h.to_dict() for h in self.history],
             "knots_sum": None if self.knots_sum is None else self.knots_sum.clone(),
             "knots_count": self.knots_count,
@@ -267,8 +266,7 @@ class TrainState:
                 optimizers[k].load_state_dict(sd)
         order_rng = np.random.default_rng()
         order_rng.bit_generator.state = doc["order_rng"]
-        generator.set_state(doc["generator"])
-        torch.set_rng_state(doc["torch_rng"])
+        generator.set_state(doc["generator"])  # an older checkpoint's "torch_rng" (the global RNG, never drawn from) is ignored
         return cls(params=params, optimizers=optimizers, trajectories=traj, log_c=log_c, response=response,
                    strategy_state=StrategyState.from_dict(doc["strategy_state"]), order_rng=order_rng,
                    generator=generator, step=int(doc["step"]), order=[int(i) for i in doc["order"]],

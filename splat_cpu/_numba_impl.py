@@ -5,10 +5,11 @@ Threads (issue 8). torch loads its libgomp into the process's global symbol scop
 parallel region unless OMP_WAIT_POLICY=PASSIVE was set before torch started; on a machine
 with more busy threads than cores every spin steals a core (serial work between two kernels
 took 3-5x longer). So that the library does not depend on the caller's environment, the
-layer is chosen here, before the first parallel kernel, unless the user chose one
-(NUMBA_THREADING_LAYER or numba.config.THREADING_LAYER): "omp" when OMP_WAIT_POLICY=PASSIVE
-is in the environment (idle threads sleep; ``import ebad`` before torch and the ``ebad``
-command set it), numba's own "workqueue" otherwise. The omp layer is preferred where it is
+layer is chosen before the first parallel kernel (``_omp.choose_threading_layer``, called by
+``ebad.threads.configure`` or else by the first ``rasterize_numba``), unless the user chose
+one (NUMBA_THREADING_LAYER or numba.config.THREADING_LAYER): "omp" when OMP_WAIT_POLICY=PASSIVE
+was in force when torch loaded (idle threads sleep), numba's own "workqueue" otherwise. The
+omp layer is preferred where it is
 safe because it wakes its threads sooner: after a few milliseconds of single-threaded work,
 as between the kernels of a training step, a workqueue region ran at about serial speed (the
 SSIM of six 173x130 images 1.26 ms forward against 0.67 with omp), and a half-resolution
@@ -19,7 +20,6 @@ runs inside `rasterize` or its backward. Measured by `python -m benchmarks.raste
 
 from __future__ import annotations
 
-import os
 import time
 
 import numba
@@ -29,24 +29,10 @@ from torch import Tensor
 
 from . import _numba_kernels as K
 from . import _numba_project as P
-from ._omp import openmp_threads_sleep
+from ._omp import choose_threading_layer
 from .constants import TILE
 
 _CHUNK = 2  # tiles per scheduling chunk: tiles cost very different amounts, small chunks balance them
-_THREADING_LAYER = "workqueue"  # numba's own pool: idle workers block on a condition variable, never spin
-
-
-def _choose_threading_layer() -> None:
-    """Unless the user chose a numba threading layer: "omp" first when OpenMP threads sleep (then
-    "workqueue" if numba has no omp layer), "workqueue" otherwise. No effect once launched."""
-    if "NUMBA_THREADING_LAYER" not in os.environ and numba.config.THREADING_LAYER == "default":
-        if openmp_threads_sleep():
-            numba.config.THREADING_LAYER_PRIORITY = ["omp", _THREADING_LAYER, "tbb"]
-        else:
-            numba.config.THREADING_LAYER = _THREADING_LAYER
-
-
-_choose_threading_layer()
 
 
 class _Plan:
@@ -188,6 +174,7 @@ def rasterize_numba(
     background: Tensor | None = None,  # [D]
 ) -> tuple[Tensor, Tensor, dict]:
     """Inputs already validated, CPU tensors. See `splat_cpu.rasterize` for the contract."""
+    choose_threading_layer()  # before the first parallel kernel, unless a set-up chose already (splat_cpu._omp)
     t0 = time.perf_counter()
     pr: dict = {}
     timings: dict = {}  # the forward's stages now, the backward's when it runs

@@ -24,14 +24,6 @@ shows the traceback instead). Anything else is a bug and shows its traceback.
 """
 from __future__ import annotations
 
-import os
-
-# Idle OpenMP threads sleep: torch's own work on a shared machine no longer wastes the cores
-# between parallel regions, and splat_cpu runs its numba kernels on OpenMP too, which wakes
-# its threads sooner than numba's workqueue layer (splat_cpu._numba_impl). Only effective
-# before torch is imported; a user's own setting wins.
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
-
 import contextlib
 import dataclasses
 import difflib
@@ -43,6 +35,7 @@ from types import ModuleType
 from typing import Annotated, Any, NamedTuple, Union
 
 from ..errors import EbadError, UserError
+from ..threads import configure as configure_threads  # called first thing in main(), never on import
 
 PROG = "ebad"
 DESCRIPTION = "Sharp 3D Gaussian scenes, novel views and frames from blurry event-camera captures."
@@ -116,6 +109,7 @@ def parse(argv: list[str]) -> Parsed:
 
 
 def main(argv: list[str] | None = None) -> int:
+    configure_threads()  # OMP_WAIT_POLICY before any command loads torch, numba's layer (ebad.threads)
     argv = list(sys.argv[1:] if argv is None else argv)
     names = {m.NAME for m in _commands()}
     prog = " ".join([PROG] + [n for n in [_command_name(argv, names)] if n])

@@ -69,7 +69,7 @@ def run(args: Args) -> int:
     from ..evaluate import evaluate, score_frames
     from ..export import write_render
     from ..runfolder import json_safe, write_run
-    from ..trainer import reconstruct, warm_up
+    from ..run import reconstruct, warm_up
 
     if args.iters < 1:
         raise ConfigError(f"--iters must be >= 1, got {args.iters}")

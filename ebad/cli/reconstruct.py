@@ -120,7 +120,7 @@ def run(args: Args) -> int:
     from ..errors import UserError
     from ..runfolder import RunLock, check_out_dir, write_run
     from ..state import capture_fingerprint, read_checkpoint
-    from ..trainer import reconstruct
+    from ..run import reconstruct
 
     cfg, applied = resolve(args)
     out = Path(args.out)

@@ -8,7 +8,8 @@ import scenes
 from ebad.config import preset
 from ebad.data import downscale, prepare
 from ebad.gaussians import render
-from ebad.trainer import coarse_data, reconstruct
+from ebad.loop import coarse_data
+from ebad.run import reconstruct
 
 
 @pytest.fixture(scope="module")
@@ -94,7 +95,7 @@ def test_set_views_counts_the_events_again_between_the_new_instants(tiny_data):
 
 
 def test_views_from_the_blur_length_take_effect_where_the_coarse_phase_ends(monkeypatch):
-    import ebad.trainer as T
+    import ebad.loop as T
     from ebad.errors import ConfigError
 
     sc = scenes.make_scene("boxes", size="tiny", seed=0, n_frames=4, n_test=1)

@@ -1,4 +1,4 @@
-"""ebad.trainer.frame_losses: the L_ev options (windows, norm) and the L_EDI prior."""
+"""ebad.loop.frame_losses: the L_ev options (windows, norm) and the L_EDI prior."""
 from __future__ import annotations
 
 import dataclasses
@@ -14,7 +14,7 @@ from ebad.data import _train_indices, prepare
 from ebad.gaussians import render
 from ebad.losses import event_loss
 from ebad.state import TrainState
-from ebad.trainer import frame_losses
+from ebad.loop import frame_losses
 from ebad.trajectory import virtual_instants
 from ebad.virtual_views import random_window, window_counts
 
@@ -73,7 +73,8 @@ def test_medi_prior_gives_the_latents_of_edi_medi(scene):
 
 
 def test_every_step_says_where_its_time_went():
-    from ebad.trainer import reconstruct, step_profile
+    from ebad.loop import step_profile
+    from ebad.run import reconstruct
 
     sc = scenes.make_scene("boxes", size="tiny", seed=0, n_frames=4, n_test=1)
     cfg = preset("ebad")
@@ -137,7 +138,7 @@ def test_frame_losses_in_one_node_equal_the_response_path_with_a_linear_response
     """A linear response takes ``losses.exposure_losses``; the composed path a learnt response takes
     (``_losses_through_response``) gives the same losses and parameter gradients with it, with
     L_EDI at every view or at mid-exposure (an even V renders its mid view last)."""
-    from ebad.trainer import _losses_through_response, frame_losses
+    from ebad.loop import _losses_through_response, frame_losses
 
     cfg = _config(edi_instants=instants)
     cfg.trajectory.num_views = views
@@ -153,7 +154,7 @@ def test_frame_losses_in_one_node_equal_the_response_path_with_a_linear_response
     for p in [*state.params.values(), state.trajectories.knots]:
         p.grad = None
 
-    import ebad.trainer as trainer
+    import ebad.loop as trainer
 
     def composed(images, V, blurry, latents, mid, counts, event_views, c, w, window, norm):
         return _losses_through_response(images, V, blurry, latents, mid, counts, event_views, c, state.response, cfg)

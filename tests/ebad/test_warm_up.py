@@ -1,4 +1,4 @@
-"""ebad.trainer.warm_up: every parallel kernel a training step runs is compiled before timing starts."""
+"""ebad.run.warm_up: every parallel kernel a training step runs is compiled before timing starts."""
 from __future__ import annotations
 
 import json
@@ -7,7 +7,7 @@ import sys
 
 _CODE = """
 import json, numba
-from ebad import trainer
+from ebad import run as trainer
 import splat_cpu._numba_kernels, splat_cpu._numba_project, ebad.kernels._numba_ssim, ebad.kernels._numba_event
 MODULES = (splat_cpu._numba_kernels, splat_cpu._numba_project, ebad.kernels._numba_ssim, ebad.kernels._numba_event)
 def compiled():  # the parallel kernels of the rasteriser, SSIM and L_ev -> how many signatures each has

@@ -1,0 +1,112 @@
+"""What the loop calls after every step: the ``Callback`` protocol and the built-in callbacks.
+
+``ebad.loop.train`` calls ``on_step(state, stats)`` of each callback after every step, in
+order, and ``on_end(state, reason)`` once when it stops. ``Evaluator`` scores the test views,
+``ProgressBar`` shows the losses, ``Checkpointer`` saves the state, ``StepHook`` hands each
+step to a user function.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Callable, Protocol, Sequence
+
+from .config import Config
+from .data import TrainingData
+from .scoring import ViewScores, evaluate_views, render_images, scorable_views, with_poses
+from .state import StepStats, TrainState
+
+if TYPE_CHECKING:
+    from scenes import TestView
+
+__all__ = ["Callback", "Evaluator", "ProgressBar", "Checkpointer", "StepHook"]
+
+
+class Callback(Protocol):
+    """Called after every step, in order; ``on_end`` once when the loop stops."""
+
+    def on_step(self, state: TrainState, stats: StepStats) -> None: ...
+
+    def on_end(self, state: TrainState, reason: str) -> None: ...
+
+
+class Evaluator:
+    """Every ``every`` steps (and at ``last``), the test-view PSNR into ``stats.test_psnr``."""
+
+    def __init__(self, data: TrainingData, cfg: Config, views: Sequence[TestView], every: int, last: int):
+        self.data, self.cfg, self.every, self.last = data, cfg, every, last
+        self.views = scorable_views(with_poses(views, data.test_c2w))
+        self.latest: ViewScores | None = None
+        self.latest_step = -1  # the step ``latest`` was scored at
+
+    def scores(self, state: TrainState) -> ViewScores | None:
+        d = self.data
+        return evaluate_views(lambda c2w: render_images(state.params, c2w, d.K, d.width, d.height,
+                                                        self.cfg.model.background, response=state.response),
+                              self.views)
+
+    def on_step(self, state: TrainState, stats: StepStats) -> None:
+        if self.views and self.every and (state.step % self.every == 0 or state.step == self.last):
+            self.latest, self.latest_step = self.scores(state), state.step
+            stats.test_psnr = self.latest.psnr
+
+    def final(self, state: TrainState) -> ViewScores | None:
+        """The scores at the state's step: the last evaluation's when it was made there."""
+        return self.latest if self.latest_step == state.step else self.scores(state)
+
+    def on_end(self, state: TrainState, reason: str) -> None:
+        return None
+
+
+class ProgressBar:
+    """A tqdm bar with the losses, N and the latest (test, else train) PSNR."""
+
+    def __init__(self, cfg: Config, initial: int):
+        from tqdm import tqdm
+
+        self.bar = tqdm(total=cfg.train.iters, initial=initial, desc=f"ebad[{cfg.name}]", dynamic_ncols=True,
+                        leave=False)
+        self.psnr: float | None = None
+
+    def on_step(self, state: TrainState, stats: StepStats) -> None:
+        post = {"loss": f"{stats.loss:.4f}", "blur": f"{stats.blur:.4f}"}
+        for k in ("ev", "edi"):
+            if getattr(stats, k) is not None:
+                post[k] = f"{getattr(stats, k):.4f}"
+        post["N"] = stats.gaussians
+        if stats.test_psnr is not None:
+            self.psnr = stats.test_psnr
+        post["psnr"] = f"{self.psnr if self.psnr is not None else stats.train_psnr:.2f}"
+        self.bar.set_postfix(post, refresh=False)
+        self.bar.update(1)
+
+    def on_end(self, state: TrainState, reason: str) -> None:
+        self.bar.close()
+
+
+class Checkpointer:
+    """Every ``every`` steps (0: never during the loop) and at the end, ``state.save(path)``."""
+
+    def __init__(self, path: Path, every: int, fingerprint: dict[str, Any] | None):
+        self.path, self.every, self.fingerprint = path, every, fingerprint
+
+    def on_step(self, state: TrainState, stats: StepStats) -> None:
+        if self.every and state.step % self.every == 0:
+            state.save(self.path, self.fingerprint)
+
+    def on_end(self, state: TrainState, reason: str) -> None:
+        state.save(self.path, self.fingerprint)
+
+
+class StepHook:
+    """A user function ``fn(step, stats)`` after every step."""
+
+    def __init__(self, fn: Callable[[int, StepStats], None]):
+        self.fn = fn
+
+    def on_step(self, state: TrainState, stats: StepStats) -> None:
+        self.fn(state.step, stats)
+
+    def on_end(self, state: TrainState, reason: str) -> None:
+        return None
+
+

@@ -1,0 +1,319 @@
+"""The training loop: one step, and the loop that repeats it.
+
+``frame_losses`` renders one frame's V virtual views in ONE rasteriser call and computes the
+three losses; ``train_step`` adds the backward, Adam and densification and returns its
+``StepStats``; ``train`` repeats it until ``should_stop`` says so, calling each ``Callback``
+(``ebad.callbacks``) after every step. The data it trains on is prepared before
+(``ebad.data.prepare``), the state started before (``ebad.state.TrainState``), and
+``ebad.run.reconstruct`` strings them together.
+"""
+from __future__ import annotations
+
+import signal
+import threading
+import time
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from .callbacks import Callback
+from .config import Config
+from .data import MIN_DOWNSCALED_SIDE, TrainingData, downscale
+from .gaussians import normalise_quats_, num_gaussians, render
+from .losses import event_loss, exposure_losses, l1_ssim_each
+from .metrics import psnr
+from .response import Response
+from .state import StepStats, TrainState
+from .strategy import RenderInfo, Strategy
+from .trajectory import virtual_instants
+from .virtual_views import path_lengths_px, random_window, views_from_blur, window_counts
+
+__all__ = ["FrameLosses", "frame_losses", "train_step", "train", "should_stop", "step_profile", "coarse_data",
+           "views_from_trajectories", "RASTER_FORWARD", "RASTER_BACKWARD"]
+
+
+@dataclass
+class FrameLosses:
+    """The losses of one frame's renders, and what the strategy needs from the render."""
+
+    total: Tensor  # scalar, weighted
+    blur: Tensor
+    ev: Tensor | None
+    edi: Tensor | None
+    info: RenderInfo
+    mean_render: Tensor  # [H, W, D] detached: what the camera would record of the exposure (response of the mean)
+    raster_timings: dict = field(default_factory=dict)  # the rasteriser's ms per stage (its backward's once it ran)
+    timings: dict = field(default_factory=dict)  # ms of the forward's parts outside the rasteriser: "poses", "losses"
+
+
+def frame_losses(data: TrainingData, state: TrainState, f: int, cfg: Config) -> FrameLosses:
+    """Losses of frame ``f``: its V virtual views (plus the mid view when V is even and L_EDI
+    compares at mid-exposure only) rendered in one batched call."""
+    lc = cfg.loss
+    V = int(data.V[f])
+    u = virtual_instants(V)
+    views = data.view_latents[f] if data.view_latents is not None else None  # latents at the V instants
+    need_mid = data.latents is not None and V % 2 == 0 and views is None
+    if need_mid:
+        u = torch.cat([u, torch.tensor([0.5])])
+    t0 = time.perf_counter()
+    poses = state.trajectories(torch.tensor([f]), u)[0]  # [V', 4, 4]
+    t1 = time.perf_counter()
+    images, _, meta = render(state.params, poses, data.K, data.width, data.height, cfg.model.background)
+    t2 = time.perf_counter()
+    mid = V if need_mid else V // 2  # the render L_EDI compares with a mid-exposure latent
+    edi_target = None
+    if lc.w_edi > 0:
+        edi_target = views if views is not None else data.latents[f] if data.latents is not None else None
+    counts, event_views, c = None, (), None
+    if lc.w_event > 0 and data.ev_counts[f] is not None:
+        c = torch.exp(state.log_c) if state.log_c is not None else data.c
+        if lc.event_windows == "random":  # one random pair of virtual instants (virtual_views docstring)
+            i, j = random_window(V, state.generator)
+            counts, event_views = window_counts(data.ev_counts[f], i, j), (i, j)
+        else:
+            counts, event_views = data.ev_counts[f], tuple(range(V))
+    if state.response.learnable:
+        blur, edi, ev, mean_render = _losses_through_response(images, V, data.targets[f], edi_target, mid, counts,
+                                                              event_views, c, state.response, cfg)
+    else:  # the three losses in one autograd node (``losses.exposure_losses``)
+        blur, edi, ev, mean_render = exposure_losses(images, V, data.targets[f], edi_target, mid, counts, event_views,
+                                                     0.0 if c is None else c, lc.ssim_weight, lc.ssim_window,
+                                                     norm=lc.event_norm)
+    total = lc.w_blur * blur
+    if ev is not None:
+        total = total + lc.w_event * ev
+    if edi is not None:
+        total = total + lc.w_edi * edi
+    info = RenderInfo(means2d=meta.get("means2d"), radii=meta.get("radii"), width=data.width, height=data.height)
+    return FrameLosses(total=total, blur=blur, ev=ev, edi=edi, info=info, mean_render=mean_render,
+                       raster_timings=meta.get("timings", {}),
+                       timings={"poses": 1e3 * (t1 - t0), "losses": 1e3 * (time.perf_counter() - t2)})
+
+
+def _losses_through_response(images: Tensor, V: int, blurry: Tensor, edi_target: Tensor | None, mid: int,
+                             counts: Tensor | None, event_views: tuple[int, ...], c, response: Response,
+                             cfg: Config) -> tuple[Tensor, Tensor | None, Tensor | None, Tensor]:
+    """``losses.exposure_losses`` with a learnt camera response, composed from torch operations:
+    L_blur and L_EDI compare the response of the renders (``images`` [V', H, W, D], irradiance)
+    with the recorded frame and latents, L_ev the renders themselves. -> L_blur, L_EDI, L_ev and
+    the recorded mean render [H, W, D] (detached)."""
+    lc = cfg.loss
+    renders = images[:V]
+    recorded_blur = response(renders.mean(0, keepdim=True))  # what the APS records of the exposure
+    pairs = [(recorded_blur, blurry)]  # L_blur and L_EDI (each l1_ssim) from one kernel call
+    if edi_target is not None:
+        pairs.append((response(renders if edi_target.ndim == 4 else images[mid]), edi_target))
+    blur, *edi = l1_ssim_each(pairs, lc.ssim_weight, lc.ssim_window)
+    ev = event_loss(images[list(event_views)], counts, c, norm=lc.event_norm) if event_views else None
+    return blur, (edi[0] if edi else None), ev, recorded_blur.detach()[0]
+
+
+def _budget_fraction(state: TrainState, cfg: Config, elapsed: float) -> float:
+    """How far through the run: steps over iterations, or time over the budget when that is further."""
+    frac = state.step / max(cfg.train.iters, 1)
+    if cfg.train.max_seconds:
+        frac = max(frac, elapsed / cfg.train.max_seconds)
+    return min(frac, 1.0)
+
+
+def train_step(data: TrainingData, state: TrainState, strategy: Strategy, f: int, cfg: Config,
+               elapsed: float = 0.0) -> StepStats:
+    """Forward, backward, Adam steps, densification of frame ``f``; advances ``state.step``.
+    ``StepStats.profile`` says where the step's time went (``step_profile``)."""
+    t0 = time.perf_counter()
+    for opt in state.optimizers.values():  # zero_grad(set_to_none=True), without its per-optimizer hooks
+        for group in opt.param_groups:
+            for p in group["params"]:
+                p.grad = None
+    out = frame_losses(data, state, f, cfg)
+    if not torch.isfinite(out.total):
+        raise FloatingPointError(f"non-finite loss at step {state.step} (frame {data.names[f]})")
+    frac = _budget_fraction(state, cfg, elapsed)
+    out.info.progress = frac
+    t1 = time.perf_counter()
+    strategy.step_pre_backward(state.params, state.optimizers, state.strategy_state, state.step, out.info)
+    t2 = time.perf_counter()
+    out.total.backward()
+    t3 = time.perf_counter()
+    state.optimizers["means"].param_groups[0]["lr"] = cfg.train.lr_means * data.scale * cfg.train.lr_means_final ** frac
+    if "poses" in state.optimizers:
+        state.optimizers["poses"].param_groups[0]["lr"] = cfg.trajectory.lr * cfg.trajectory.lr_final ** frac
+    for name, opt in state.optimizers.items():
+        if name == "poses" and state.step < cfg.train.pose_warmup:
+            continue
+        opt.step()
+    normalise_quats_(state.params["quats"])
+    t4 = time.perf_counter()
+    refine = strategy.step_post_backward(state.params, state.optimizers, state.strategy_state, state.step, out.info)
+    state.step += 1
+    t5 = time.perf_counter()
+    rt = out.raster_timings
+    return StepStats(
+        step=state.step, frame=data.names[f], loss=float(out.total.detach()), blur=float(out.blur.detach()),
+        train_psnr=psnr(out.mean_render, data.targets[f]), gaussians=num_gaussians(state.params), time=elapsed,
+        ev=None if out.ev is None else float(out.ev.detach()), edi=None if out.edi is None else float(out.edi.detach()),
+        c=None if state.log_c is None or not state.log_c.requires_grad else torch.exp(state.log_c.detach()).tolist(),
+        refine=refine, width=data.width,
+        profile={"forward": 1e3 * (t1 - t0), "raster_forward": sum(rt.get(k, 0.0) for k in RASTER_FORWARD),
+                 "poses": out.timings["poses"], "losses": out.timings["losses"],
+                 "backward": 1e3 * (t3 - t2), "raster_backward": sum(rt.get(k, 0.0) for k in RASTER_BACKWARD),
+                 "adam": 1e3 * (t4 - t3), "densify": 1e3 * ((t2 - t1) + (t5 - t4)),
+                 "step": 1e3 * (time.perf_counter() - t0)},
+    )
+
+
+RASTER_FORWARD = ("project_ms", "bin_ms", "composite_ms")  # splat_cpu's meta["timings"] of its forward
+RASTER_BACKWARD = ("backward_project_ms", "backward_composite_ms")  # and of its backward
+
+
+def step_profile(history: Sequence[StepStats]) -> dict[str, float] | None:
+    """Mean ms per step of each part of ``StepStats.profile`` over ``history``, and ``outside_share``:
+    the fraction of the steps' time spent outside the rasteriser (the losses and SSIM, the
+    trajectory poses, the autograd of both, Adam, densification). None when no step has a profile.
+
+    The parts: ``forward`` (its own parts ``poses``, the trajectories' poses; ``raster_forward``;
+    ``losses``, from the renders to the weighted total: the response, L1 + SSIM, L_ev), ``backward``
+    (``raster_backward`` inside it), ``adam``, ``densify`` and the whole ``step``."""
+    profiles = [h.profile for h in history if h.profile]
+    if not profiles:
+        return None
+    keys = [k for k in profiles[-1] if all(k in p for p in profiles)]  # a resumed run's history may predate a part
+    mean = {k: float(np.mean([p[k] for p in profiles])) for k in keys}
+    mean["outside_share"] = 1.0 - (mean["raster_forward"] + mean["raster_backward"]) / max(mean["step"], 1e-9)
+    mean["steps"] = len(profiles)
+    return mean
+
+
+
+def should_stop(history: Sequence[StepStats], elapsed: float, cfg: Config) -> str | None:
+    """'time' when the wall-time budget is spent, 'plateau' when the windowed loss stalled."""
+    tc = cfg.train
+    if tc.max_seconds is not None and elapsed >= tc.max_seconds:
+        return "time"
+    step = history[-1].step if history else 0
+    if tc.plateau_patience > 0 and step > 0 and step % tc.plateau_every == 0:
+        w = tc.plateau_every
+        losses = [h.loss for h in history]
+        windows = [np.mean(losses[i:i + w]) for i in range(0, len(losses) - w + 1, w)]
+        if len(windows) > tc.plateau_patience:
+            best_before = min(windows[:-tc.plateau_patience])
+            recent = min(windows[-tc.plateau_patience:])
+            if recent > best_before * (1 - tc.plateau_tol):
+                return "plateau"
+    return None
+
+
+class _Interrupts:
+    """SIGINT / SIGTERM set a flag the loop checks after each step (so the state stays whole and
+    is checkpointed); a second Ctrl-C raises KeyboardInterrupt at once."""
+
+    def __init__(self):
+        self.received: str | None = None
+        self._old: dict[int, Any] = {}
+
+    def _handle(self, signum, frame):
+        if self.received is not None and signum == signal.SIGINT:
+            raise KeyboardInterrupt
+        self.received = signal.Signals(signum).name
+
+    def __enter__(self):
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                self._old[sig] = signal.signal(sig, self._handle)
+        return self
+
+    def __exit__(self, *exc):
+        for sig, old in self._old.items():
+            signal.signal(sig, old)
+        return False
+
+
+@contextmanager
+def _torch_single_threaded():
+    """torch single-threaded for the duration, its thread count restored after. A step's torch
+    operations are small: on one thread they neither spin between parallel regions (when
+    OpenMP's threads do not sleep, ``ebad.threads``) nor wait for sleeping threads to wake, and
+    the parallel work is numba's (rasteriser, SSIM), whose threads are its own; measured faster
+    than two threads (docs/results.md)."""
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(n)
+
+
+def coarse_data(data: TrainingData, cfg: Config) -> TrainingData | None:
+    """The coarse phase's problem (``train.coarse_scale``), or None when there is none: no coarse
+    phase configured, or frames too small for it (``data.MIN_DOWNSCALED_SIDE``)."""
+    s = cfg.train.coarse_scale
+    if s <= 1 or cfg.train.coarse_until <= 0 or min(data.height, data.width) < MIN_DOWNSCALED_SIDE * s:
+        return None
+    return downscale(data, s)
+
+
+PATH_SAMPLES = 9  # instants over an exposure at which views_from_trajectories follows the scene's points
+PATH_POINTS = 4096  # at most this many Gaussian centres (evenly strided) stand for the scene there
+
+
+@torch.no_grad()
+def views_from_trajectories(data: TrainingData, state: TrainState, cfg: Config) -> np.ndarray:  # [F]
+    """V per frame from the learnt trajectories (``trajectory.view_spacing``): each blurry
+    frame's image path length at full resolution (``virtual_views.path_lengths_px``, over the
+    Gaussians' centres) over the spacing, within [2, max_views]."""
+    means = state.params["means"].detach()
+    points = means[:: max(1, len(means) // PATH_POINTS)]
+    poses = state.trajectories(torch.arange(data.num_frames), torch.linspace(0, 1, PATH_SAMPLES))
+    lengths = path_lengths_px(poses, points, data.K, data.width, data.height)
+    return views_from_blur(lengths, data.V, cfg.trajectory.view_spacing, cfg.trajectory.max_views)
+
+
+def train(data: TrainingData, state: TrainState, strategy: Strategy, cfg: Config,
+          callbacks: Sequence[Callback] = ()) -> str:
+    """Steps until ``train.iters``, a stop rule or a signal; returns why it stopped:
+    'iters', 'time', 'plateau' or 'interrupted (SIGINT)' / 'interrupted (SIGTERM)'.
+
+    The first ``train.coarse_until`` of the run trains on ``coarse_data``; where that phase ends,
+    ``trajectory.view_spacing`` > 0 gives each frame its V from the trajectories learnt so far
+    (``views_from_trajectories``, ``data.set_views``: ``data`` changes in place; a resumed run
+    past that point chooses again at its first step). From ``trajectory.average_from`` on, every
+    step's knots are added to ``state.knots_sum`` (``reconstruct`` gives the run their mean)."""
+    started = time.perf_counter() - state.elapsed
+    reason = "iters"
+    coarse = coarse_data(data, cfg)
+    views_due = cfg.trajectory.view_spacing > 0 and bool((data.V > 1).any())
+    averaging = cfg.trajectory.average_from < 1 and "poses" in state.optimizers
+    with _Interrupts() as interrupts, _torch_single_threaded():
+        try:
+            while state.step < cfg.train.iters:
+                f = state.next_frame()
+                elapsed = time.perf_counter() - started
+                fine = _budget_fraction(state, cfg, elapsed) >= cfg.train.coarse_until
+                if views_due and fine:
+                    data.set_views(views_from_trajectories(data, state, cfg))
+                    views_due = False
+                level = data if fine or coarse is None else coarse
+                stats = train_step(level, state, strategy, f, cfg, elapsed)
+                state.elapsed = stats.time = time.perf_counter() - started
+                if averaging and _budget_fraction(state, cfg, state.elapsed) >= cfg.trajectory.average_from:
+                    state.accumulate_knots()
+                state.history.append(stats)
+                for cb in callbacks:
+                    cb.on_step(state, stats)
+                if interrupts.received:
+                    reason = f"interrupted ({interrupts.received})"
+                    break
+                stop = should_stop(state.history, state.elapsed, cfg)
+                if stop:
+                    reason = stop
+                    break
+        finally:
+            for cb in callbacks:
+                cb.on_end(state, reason)
+    return reason
+

@@ -1,0 +1,83 @@
+"""Scores of rendered views against images: the helpers that training-time evaluation
+(``ebad.callbacks.Evaluator``) and the evaluation protocol (``ebad.evaluate``) share.
+
+``render_images`` renders views in batches without gradients; ``score_views`` and
+``score_frames`` give PSNR / SSIM (``ebad.metrics``) as ``ViewScores``; ``with_poses`` and
+``evaluate_views`` pick the views that carry an image and a pose and score them.
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Callable, Sequence
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from .gaussians import render
+from .metrics import psnr, ssim
+
+if TYPE_CHECKING:
+    from scenes import TestView
+
+__all__ = ["ViewScores", "render_images", "score_views", "score_frames", "with_poses", "scorable_views",
+           "evaluate_views"]
+
+
+@dataclass
+class ViewScores:
+    """Mean PSNR / SSIM over some views, and each view's."""
+
+    psnr: float
+    ssim: float
+    n: int
+    per_view: dict[str, dict[str, float]] = field(default_factory=dict)
+
+
+def render_images(params: dict[str, Tensor], c2w, K, width: int, height: int, background: float = 0.0,
+                  batch: int = 8, response: Callable[[Tensor], Tensor] | None = None) -> np.ndarray:
+    """Render ``C`` views [C, 4, 4] in batches, without gradients, through the camera ``response``
+    when given, clamped to [0, 1] -> [C, H, W, D] numpy float32."""
+    c2w_t = torch.as_tensor(np.asarray(c2w), dtype=torch.float32)
+    K_t = torch.as_tensor(np.asarray(K), dtype=torch.float32)
+    out = []
+    with torch.no_grad():
+        for i in range(0, c2w_t.shape[0], batch):
+            img, _, _ = render(params, c2w_t[i:i + batch], K_t, width, height, background)
+            out.append((img if response is None else response(img)).clamp(0, 1))
+    return torch.cat(out).numpy()
+
+
+def score_views(images: np.ndarray,  # [C, H, W, D]
+                views: Sequence[TestView]) -> ViewScores:
+    """PSNR / SSIM of rendered images against the views' images (each view's ``image``, by ``name``)."""
+    per = {v.name: {"psnr": psnr(images[i], v.image), "ssim": ssim(images[i], v.image)} for i, v in enumerate(views)}
+    return ViewScores(psnr=float(np.mean([p["psnr"] for p in per.values()])),
+                      ssim=float(np.mean([p["ssim"] for p in per.values()])), n=len(views), per_view=per)
+
+
+def score_frames(images: np.ndarray, truth: np.ndarray) -> ViewScores:  # [F, H, W, D] x2
+    """Mean PSNR / SSIM of frames against their ground truth, in order."""
+    ps = [psnr(a, b) for a, b in zip(images, truth)]
+    ss = [ssim(a, b) for a, b in zip(images, truth)]
+    return ViewScores(psnr=float(np.mean(ps)), ssim=float(np.mean(ss)), n=len(ps))
+
+
+def with_poses(views: Sequence[TestView], poses: dict[str, np.ndarray]) -> list[TestView]:
+    """The views with their pose replaced by ``poses[name]`` where given (poses in the run's frame)."""
+    return [dataclasses.replace(v, c2w=poses[v.name]) if v.name in poses else v for v in views]
+
+
+def scorable_views(views: Sequence[TestView]) -> list[TestView]:
+    """The views that carry both an image and a pose."""
+    return [v for v in views if getattr(v, "image", None) is not None and getattr(v, "c2w", None) is not None]
+
+
+def evaluate_views(render_fn: Callable[[np.ndarray], np.ndarray], views: Sequence[TestView]) -> ViewScores | None:
+    """Mean PSNR / SSIM of the views that carry an image and a pose (None when none does);
+    ``render_fn(c2w [C, 4, 4]) -> [C, H, W, D]``."""
+    views = scorable_views(views)
+    if not views:
+        return None
+    return score_views(render_fn(np.stack([v.c2w for v in views])), views)

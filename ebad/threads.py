@@ -1,0 +1,43 @@
+"""The process's thread set-up, in one explicit place: ``configure()``.
+
+Nothing in ``ebad`` (or ``splat_cpu``) changes a process-wide setting when it is imported. The
+command line's ``main`` and ``ebad.reconstruct`` call ``configure()`` before any work:
+
+1. OMP_WAIT_POLICY=PASSIVE, only while torch is not loaded (torch's OpenMP runtime reads it
+   once, when it loads) and only when the environment does not set it already (a user's value
+   wins). Idle OpenMP threads then sleep instead of spinning between parallel regions and
+   taking the cores from numba's threads and from other work.
+2. numba's threading layer, from the policy actually in force (``splat_cpu._omp``): "omp" on
+   sleeping OpenMP threads (it wakes them sooner than numba's own pool), numba's "workqueue"
+   when they spin, e.g. when torch was loaded first without the policy. A layer the user chose
+   is kept; once numba has launched its threads, nothing changes.
+
+torch's own thread count is the loop's business (``ebad.loop.train`` runs torch on one thread
+and restores the count after).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+from splat_cpu import _omp
+
+__all__ = ["ThreadSetup", "configure"]
+
+NumbaLayer = Literal["omp", "workqueue", "user", "launched"]
+
+
+@dataclass(frozen=True)
+class ThreadSetup:
+    """What ``configure`` found and did."""
+
+    policy_set: bool  # this call set OMP_WAIT_POLICY=PASSIVE (torch not loaded yet, the variable unset)
+    threads_sleep: bool  # OpenMP's idle threads sleep: PASSIVE was (or will be) in force when torch loads
+    numba_layer: NumbaLayer  # chosen here (omp, workqueue), or left alone: the user's choice, threads already launched
+
+
+def configure() -> ThreadSetup:
+    """Set up the process's threads (see the module docstring); safe to call more than once."""
+    policy_set = _omp.set_wait_policy("PASSIVE")
+    return ThreadSetup(policy_set=policy_set, threads_sleep=_omp.openmp_threads_sleep(),
+                       numba_layer=_omp.choose_threading_layer())
