@@ -22,12 +22,11 @@ from kornia.metrics import ssim as _kornia_ssim
 from edi import LOG_EPS
 
 from .config import EventNorm  # the norm of the L_ev residual: l1, mean |r| (ebad's default), or l2, mean r^2 (the paper's)
-from .kernels import use_kernels
+from .kernels import LUMA, use_kernels
 
 __all__ = ["luminance", "ssim_map", "ssim_map_kornia", "l1_ssim", "l1_ssim_each", "blur_loss", "exposure_losses",
            "event_loss", "edi_loss", "LUMA"]
 
-LUMA = (1 / 3, 1 / 3, 1 / 3)  # the intensity a colour event pixel sees: the channel mean, as scenes.simulate_events
 
 
 def _bhwd(x: Tensor, name: str) -> Tensor:

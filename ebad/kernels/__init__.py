@@ -22,7 +22,11 @@ from __future__ import annotations
 import contextlib
 from collections.abc import Iterator
 
-__all__ = ["torch_reference", "use_kernels"]
+__all__ = ["LUMA", "torch_reference", "use_kernels"]
+
+#: The channel weights of the intensity a colour event pixel sees: the channel mean, as
+#: ``scenes.simulate_events``. Here, below both ``ebad.losses`` (the reference) and the kernels.
+LUMA = (1 / 3, 1 / 3, 1 / 3)
 
 _enabled = True  # False inside ``torch_reference()``
 

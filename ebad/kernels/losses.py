@@ -17,7 +17,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from ..losses import LUMA
+from . import LUMA
 
 __all__ = ["event_loss", "exposure_losses", "l1_ssim_each", "ssim_map"]
 
