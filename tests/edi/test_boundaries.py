@@ -67,3 +67,18 @@ def test_sensor_size_is_height_then_width(tmp_path, name):
     # a three-element (H, W, 2) sensor size as tonic writes it reads the same
     ev3 = read_events(_events(tmp_path, "3" + name, sensor_size=np.array([5, 8, 2])), t_unit="us")
     assert (ev3.width, ev3.height) == (8, 5)
+
+
+def test_rounding_just_outside_the_unit_range_reads_as_the_bound_itself(seq1):
+    """A frame value within RANGE_TOL outside [0, 1] is that bound: the latent is the one of the
+    clipped frame, pixel for pixel (1 + 1e-7 is saturated and stays exactly 1)."""
+    B = seq1.frames[0].astype(np.float64)
+    B[0, 0], B[0, 1], B[2, 3] = 1.0 + 1e-7, -1e-7, 1.0
+    ex = seq1.exposures[0]
+    L, rep = deblur(B, ex, seq1.events, c=0.2, return_report=True)
+    want = deblur(np.clip(B, 0.0, 1.0), ex, seq1.events, c=0.2)
+    np.testing.assert_array_equal(L, want)
+    assert L[0, 0, 0] == 1.0 and L[2, 3, 0] == 1.0 and rep.saturated[0, 0] and rep.saturated[2, 3]
+    zero = B.copy()
+    zero[0, 1] = 0.0
+    assert L[0, 1, 0] == deblur(zero, ex, seq1.events, c=0.2)[0, 1, 0]
