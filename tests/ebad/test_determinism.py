@@ -81,7 +81,9 @@ def test_two_runs_with_one_seed_are_identical_and_another_seed_differs(tiny, who
     assert not torch.equal(c.trajectories.knots, a.trajectories.knots)
 
 
-@pytest.mark.parametrize("stop", [4, 6])  # at a pass boundary (the order spent) and inside a pass
+# inside a pass (its rest of the order restored), and at a pass boundary (the order spent: the
+# permutation drawn after the resume comes from the restored generator); the second is slow
+@pytest.mark.parametrize("stop", [6, pytest.param(4, marks=pytest.mark.slow)])
 def test_a_run_interrupted_and_resumed_across_a_pass_boundary_equals_the_uninterrupted_run(tiny, whole, tmp_path, stop):
     out = tmp_path / "run"
     first = reconstruct(tiny.capture, _config(), out_dir=out, callbacks=[_InterruptAt(stop)])

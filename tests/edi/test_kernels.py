@@ -75,8 +75,25 @@ def test_ten_to_six_random_events():
     rng = np.random.default_rng(7)
     ev = random_events(rng, 1_000_000, 346, 260, 40_000)
     B = rng.uniform(0, 1, (260, 346))
-    L = deblur(B, (0.0, 0.04), ev, times=np.linspace(0, 0.04, 8), c=0.3)
+    times = np.linspace(0, 0.04, 8)
+    L = deblur(B, (0.0, 0.04), ev, times=times, c=0.3)
     assert L.shape == (8, 260, 346) and np.isfinite(L).all() and L.min() >= 0 and L.max() <= 1
+    _assert_pixels_match_reference(L, B, (0.0, 0.04), ev, times, 0.3, rng)
+
+
+def _assert_pixels_match_reference(L, B, exposure, ev, times, c, rng, n_pixels=40):
+    """``L`` (deblur's fast path on the whole stream) at ``n_pixels`` random pixels equals the
+    numpy reference run on those pixels' events alone (EDI is per pixel)."""
+    H, W = B.shape
+    chosen = rng.choice(H * W, n_pixels, replace=False)
+    pix = ev.y.astype(np.int64) * W + ev.x.astype(np.int64)
+    sel = np.isin(pix, chosen)
+    sub = EventStream(ev.t[sel], ev.x[sel], ev.y[sel], ev.p[sel], W, H)
+    assert len(sub) > 5 * n_pixels  # the chosen pixels have events to integrate
+    ref = deblur(B, exposure, sub, times=times, c=c, impl="reference")
+    yy, xx = np.divmod(chosen, W)
+    np.testing.assert_allclose(L[..., yy, xx], ref[..., yy, xx], rtol=0, atol=1e-9)
+    assert np.abs(L[..., yy, xx] - B[yy, xx]).max() > 0.1  # the events changed these pixels
 
 
 def test_ten_to_seven_random_events():
@@ -84,8 +101,10 @@ def test_ten_to_seven_random_events():
     m = 10_000_000
     t = np.sort(rng.integers(0, 40_000, m))
     ev = EventStream(t, rng.integers(0, 346, m), rng.integers(0, 260, m), rng.integers(0, 2, m), 346, 260)
-    L = deblur(rng.uniform(0, 1, (260, 346)), (0.0, 0.04), ev, c=0.3)
-    assert np.isfinite(L).all()
+    B = rng.uniform(0, 1, (260, 346))
+    L = deblur(B, (0.0, 0.04), ev, c=0.3)
+    assert np.isfinite(L).all() and L.min() >= 0 and L.max() <= 1
+    _assert_pixels_match_reference(L, B, (0.0, 0.04), ev, None, 0.3, rng)
 
 
 # --- the crossings a DVS pixel's hysteresis hides -------------------------------------------------
