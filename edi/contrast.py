@@ -430,8 +430,7 @@ def _mean_residual(events: EventStream, exposures: np.ndarray) -> np.ndarray:
       0 to -c whose peak on the other side is c/2 high, the mean height of a peak that did not
       reach the threshold (its mean over the interval is -0.12 c, not 0: with 0 the estimate
       read 1.04-1.06x at c = 0.3 on ``moving_texture``, where pixels turn often);
-    * 0 before a pixel's first event and after its last (unknown; ``_consistency_pairs`` leaves out
-      a pixel with no event after an exposure's start).
+    * 0 before a pixel's first event (unknown).
 
     Row 0 is the mean over the intervals that end with a + event, row 1 with a - event, so the
     residual is c_pos row 0 - c_neg row 1."""
@@ -513,11 +512,6 @@ def _consistency_pairs(fr: np.ndarray, ex: np.ndarray, events: EventStream) -> t
     centres = ex.mean(axis=1)
     valid = (fr < SATURATION).all(axis=-1) & (fr > 0.0).all(axis=-1)  # [F, H, W]
     resid = _mean_residual(events, ex)  # [F, 2, H, W]
-    # a pixel with no event at or after an exposure's start has no closing event there: its residual is
-    # unknown (``_mean_residual`` gives 0, which reads c too high where frames are sharp), so it is left out
-    last = np.full(events.height * events.width, -1, np.int64)
-    np.maximum.at(last, events.y.astype(np.int64) * events.width + events.x, events.t)
-    known = last.reshape(events.height, events.width)[None] >= seconds_to_us(ex[:, 0])[:, None, None]  # [F, H, W]
     pairs = []
     for i in range(fr.shape[0] - 1):
         lo, hi = sorted((centres[i], centres[i + 1]))
@@ -534,7 +528,7 @@ def _consistency_pairs(fr: np.ndarray, ex: np.ndarray, events: EventStream) -> t
             k = (between.count_image(pol) * (1.0 if ex[second, 0] >= ex[first, 0] else -1.0)
                  + _exposure_tails(events, ex[second], pol) - _exposure_tails(events, ex[first], pol))
             z.append(sign * ndimage.correlate(k, _NEIGHBOURS, mode="constant"))
-        ok = valid[i] & valid[i + 1] & known[i] & known[i + 1]
+        ok = valid[i] & valid[i + 1]
         fired = ok & ((n_pos != 0) | (n_neg != 0))
         n_pos = n_pos + resid[i + 1, 0] - resid[i, 0]
         n_neg = n_neg + resid[i + 1, 1] - resid[i, 1]

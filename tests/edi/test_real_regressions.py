@@ -6,9 +6,10 @@ The frame-prediction yardstick here is written out with numpy on the raw event a
 nothing of ``edi.contrast``: frame k+1 predicted as frame k times exp(c (N+ - N-)), with the
 counts N between the two exposure centres, clipped to the sensor's range [0, 1], scored over the
 pixels that fired, against holding frame k. It reads c low (the c that predicts best is not the
-threshold: counts of one or two events miss up to a threshold of the change), measured with the
-same yardstick on a synthetic street-like sequence of known c below, so the pinned estimate is a
-window around the estimator's value, and its gain a window too, not the best fixed c.
+threshold: counts of one or two events miss up to a threshold of the change), and the estimator
+reads it high where frames are sharp and events sparse (a pixel with no later event counts with
+a residual of 0), both measured on a synthetic street-like sequence of known c below; so the pins
+are windows around what the estimator and the yardstick give now (docs/results.md, issue 32).
 """
 from pathlib import Path
 
@@ -27,13 +28,13 @@ needs_ni = pytest.mark.skipif(not NI.exists(), reason=f"real data not found: {NI
 EPS = 1e-3
 #: the street frames of issue 32 (frames 5 to 50, the last one out, as the issue measured)
 STREET_FRAMES = slice(5, 50)
-#: the several-frame estimate on them, a window around 0.3697, measured after the fix of issue 32
-#: (0.3923 before it: a pixel with no later event counted with a residual of 0; 0.3459 from the
-#: first estimator, f8976c6 to 52d1cd2, a least squares of the log changes on c N)
-STREET_C = (0.360, 0.380)
-#: the yardstick's gain at the estimate (dB over holding the frame): 7.17 after the fix, 6.92 at
-#: 0.392, 7.36 at 0.346; the best fixed c of the grid below (0.31) gains 7.47
-STREET_GAIN_DB = (7.10, 7.25)
+#: the several-frame estimate on them, a window around 0.3923 (since 5944fe7; 0.4096-0.4106 from
+#: 19491e3 to ee2417d, 0.5323 at 4496104, 0.3459 from the first estimator, f8976c6 to 52d1cd2, a
+#: least squares of the log changes on c N like the yardstick's)
+STREET_C = (0.385, 0.400)
+#: the yardstick's gain at the estimate (dB over holding the frame): 6.92 at 0.3923, 7.36 at 0.346,
+#: 6.70 at 0.4096; the best fixed c of the grid below (0.31) gains 7.47
+STREET_GAIN_DB = (6.85, 7.00)
 #: fixed c tried for the best-predicting one
 GRID = np.round(np.arange(0.20, 0.50, 0.01), 3)
 
@@ -88,10 +89,9 @@ def test_street_estimate_prediction_gain_is_pinned(street, street_estimate):
     assert STREET_GAIN_DB[0] < gain < STREET_GAIN_DB[1], (c, gain)
     gains = [prediction_gain(fr, ex, ev, float(g)) for g in GRID]
     best = float(GRID[int(np.argmax(gains))])
-    # the yardstick's own optimum, below the estimate (it reads c low), and the estimate within
-    # 0.4 dB of it (0.31 dB; 0.392 was 0.55 dB below)
+    # the yardstick's own optimum, below the estimate (it reads c low): 0.55 dB more than the estimate
     assert 0.28 <= best <= 0.33 and best < c, (best, max(gains))
-    assert gain > max(gains) - 0.4, (c, gain, best, max(gains))
+    assert 0.4 < max(gains) - gain < 0.7, (c, gain, best, max(gains))
 
 
 def _street_like(seed: int, c: float):
@@ -105,15 +105,16 @@ def _street_like(seed: int, c: float):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", [0, 1])
-def test_street_like_sequence_estimate_is_right_where_the_yardstick_reads_low(seed):
-    """On a street-like sequence of known c (0.35) the estimator reads within 4% of it (measured
-    0.342-0.349; 1.07x, 0.374-0.376, while a pixel with no later event counted with a residual of
-    0), and the c that predicts the next frame best with the yardstick above is 0.8-0.9x the truth:
-    why the street's pin is the estimator's window and not the yardstick's optimum."""
+def test_street_like_sequence_the_estimate_reads_high_and_the_yardstick_low(seed):
+    """On a street-like sequence of known c (0.35) the estimator reads 1.07x (measured 0.3755 and
+    0.3760 for seeds 0 and 1: a pixel with no event after a frame counts with a residual of 0, where
+    its intensity went on by up to c; with the simulator's true residual it reads 0.350), and the
+    c that predicts the next frame best with the yardstick above is 0.8-0.9x the truth: the street's
+    0.392 is likely high by as much, and its true c between the yardstick's 0.31 and 0.392."""
     s = _street_like(seed, 0.35)
     fr = s.frames[..., 0]
     c = edi.estimate_c(fr, s.exposures, s.events)
-    assert abs(c / 0.35 - 1) < 0.04, c
+    assert 1.04 < c / 0.35 < 1.10, c
     gains = [prediction_gain(fr, s.exposures, s.events, float(g)) for g in GRID]
     best = float(GRID[int(np.argmax(gains))])
     assert 0.25 <= best <= 0.33, best
