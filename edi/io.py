@@ -323,6 +323,16 @@ def _frame_pixels(px: np.ndarray, fmt: str) -> np.ndarray:
     return a[..., :3] if a.shape[-1] >= 3 else a
 
 
+def _sensor_size(streams: dict, path: Path) -> tuple[int, int]:
+    """(width, height) of an AEDAT4 file's event stream, else of its frame stream."""
+    size = next(((s["width"], s["height"]) for s in streams.values() if s.get("type") == "events"), None)
+    if size is None:
+        size = next(((s["width"], s["height"]) for s in streams.values() if s.get("type") == "frame"), None)
+    if size is None:
+        raise EventError(f"{path}: no events or frame stream")
+    return size
+
+
 def read_aedat4(path: str | Path) -> AedatRecording:
     """Read events and frames of an AEDAT4 file (``aedat``, else ``dv-processing``)."""
     path = Path(path)
@@ -342,12 +352,7 @@ def read_aedat4(path: str | Path) -> AedatRecording:
         dec = aedat.Decoder(str(path))
     except (OSError, RuntimeError, ValueError) as exc:
         raise CorruptFileError(f"{path}: not a readable AEDAT4 file ({type(exc).__name__}: {exc})") from exc
-    streams = dec.id_to_stream()
-    size = next(((s["width"], s["height"]) for s in streams.values() if s.get("type") == "events"), None)
-    if size is None:
-        size = next(((s["width"], s["height"]) for s in streams.values() if s.get("type") == "frame"), None)
-    if size is None:
-        raise EventError(f"{path}: no events or frame stream")
+    size = _sensor_size(dec.id_to_stream(), path)
     ev_chunks, frames, exps = [], [], []
     try:
         for pk in dec:

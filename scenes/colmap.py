@@ -30,7 +30,7 @@ from edi import deblur as edi_deblur
 from edi import estimate_c
 from edi.errors import EbadError
 
-from .capture import Capture
+from .capture import Capture, TestView
 from .poses import interpolate_poses
 from .errors import CaptureError
 
@@ -190,18 +190,7 @@ def estimate_poses(capture: Capture, config: ColmapConfig | None = None, frames:
     import pycolmap
 
     cfg = config or ColmapConfig()
-    capture.validate("capture")
-    if capture.distortion is not None and np.any(np.asarray(capture.distortion) != 0):
-        raise CaptureError(None, "capture", "has lens distortion; load it with undistort=True first")
-    idx = np.arange(capture.num_frames) if frames is None else np.asarray(frames, dtype=int)
-    if idx.ndim != 1 or len(idx) < 2 or idx.min() < 0 or idx.max() >= capture.num_frames:
-        raise CaptureError(None, "frames", f"need >= 2 indices in [0, {capture.num_frames}), got {frames!r}")
-    if cfg.matcher not in ("auto", "sequential", "exhaustive"):
-        raise CaptureError(None, "config.matcher", f"must be auto, sequential or exhaustive, got {cfg.matcher!r}")
-    if cfg.test_views not in ("unposed", "all", "none"):
-        raise CaptureError(None, "config.test_views", f"must be unposed, all or none, got {cfg.test_views!r}")
-    tests = [tv for tv in capture.test_views if tv.image is not None and
-             (cfg.test_views == "all" or (cfg.test_views == "unposed" and tv.c2w is None))]
+    idx, tests = _sfm_inputs(capture, cfg, frames)
     report: dict = {"frames_used": len(idx), "test_views_used": len(tests)}
     t_start = time.perf_counter()
     imgs = _sfm_frames(capture, cfg.deblur, report, cfg.c_polarity)[idx]
@@ -280,10 +269,50 @@ def estimate_poses(capture: Capture, config: ColmapConfig | None = None, frames:
                        + _failure_hint(cfg, capture, report))
     name_to_i = {n: i for i, n in enumerate(names)}
     rec = max(recs.values(), key=lambda r: sum(1 for im in r.images.values() if im.has_pose and im.name in name_to_i))
-    c2w = np.tile(np.eye(4), (len(idx), 1, 1))
-    registered = np.zeros(len(idx), bool)
+    c2w, registered, test_c2w = _registered_poses(rec, name_to_i, dict(zip(test_names, tests)))
+    n_reg = int(registered.sum())
+    if n_reg < need:
+        raise SfMError(f"SfM registered only {n_reg} of {len(idx)} frames (need {need}) in its largest model "
+                       f"({len(recs)} model(s))" + _failure_hint(cfg, capture, report))
+    t_mid = capture.exposures[idx].mean(axis=1)
+    c2w = _interp_missing(c2w, registered, t_mid)
+    points, colors = _sparse_points(rec, capture.channels)
+    test_unreg = [tv.name for tv in tests if tv.name not in test_c2w]
+    report.update({"registered": n_reg, "unregistered": np.flatnonzero(~registered).tolist(),
+                   "test_registered": len(test_c2w), "test_unregistered": test_unreg,
+                   "points": len(points), "models": len(recs), "matcher": matcher, "upsampled": scale,
+                   "mean_reprojection_error_px": float(rec.compute_mean_reprojection_error()) / scale,
+                   "time_features_s": t_feat - t_start, "time_matching_s": t_match - t_feat,
+                   "time_mapping_s": t_map - t_match, "time_total_s": time.perf_counter() - t_start})
+    return PoseEstimate(c2w=c2w, points=points, colors=colors.astype(np.float32), registered=registered, report=report,
+                        test_c2w=test_c2w, test_unregistered=test_unreg)
+
+
+def _sfm_inputs(capture: Capture, cfg: ColmapConfig, frames: list[int] | None) -> tuple[np.ndarray, list[TestView]]:
+    """The capture and config checked (CaptureError naming the argument): the indices [F] of the frames
+    to use and the test views whose images go to SfM."""
+    capture.validate("capture")
+    if capture.distortion is not None and np.any(np.asarray(capture.distortion) != 0):
+        raise CaptureError(None, "capture", "has lens distortion; load it with undistort=True first")
+    idx = np.arange(capture.num_frames) if frames is None else np.asarray(frames, dtype=int)
+    if idx.ndim != 1 or len(idx) < 2 or idx.min() < 0 or idx.max() >= capture.num_frames:
+        raise CaptureError(None, "frames", f"need >= 2 indices in [0, {capture.num_frames}), got {frames!r}")
+    if cfg.matcher not in ("auto", "sequential", "exhaustive"):
+        raise CaptureError(None, "config.matcher", f"must be auto, sequential or exhaustive, got {cfg.matcher!r}")
+    if cfg.test_views not in ("unposed", "all", "none"):
+        raise CaptureError(None, "config.test_views", f"must be unposed, all or none, got {cfg.test_views!r}")
+    tests = [tv for tv in capture.test_views if tv.image is not None and
+             (cfg.test_views == "all" or (cfg.test_views == "unposed" and tv.c2w is None))]
+    return idx, tests
+
+
+def _registered_poses(rec: Any, name_to_i: dict[str, int],
+                      name_to_test: dict[str, TestView]) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+    """From a pycolmap Reconstruction: c2w [F, 4, 4] of the frames (identity where not registered),
+    registered [F] bool, and the c2w [4, 4] of each registered test view by its name."""
+    c2w = np.tile(np.eye(4), (len(name_to_i), 1, 1))
+    registered = np.zeros(len(name_to_i), bool)
     test_c2w: dict[str, np.ndarray] = {}
-    name_to_test = dict(zip(test_names, tests))
     for image in rec.images.values():
         if not image.has_pose:
             continue
@@ -294,28 +323,18 @@ def estimate_poses(capture: Capture, config: ColmapConfig | None = None, frames:
             registered[name_to_i[image.name]] = True
         elif image.name in name_to_test:
             test_c2w[name_to_test[image.name].name] = np.linalg.inv(m)
-    n_reg = int(registered.sum())
-    if n_reg < need:
-        raise SfMError(f"SfM registered only {n_reg} of {len(idx)} frames (need {need}) in its largest model "
-                       f"({len(recs)} model(s))" + _failure_hint(cfg, capture, report))
-    t_mid = capture.exposures[idx].mean(axis=1)
-    c2w = _interp_missing(c2w, registered, t_mid)
+    return c2w, registered, test_c2w
+
+
+def _sparse_points(rec: Any, channels: int) -> tuple[np.ndarray, np.ndarray]:
+    """The reconstruction's finite points [P, 3] and their colours [P, D] (display gamma undone, in [0, 1])."""
     pts = [(p.xyz, p.color) for p in rec.points3D.values()]
     points = np.array([p[0] for p in pts], np.float64).reshape(-1, 3)
     colors = (np.array([p[1] for p in pts], np.float64).reshape(-1, 3) / 255.0) ** 2.2  # undo display gamma
-    if capture.channels == 1:
+    if channels == 1:
         colors = colors.mean(axis=1, keepdims=True)
     ok = np.isfinite(points).all(1)
-    points, colors = points[ok], np.clip(colors[ok], 0, 1)
-    test_unreg = [tv.name for tv in tests if tv.name not in test_c2w]
-    report.update({"registered": n_reg, "unregistered": np.flatnonzero(~registered).tolist(),
-                   "test_registered": len(test_c2w), "test_unregistered": test_unreg,
-                   "points": len(points), "models": len(recs), "matcher": matcher, "upsampled": scale,
-                   "mean_reprojection_error_px": float(rec.compute_mean_reprojection_error()) / scale,
-                   "time_features_s": t_feat - t_start, "time_matching_s": t_match - t_feat,
-                   "time_mapping_s": t_map - t_match, "time_total_s": time.perf_counter() - t_start})
-    return PoseEstimate(c2w=c2w, points=points, colors=colors.astype(np.float32), registered=registered, report=report,
-                        test_c2w=test_c2w, test_unregistered=test_unreg)
+    return points[ok], np.clip(colors[ok], 0, 1)
 
 
 def _match_test_views(pycolmap: Any, db: Path, names: list[str], test_names: list[str], mopt: Any) -> None:

@@ -141,26 +141,11 @@ def _loadtxt(path: Path, ncols: int, field: str, usecols: Sequence[int] | None =
     return a
 
 
-def load_ecd(root: str | os.PathLike) -> Capture:
-    """The Event Camera Dataset text layout (images.txt, events.txt, groundtruth.txt, calib.txt).
-
-    Convention changes on load: calib.txt's principal point (OpenCV, pixel centres at integers)
-    gets +0.5 (our centre-of-top-left-pixel (0.5, 0.5)); groundtruth.txt's ``t tx ty tz qx qy qz
-    qw`` is camera-to-world and becomes c2w at each frame time (linear / slerp). Frames whose time
-    is more than ECD_CLAMP_S outside the ground truth's range are dropped (listed in
-    ``meta['dropped_frames']``); those within it take the end pose. APS exposure times are not in
-    the layout: every frame gets t_start == t_end == its timestamp (sharp).
-    """
-    root = Path(root)
-    calib = _loadtxt(root / "calib.txt", 4, "calib")[0]
-    fx, fy, cx, cy = calib[:4]
-    dist = np.zeros(5)
-    dist[: min(5, len(calib) - 4)] = calib[4:9]
-    K = np.array([[fx, 0.0, cx + 0.5], [0.0, fy, cy + 0.5], [0.0, 0.0, 1.0]])
-    lines = []
-    itxt = root / "images.txt"
+def _read_images_txt(itxt: Path) -> list[tuple[float, str]]:
+    """The (t seconds, image path) rows of an ECD ``images.txt`` (``#`` comments and blank lines skipped)."""
     if not itxt.is_file():
         raise CaptureError(str(itxt), "images", "file not found")
+    lines = []
     for ln, raw in enumerate(itxt.read_text().splitlines(), 1):
         s = raw.strip()
         if not s or s.startswith("#"):
@@ -177,6 +162,27 @@ def load_ecd(root: str | os.PathLike) -> Capture:
         lines.append((t, parts[1]))
     if not lines:
         raise CaptureError(str(itxt), "images", "no frames listed")
+    return lines
+
+
+def load_ecd(root: str | os.PathLike) -> Capture:
+    """The Event Camera Dataset text layout (images.txt, events.txt, groundtruth.txt, calib.txt).
+
+    Convention changes on load: calib.txt's principal point (OpenCV, pixel centres at integers)
+    gets +0.5 (our centre-of-top-left-pixel (0.5, 0.5)); groundtruth.txt's ``t tx ty tz qx qy qz
+    qw`` is camera-to-world and becomes c2w at each frame time (linear / slerp). Frames whose time
+    is more than ECD_CLAMP_S outside the ground truth's range are dropped (listed in
+    ``meta['dropped_frames']``); those within it take the end pose. APS exposure times are not in
+    the layout: every frame gets t_start == t_end == its timestamp (sharp).
+    """
+    root = Path(root)
+    calib = _loadtxt(root / "calib.txt", 4, "calib")[0]
+    fx, fy, cx, cy = calib[:4]
+    dist = np.zeros(5)
+    dist[: min(5, len(calib) - 4)] = calib[4:9]
+    K = np.array([[fx, 0.0, cx + 0.5], [0.0, fy, cy + 0.5], [0.0, 0.0, 1.0]])
+    itxt = root / "images.txt"
+    lines = _read_images_txt(itxt)
     times = np.array([t for t, _ in lines])
     if np.any(np.diff(times) < 0):
         i = int(np.flatnonzero(np.diff(times) < 0)[0]) + 1

@@ -13,6 +13,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from typing import Literal, overload
+
 import numpy as np
 import trimesh
 
@@ -75,7 +77,7 @@ class RayScene:
     mesh: trimesh.Trimesh = field(init=False, repr=False)
     tri_prim: np.ndarray = field(init=False, repr=False)  # [T] primitive index of each triangle
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         if not self.primitives:
             raise ValueError("primitives: a scene needs at least one primitive")
         d = {p.texture.shape[2] for p in self.primitives}
@@ -129,8 +131,19 @@ def project_points(pts: np.ndarray,  # [P, 3] world
     return np.stack([K[0, 0] * pc[:, 0] / pc[:, 2] + K[0, 2], K[1, 1] * pc[:, 1] / pc[:, 2] + K[1, 2]], -1)
 
 
+@overload
+def render(scene: RayScene, c2w: np.ndarray, K: np.ndarray, width: int, height: int,
+           return_depth: Literal[False] = False, batch_rays: int = 120_000) -> np.ndarray: ...
+
+
+@overload
+def render(scene: RayScene, c2w: np.ndarray, K: np.ndarray, width: int, height: int,
+           return_depth: Literal[True], batch_rays: int = 120_000) -> tuple[np.ndarray, np.ndarray]: ...
+
+
 def render(scene: RayScene, c2w: np.ndarray,  # [C, 4, 4] or [4, 4]
-           K: np.ndarray, width: int, height: int, return_depth: bool = False, batch_rays: int = 120_000):
+           K: np.ndarray, width: int, height: int, return_depth: bool = False,  # K [3, 3]
+           batch_rays: int = 120_000) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """Ray-cast ``scene`` from each camera: images [C, H, W, D] float32 linear (and, with
     ``return_depth``, z-depth [C, H, W] float32, 0 where nothing is hit). A [4, 4] c2w gives
     [H, W, D] (and [H, W])."""

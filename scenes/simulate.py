@@ -20,6 +20,7 @@ tested against each other.
 from __future__ import annotations
 
 import math
+from typing import Literal, overload
 
 import numba
 import numpy as np
@@ -137,12 +138,29 @@ def _check(images, times, c, sigma_c, refractory, noise_hz, hot_pixels, eps, lea
     return imgs, t
 
 
+@overload
+def simulate_events(images: np.ndarray, times: np.ndarray, c: float | tuple[float, float] = 0.2, sigma_c: float = 0.03,
+                    refractory: float = 0.0, noise_hz: float = 0.0, hot_pixels: int = 0, seed: int = 0,
+                    eps: float | None = None, hot_pixel_hz: float = HOT_PIXEL_HZ,
+                    return_thresholds: Literal[False] = False, reference: bool = False,
+                    leak_hz: float = 0.0) -> EventStream: ...
+
+
+@overload
+def simulate_events(images: np.ndarray, times: np.ndarray, c: float | tuple[float, float] = 0.2, sigma_c: float = 0.03,
+                    refractory: float = 0.0, noise_hz: float = 0.0, hot_pixels: int = 0, seed: int = 0,
+                    eps: float | None = None, hot_pixel_hz: float = HOT_PIXEL_HZ, *,
+                    return_thresholds: Literal[True], reference: bool = False,
+                    leak_hz: float = 0.0) -> tuple[EventStream, np.ndarray, np.ndarray]: ...
+
+
 def simulate_events(images: np.ndarray,  # [S, H, W] or [S, H, W, D] linear intensity
                     times: np.ndarray,  # [S] seconds, increasing
                     c: float | tuple[float, float] = 0.2, sigma_c: float = 0.03, refractory: float = 0.0,
                     noise_hz: float = 0.0, hot_pixels: int = 0, seed: int = 0, eps: float | None = None,
                     hot_pixel_hz: float = HOT_PIXEL_HZ, return_thresholds: bool = False,
-                    reference: bool = False, leak_hz: float = 0.0):
+                    reference: bool = False,
+                    leak_hz: float = 0.0) -> EventStream | tuple[EventStream, np.ndarray, np.ndarray]:
     """Events fired by a DVS pixel array watching ``images`` at ``times``.
 
     Args:

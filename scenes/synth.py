@@ -51,7 +51,7 @@ from typing import Callable, Literal
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from edi import LOG_EPS
+from edi import LOG_EPS, EventStream
 
 from .capture import Capture, TestView
 from .errors import CaptureError
@@ -293,7 +293,7 @@ class Trajectory:
     tremor_amp: np.ndarray | None = None  # [J, 6] amplitudes (rad, world units)
     tremor_phase: np.ndarray | None = None  # [J, 6] rad
 
-    def tremor(self, t: np.ndarray) -> np.ndarray:
+    def tremor(self, t: float | np.ndarray) -> np.ndarray:
         """[T, 6] tremor offsets (rotation vector [3], translation [3], camera frame) at times t."""
         t = np.atleast_1d(np.asarray(t, np.float64))
         if self.tremor_amp is None:
@@ -301,7 +301,7 @@ class Trajectory:
         arg = 2 * np.pi * self.tremor_freq[None] * t[:, None, None] + self.tremor_phase[None]
         return (self.tremor_amp[None] * np.sin(arg)).sum(axis=1)
 
-    def _phase(self, t: np.ndarray):
+    def _phase(self, t: float | np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """For each t: base angle and shake offset (rot [3], trans [3])."""
         t = np.atleast_1d(np.asarray(t, np.float64))
         ang = np.empty(len(t))
@@ -326,7 +326,7 @@ class Trajectory:
                 tr[i] = (1 - g) * self.shake_trans[k] / 2 - g * self.shake_trans[k + 1] / 2
         return ang, rot, tr
 
-    def c2w(self, t) -> np.ndarray:
+    def c2w(self, t: float | np.ndarray) -> np.ndarray:
         """c2w [4, 4] at a time (seconds) or [T, 4, 4] at an array of times."""
         scalar = np.ndim(t) == 0
         ang, rot, tr = self._phase(t)
@@ -368,11 +368,11 @@ class SynthScene:
     gt_test_images: np.ndarray | None = field(default=None, repr=False)  # [T, H, W, D] noise-free, camera domain
     truth: dict = field(default_factory=dict, repr=False)  # JSON-able: sensor, seed, thresholds, sharp frames, ...
 
-    def c2w_at(self, t):
+    def c2w_at(self, t: float | np.ndarray) -> np.ndarray:  # [4, 4] or [T, 4, 4]
         """True c2w [4, 4] at any time t (seconds) of the capture (or [T, 4, 4] for an array)."""
         return self.trajectory.c2w(t)
 
-    def gt_c2w_at(self, frame_index: int, t):
+    def gt_c2w_at(self, frame_index: int, t: float | np.ndarray) -> np.ndarray:  # [4, 4] or [T, 4, 4]
         """True c2w [4, 4] (or [T, 4, 4]) at time(s) ``t`` in seconds inside frame
         ``frame_index``'s exposure [t_start, t_end]; ValueError outside it."""
         f = self.capture.num_frames
@@ -399,7 +399,7 @@ class SynthScene:
 
 def sensor_events(irradiance: np.ndarray,  # [S, H, W, D] linear irradiance renders
                   times: np.ndarray,  # [S] seconds, increasing
-                  sensor: Sensor, seed: int = 0):
+                  sensor: Sensor, seed: int = 0) -> tuple[EventStream, np.ndarray, np.ndarray]:
     """The events ``sensor``'s pixels fire watching ``irradiance``: its luminance model for colour
     (the channel mean goes through ``simulate_events`` as it always did), thresholds, mismatch,
     refractory period, noise, hot pixels and log offset. Returns (EventStream, c_pos [H, W],
