@@ -77,7 +77,7 @@ def _root_type(mods: list[ModuleType], selected: str | None, argv: list[str]) ->
     for mod in mods:
         default = tyro.MISSING_NONPROP
         if mod.NAME == selected and hasattr(mod, "default_args"):
-            default = mod.default_args(argv[argv.index(selected) + 1:])
+            default = mod.default_args(argv[argv.index(mod.NAME) + 1:])
         options.append(Annotated[mod.Args, tyro.conf.subcommand(mod.NAME, description=mod.HELP, default=default,
                                                                   prefix_name=False)])
     root = dataclasses.make_dataclass("Ebad", [
@@ -102,8 +102,8 @@ def parse(argv: list[str]) -> Parsed:
     selected = _command_name(argv, set(by_name))
     root = _root_type(mods, selected, argv)
     with _one_line_errors(by_name.get(selected or ""), mods):
-        ns = tyro.cli(root, prog=PROG, args=argv, config=(tyro.conf.FlagCreatePairsOff,
-                                                          tyro.conf.CascadeSubcommandArgs))
+        ns: Any = tyro.cli(root, prog=PROG, args=argv,
+                           config=(tyro.conf.FlagCreatePairsOff, tyro.conf.CascadeSubcommandArgs))
     mod = next(m for m in mods if isinstance(ns.command, m.Args))
     return Parsed(mod, ns.command, bool(ns.traceback))
 
@@ -111,14 +111,14 @@ def parse(argv: list[str]) -> Parsed:
 def main(argv: list[str] | None = None) -> int:
     configure_threads()  # OMP_WAIT_POLICY before any command loads torch, numba's layer (ebad.threads)
     argv = list(sys.argv[1:] if argv is None else argv)
-    names = {m.NAME for m in _commands()}
-    prog = " ".join([PROG] + [n for n in [_command_name(argv, names)] if n])
+    name = _command_name(argv, {m.NAME for m in _commands()})
+    prog = f"{PROG} {name}" if name else PROG
     show_traceback = "--traceback" in argv  # until the command line is parsed
     try:
         try:
             parsed = parse(argv)
         except SystemExit as exc:  # --help (0), or a parse error tyro printed itself (2)
-            return exc.code if isinstance(exc.code, int) else 2
+            return 0 if exc.code is None else exc.code if isinstance(exc.code, int) else 2
         show_traceback = parsed.traceback
         return int(parsed.command.run(parsed.args) or 0)
     except KeyboardInterrupt:
@@ -148,12 +148,13 @@ def _option_names(cls: type, prefix: str = "") -> list[str]:
     names = []
     hints = typing.get_type_hints(cls, include_extras=True)
     for f in dataclasses.fields(cls):
-        t, extras = hints[f.name], ()
+        t = hints[f.name]
+        extras: tuple[Any, ...] = ()
         if typing.get_origin(t) is Annotated:
             t, extras = typing.get_args(t)[0], typing.get_args(t)[1:]
         if any(e in positional for e in extras):
             continue
-        if dataclasses.is_dataclass(t):
+        if isinstance(t, type) and dataclasses.is_dataclass(t):
             merged = any(getattr(e, "name", None) == "" for e in extras)
             names += _option_names(t, prefix if merged else f"{prefix}{f.name}.")
         else:

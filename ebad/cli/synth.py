@@ -60,11 +60,11 @@ def run(args: Args) -> int:
     from ebad.errors import UserError
     from scenes.synth import make_scene, write_scene
 
-    c = args.c
-    if c is not None:
-        if len(c) not in (1, 2):
-            raise UserError(f"--c takes one value or two (c_pos c_neg), got {len(c)}")
-        c = c[0] if len(c) == 1 else (c[0], c[1])
+    c: float | tuple[float, float] | None = None
+    if args.c is not None:
+        if len(args.c) not in (1, 2):
+            raise UserError(f"--c takes one value or two (c_pos c_neg), got {len(args.c)}")
+        c = args.c[0] if len(args.c) == 1 else (args.c[0], args.c[1])
     t0 = time.perf_counter()
     scene = make_scene(args.name, size=args.size, seed=args.seed, rgb=args.rgb, sensor=args.sensor, poses=args.poses,
                        c=c, noise_hz=args.noise_hz, shake=args.shake, tremor=args.tremor, n_frames=args.frames,
