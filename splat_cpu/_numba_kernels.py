@@ -94,7 +94,8 @@ def _exp_neg_impl(s):
         p = coefs[0]
         for c in coefs[1:]:
             p = p * r + c
-        return p * _float_from_bits((bias - np.int64(n)) << mant, s)
+        # n in int32: AVX2 converts packed floats to int32 (vcvttps2dq, vcvttpd2dq) but not to int64
+        return p * _float_from_bits((bias - np.int32(n)) << mant, s)
 
     return impl
 
