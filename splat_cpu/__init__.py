@@ -3,7 +3,8 @@
     images, alphas, meta = splat_cpu.rasterize(means, quats, scales, opacities, colors,
                                                viewmats, Ks, width, height, background=None)
 
-Semantics are gsplat's "classic" mode (see `splat_cpu.constants` and docs/conventions.md).
+Semantics are gsplat's "classic" mode (see `splat_cpu.constants` and docs/conventions.md),
+with its frustum clamp of the projection's Jacobian (`constants.FRUSTUM_MARGIN`).
 `rasterize` uses the numba tile kernels for CPU tensors and the pure-torch reference
 elsewhere; `rasterize_reference` always uses the reference.
 """

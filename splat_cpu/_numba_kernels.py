@@ -70,6 +70,23 @@ def _float_from_bits(typingctx, bits, like):
     return like(bits, like), codegen
 
 
+@intrinsic
+def _select(typingctx, cond, a, b):
+    """`a if cond else b` as one LLVM select, no branch: a store of it into the array it was read from
+    stays one plain vector store (a branch lets LLVM drop the store on the unchanged side and vectorise
+    the rest as masked stores, which cost many micro-ops on AMD cores)."""
+    if not isinstance(cond, types.Boolean) or a != b:
+        return None
+
+    def codegen(context, builder, signature, args):
+        c = args[0]
+        if c.type != ir.IntType(1):
+            c = builder.icmp_unsigned("!=", c, ir.Constant(c.type, 0))
+        return builder.select(c, args[1], args[2])
+
+    return a(cond, a, b), codegen
+
+
 def exp_neg(s):
     """exp(-s) for s in [0, _SIGMA_CLAMP], in the float type of s (float32 or float64); numba only."""
     raise NotImplementedError("exp_neg is compiled inside numba kernels only")
@@ -94,7 +111,8 @@ def _exp_neg_impl(s):
         p = coefs[0]
         for c in coefs[1:]:
             p = p * r + c
-        return p * _float_from_bits((bias - np.int64(n)) << mant, s)
+        # n in int32: AVX2 converts packed floats to int32 (vcvttps2dq, vcvttpd2dq) but not to int64
+        return p * _float_from_bits((bias - np.int32(n)) << mant, s)
 
     return impl
 
@@ -334,6 +352,7 @@ def forward_tiles(
                 break
             g = gid[k]
             kk = np.int32(k - start)
+            minus1 = np.int32(-1)
             mx = f(means2d[cam, g, 0]) - f(px0) - half  # the centre relative to the tile's first pixel centre
             my = f(means2d[cam, g, 1]) - f(py0) - half
             ca, cb, cc = f(conics[cam, g, 0]), f(conics[cam, g, 1]), f(conics[cam, g, 2])
@@ -364,8 +383,8 @@ def forward_tiles(
                     w = alpha * tc if con else zero
                     wb[j] = w
                     ac[j] += w * c0
-                    tr[j] = nt if con else (-tc if stop else tc)
-                    la[j] = kk if con else la[j]
+                    tr[j] = _select(con, nt, _select(stop, -tc, tc))
+                    la[j] = max(la[j], _select(con, kk, minus1))  # la[j] < kk: kk where con, else unchanged
                     n_stop += one if stop else zero
                 n_active -= np.int64(n_stop)
                 for ch in range(1, d):
@@ -499,8 +518,8 @@ def backward_tiles(
                     w = alpha * tb
                     cdj = cd[j] if d > 1 else c0 * v0[j]
                     v_al = cdj * tb - rs[j] * ra
-                    tr[j] = tb if ok else tr[j]
-                    rs[j] = rs[j] + cdj * w if ok else rs[j]
+                    tr[j] = _select(ok, tb, tr[j])
+                    rs[j] = _select(ok, rs[j] + cdj * w, rs[j])
                     wv = w if ok else zero
                     wb[j] = wv
                     g_c0 += wv * v0[j]
