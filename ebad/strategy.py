@@ -8,7 +8,8 @@ follows gsplat's default: screen-space gradients of the projected means are accu
 EVERY camera of each rasteriser call (all V virtual views of an exposure, not only the last),
 and every ``refine_every`` steps Gaussians with a high mean gradient are cloned (small) or
 split in two (large); transparent ones are pruned (and, after the first opacity reset, huge
-ones); every ``reset_every`` steps opacities are clamped down so that floaters can die.
+ones); every ``reset_every`` steps opacities are clamped down so that floaters can die, while
+the run's schedule allows it (``RenderInfo.resets``: before ``strategy.reset_until``, ``ebad.schedule``).
 
 The parameter surgery functions (``duplicate``, ``split``, ``remove``, ``reset_opacity``)
 keep each Adam optimizer's moments aligned with its parameter.
@@ -43,7 +44,8 @@ class RenderInfo:
     radii: Tensor | None  # [C, N] or [C, N, 2] screen radii (0: not visible)
     width: int
     height: int
-    progress: float = 0.0  # fraction of the run done (steps over iters, or time over the budget)
+    progress: float = 0.0  # fraction of the run's budget done (``ebad.schedule.Schedule.fraction``)
+    resets: bool = True  # opacity resets may fire at this step (the run's schedule: before strategy.reset_until)
 
 
 @dataclass
@@ -248,7 +250,7 @@ class DefaultStrategy:
         self.accumulate(state, info)
         if step > cfg.refine_start and step % cfg.refine_every == 0:
             report = self.refine(params, optimizers, state, step)
-        if cfg.reset_every > 0 and step > 0 and step % cfg.reset_every == 0 and info.progress < cfg.reset_until:
+        if cfg.reset_every > 0 and step > 0 and step % cfg.reset_every == 0 and info.resets:
             reset_opacity(params, optimizers, cfg.reset_opacity)
             report.reset = True
         return report
