@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import dataclasses
 import errno
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -19,6 +18,8 @@ from typing import Any
 import numpy as np
 import torch
 from torch import Tensor, nn
+
+from scenes._atomic import atomic_path
 
 from .config import Config
 from .data import TrainingData
@@ -209,8 +210,6 @@ class TrainState:
     def save(self, path: str | Path, fingerprint: dict[str, Any] | None = None) -> None:
         """Write the state to ``path`` atomically (a file unique to this process, renamed into place)."""
         path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
         doc = {
             "format": CHECKPOINT_FORMAT,
             "fingerprint": fingerprint,
@@ -229,7 +228,7 @@ class TrainState:
             "knots_sum": None if self.knots_sum is None else self.knots_sum.clone(),
             "knots_count": self.knots_count,
         }
-        try:
+        with atomic_path(path) as tmp:
             try:
                 torch.save(doc, tmp)
             except RuntimeError as exc:  # torch's zip writer reports a failed write (a full disk) this way
@@ -237,10 +236,6 @@ class TrainState:
                     raise
                 raise OSError(errno.EIO, f"could not write the checkpoint ({exc}); nothing was replaced",
                               str(path)) from exc
-            os.replace(tmp, path)
-        finally:
-            if tmp.exists():
-                tmp.unlink()
 
     @classmethod
     def load(cls, path: str | Path, data: TrainingData, cfg: Config,
@@ -266,7 +261,7 @@ class TrainState:
                 optimizers[k].load_state_dict(sd)
         order_rng = np.random.default_rng()
         order_rng.bit_generator.state = doc["order_rng"]
-        generator.set_state(doc["generator"])  # an older checkpoint's "torch_rng" (the global RNG, never drawn from) is ignored
+        generator.set_state(doc["generator"])  # an older checkpoint's "torch_rng" (the global RNG: unused) is ignored
         return cls(params=params, optimizers=optimizers, trajectories=traj, log_c=log_c, response=response,
                    strategy_state=StrategyState.from_dict(doc["strategy_state"]), order_rng=order_rng,
                    generator=generator, step=int(doc["step"]), order=[int(i) for i in doc["order"]],
