@@ -14,7 +14,7 @@ import threading
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any, Literal, Sequence
 
 import numpy as np
 import torch
@@ -33,8 +33,11 @@ from .strategy import RenderInfo, Strategy
 from .trajectory import virtual_instants
 from .virtual_views import path_lengths_px, random_window, views_from_blur, window_counts
 
-__all__ = ["FrameLosses", "frame_losses", "train_step", "train", "should_stop", "step_profile", "coarse_data",
+__all__ = ["StopReason", "FrameLosses", "frame_losses", "train_step", "train", "should_stop", "step_profile", "coarse_data",
            "views_from_trajectories", "RASTER_FORWARD", "RASTER_BACKWARD"]
+
+
+StopReason = Literal["iters", "time", "plateau", "interrupted (SIGINT)", "interrupted (SIGTERM)"]  # why train() stopped
 
 
 @dataclass
@@ -186,7 +189,7 @@ def step_profile(history: Sequence[StepStats]) -> dict[str, float] | None:
 
 
 
-def should_stop(history: Sequence[StepStats], elapsed: float, cfg: Config) -> str | None:
+def should_stop(history: Sequence[StepStats], elapsed: float, cfg: Config) -> Literal["time", "plateau"] | None:
     """'time' when the wall-time budget is spent, 'plateau' when the windowed loss stalled."""
     tc = cfg.train
     if tc.max_seconds is not None and elapsed >= tc.max_seconds:
@@ -270,7 +273,7 @@ def views_from_trajectories(data: TrainingData, state: TrainState, cfg: Config) 
 
 
 def train(data: TrainingData, state: TrainState, strategy: Strategy, cfg: Config,
-          callbacks: Sequence[Callback] = ()) -> str:
+          callbacks: Sequence[Callback] = ()) -> StopReason:
     """Steps until ``train.iters``, a stop rule or a signal; returns why it stopped:
     'iters', 'time', 'plateau' or 'interrupted (SIGINT)' / 'interrupted (SIGTERM)'.
 
@@ -281,7 +284,7 @@ def train(data: TrainingData, state: TrainState, strategy: Strategy, cfg: Config
     its first step); from ``trajectory.average_from`` on, every step's knots are added to
     ``state.knots_sum`` (``reconstruct`` gives the run their mean)."""
     started = time.perf_counter() - state.elapsed
-    reason = "iters"
+    reason: StopReason = "iters"
     coarse = coarse_data(data, cfg)
     schedule = Schedule.from_config(cfg, data.scale, coarse=coarse is not None, choose_views=bool((data.V > 1).any()),
                                     averaging="poses" in state.optimizers)
@@ -304,7 +307,7 @@ def train(data: TrainingData, state: TrainState, strategy: Strategy, cfg: Config
                 for cb in callbacks:
                     cb.on_step(state, stats)
                 if interrupts.received:
-                    reason = f"interrupted ({interrupts.received})"
+                    reason = "interrupted (SIGINT)" if interrupts.received == "SIGINT" else "interrupted (SIGTERM)"
                     break
                 stop = should_stop(state.history, state.elapsed, cfg)
                 if stop:

@@ -143,7 +143,7 @@ def _alive(pid: int) -> bool:
     return True
 
 
-def write_run(run, out: str | Path, gt_trajectories: np.ndarray | None = None) -> Path:
+def write_run(run: Run, out: str | Path, gt_trajectories: np.ndarray | None = None) -> Path:
     """Write every file of the run folder except the checkpoint (written while training);
     ``config.json`` only when the run start did not already write it, ``metrics.json`` last."""
     out = Path(out)

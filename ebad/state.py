@@ -13,7 +13,7 @@ import dataclasses
 import errno
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
@@ -28,6 +28,9 @@ from .gaussians import init_params, num_gaussians, plane_sweep_points, points_fr
 from .strategy import PARAM_NAMES, RefineReport, StrategyState
 from .response import Response
 from .trajectory import ExposureTrajectories
+
+if TYPE_CHECKING:
+    from scenes import Capture
 
 __all__ = ["StepStats", "TrainState", "init_gaussians", "make_optimizers", "max_gaussians", "capture_fingerprint",
            "read_checkpoint",
@@ -99,8 +102,7 @@ def init_gaussians(data: TrainingData, cfg: Config) -> dict[str, nn.Parameter]:
 
 def _adam(params: list[Tensor], **kw) -> torch.optim.Adam:
     """Adam, fused where torch has it for the CPU (torch >= 2.4): one pass per parameter instead of
-    a dozen torch operations (0.17 against 0.29 ms for the five Gaussian parameters of 3k
-    Gaussians, 0.50 against 1.79 ms for 60k); the same update either way."""
+    a dozen torch operations (measured faster at every N we run); the same update either way."""
     try:
         return torch.optim.Adam(params, fused=True, **kw)
     except RuntimeError:  # torch < 2.4: fused Adam only on GPUs
@@ -289,7 +291,7 @@ def read_checkpoint(path: str | Path, fingerprint: dict[str, Any] | None = None)
     return doc
 
 
-def capture_fingerprint(capture) -> dict[str, Any]:
+def capture_fingerprint(capture: Capture) -> dict[str, Any]:
     """What identifies the capture a run was made from: frame names, size, exposures, events, K."""
     ev = capture.events
     return {
