@@ -33,8 +33,8 @@ from .strategy import RenderInfo, Strategy
 from .trajectory import virtual_instants
 from .virtual_views import path_lengths_px, random_window, views_from_blur, window_counts
 
-__all__ = ["StopReason", "FrameLosses", "frame_losses", "train_step", "train", "should_stop", "step_profile", "coarse_data",
-           "views_from_trajectories", "RASTER_FORWARD", "RASTER_BACKWARD"]
+__all__ = ["StopReason", "FrameLosses", "frame_losses", "train_step", "train", "should_stop", "step_profile",
+           "coarse_data", "views_from_trajectories", "RASTER_FORWARD", "RASTER_BACKWARD"]
 
 
 StopReason = Literal["iters", "time", "plateau", "interrupted (SIGINT)", "interrupted (SIGTERM)"]  # why train() stopped

@@ -156,8 +156,8 @@ def _resolve(config: Config | str | None) -> Config:
 
 
 def reconstruct(capture: Capture, config: Config | str | None = None, out_dir: str | Path | None = None,
-                resume: bool = False, gt_views: Sequence[TestView] | None = None, on_step: Callable[[int, StepStats], None] | None = None,
-                callbacks: Sequence[Callback] = ()) -> Run:
+                resume: bool = False, gt_views: Sequence[TestView] | None = None,
+                on_step: Callable[[int, StepStats], None] | None = None, callbacks: Sequence[Callback] = ()) -> Run:
     """Recover Gaussians and per-exposure trajectories from ``capture``.
 
     Args:
@@ -195,15 +195,14 @@ def reconstruct(capture: Capture, config: Config | str | None = None, out_dir: s
     views = data.test_views if gt_views is None else gt_views  # poses from data.test_c2w where known
     evaluator = Evaluator(data, cfg, views, cfg.train.eval_every, cfg.train.iters)
     init_eval = evaluator.scores(state) if state.step == 0 else None
-    extra = list(callbacks)
-    callbacks: list[Callback] = [evaluator]
+    built: list[Callback] = [evaluator]
     if cfg.train.progress:
-        callbacks.append(ProgressBar(cfg, state.step))
+        built.append(ProgressBar(cfg, state.step))
     if on_step is not None:
-        callbacks.append(StepHook(on_step))
+        built.append(StepHook(on_step))
     if ckpt is not None:
-        callbacks.append(Checkpointer(ckpt, cfg.train.checkpoint_every, fingerprint))
-    stop_reason = train(data, state, strategy, cfg, [*callbacks, *extra])
+        built.append(Checkpointer(ckpt, cfg.train.checkpoint_every, fingerprint))
+    stop_reason = train(data, state, strategy, cfg, [*built, *callbacks])
     mean = state.knots_mean()
     if mean is not None:  # the checkpoint keeps the last step's knots and the sum, to resume from
         with torch.no_grad():
