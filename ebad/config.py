@@ -1,8 +1,8 @@
 """Reconstruction settings as dataclasses, the preset registry and JSON round trips.
 
-Every field carries a comment, which is also its command-line help: the command line is
-generated from these dataclasses by tyro (``ebad.cli.reconstruct``), so every field is an
-option (``--train.iters 300``, ``--model.init_depth 0.5 2.0``). ``Config`` nests one dataclass
+Every field carries a docstring (the string under it), which is also its command-line help:
+the command line is generated from these dataclasses by tyro (``ebad.cli.reconstruct``), so
+every field is an option (``--train.iters 300``, ``--model.init_depth 0.5 2.0``). ``Config`` nests one dataclass
 per concern; each section's ``check()`` refuses values that cannot work, naming the option.
 Presets are named functions in ``PRESETS`` returning a full ``Config``; a run saves the
 resolved config as JSON beside its outputs, and ``config_from_dict`` reads it back (unknown
@@ -55,19 +55,36 @@ def _finite(section: object, prefix: str) -> None:
 class ModelConfig:
     """The Gaussians and how they start."""
 
-    init: Literal["stereo", "random"] = "stereo"  # fallback without SfM points: plane-sweep stereo between the posed frames (gaussians.plane_sweep_points) or random depths along pixel rays
-    init_points: int = 3000  # Gaussians of the fallback initialisation (no SfM points)
-    init_depth: tuple[float, float] | None = None  # fallback depth range (near, far) in world units; None: from the focus point of the cameras' optical axes (FOCUS_DEPTH_RANGE x its depth), else SPREAD_DEPTH_RANGE x the camera-spread scale
-    init_opacity: float = 0.3  # activated opacity of every initial Gaussian
-    init_scale_px: float = 1.5  # initial Gaussian radius in pixels at its depth (fallback init)
-    min_sfm_points: int = 16  # SfM point clouds with fewer points than this are ignored (fallback init instead)
-    stereo_depths: int = 32  # plane-sweep initialisation: depth planes, uniform in inverse depth
-    stereo_neighbours: int = 2  # plane-sweep initialisation: nearest frames each frame is compared with
-    stereo_patch: int = 5  # plane-sweep initialisation: side of the cost-averaging patch in pixels (odd)
-    max_gaussians: int = 0  # densification stops growing N beyond this; 0: AUTO_CAP_PER_PIXEL x pixels, clamped to AUTO_CAP_RANGE (2 x pixels in [4000, 60000])
-    background: float = 0.0  # background intensity (every channel), in [0, 1]
-    response: Literal["linear", "gamma"] = "linear"  # camera response from rendered irradiance to recorded values (ebad.response): linear, or black level + gain + gamma learnt with the scene
-    lr_response: float = 1e-3  # Adam learning rate of the response curve's parameters
+    init: Literal["stereo", "random"] = "stereo"
+    """fallback without SfM points: plane-sweep stereo between the posed frames (gaussians.plane_sweep_points) or random
+    depths along pixel rays"""
+    init_points: int = 3000
+    """Gaussians of the fallback initialisation (no SfM points)"""
+    init_depth: tuple[float, float] | None = None
+    """fallback depth range (near, far) in world units; None: from the focus point of the cameras' optical axes
+    (FOCUS_DEPTH_RANGE x its depth), else SPREAD_DEPTH_RANGE x the camera-spread scale"""
+    init_opacity: float = 0.3
+    """activated opacity of every initial Gaussian"""
+    init_scale_px: float = 1.5
+    """initial Gaussian radius in pixels at its depth (fallback init)"""
+    min_sfm_points: int = 16
+    """SfM point clouds with fewer points than this are ignored (fallback init instead)"""
+    stereo_depths: int = 32
+    """plane-sweep initialisation: depth planes, uniform in inverse depth"""
+    stereo_neighbours: int = 2
+    """plane-sweep initialisation: nearest frames each frame is compared with"""
+    stereo_patch: int = 5
+    """plane-sweep initialisation: side of the cost-averaging patch in pixels (odd)"""
+    max_gaussians: int = 0
+    """densification stops growing N beyond this; 0: AUTO_CAP_PER_PIXEL x pixels, clamped to AUTO_CAP_RANGE (2 x pixels
+    in [4000, 60000])"""
+    background: float = 0.0
+    """background intensity (every channel), in [0, 1]"""
+    response: Literal["linear", "gamma"] = "linear"
+    """camera response from rendered irradiance to recorded values (ebad.response): linear, or black level + gain +
+    gamma learnt with the scene"""
+    lr_response: float = 1e-3
+    """Adam learning rate of the response curve's parameters"""
 
     def check(self) -> None:
         _finite(self, "model")
@@ -91,18 +108,38 @@ class ModelConfig:
 class TrajectoryConfig:
     """Camera motion inside each exposure."""
 
-    kind: TrajectoryKind = "cubic"  # trajectory model (ebad.trajectory.TRAJECTORIES): linear | cubic | fixed (fixed with untrusted poses: one pose correction per frame)
-    num_views: int = 5  # V, virtual views per blurry exposure (uniform instants)
-    adaptive_views: bool = True  # V from event activity: a frame with few events renders V = 1
-    sharp_events_per_pixel: float = 0.05  # below this many events per pixel an exposure is sharp
-    view_spacing: float = 0.0  # > 0: at fraction train.coarse_until of the run (where the coarse phase ends), each blurry frame's V becomes its learnt image path length / view_spacing pixels, within [2, max_views] (ebad.virtual_views); 0: num_views throughout
-    max_views: int = 9  # the most virtual views view_spacing gives a frame
-    init_noise: float = 1e-3  # std of the initial start/end perturbation (radians; x scene scale for translation) that breaks the zero-motion symmetry of the blur loss
-    lr: float = 5e-4  # Adam learning rate of the knots (radians; translations in scene-scale units); 2e-3 before, whose jitter kept noisy poses 4 dB (deblurred) from the truth (benchmarks/results/pose_lr_*.json)
-    lr_final: float = 1.0  # the knots' learning rate decays exponentially to this fraction of lr over the run (1: constant)
-    average_from: float = 0.7  # from this fraction of the run on, the knots' running mean is kept, and the run's trajectories (deblurred frames, exports) are that mean: it removes Adam's step-to-step jitter from the final poses (1: the last step's knots)
-    anchor_mid: Literal["auto", "yes", "no"] = "auto"  # keep the mid-exposure poses fixed and learn only the motion; auto: yes when the capture states its poses are exact (pose_trust), no for approximate poses and after SfM, which then optimise every frame's whole trajectory (a sharp frame's pose too)
-    pose_source: PoseSource = "auto"  # auto: capture poses when present and not marked pose_trust none, else pycolmap SfM; static: a camera on a tripod (every frame at the identity pose)
+    kind: TrajectoryKind = "cubic"
+    """motion model (ebad.trajectory.TRAJECTORIES): linear | cubic | fixed (untrusted poses: a correction per frame)"""
+    num_views: int = 5
+    """V, virtual views per blurry exposure (uniform instants)"""
+    adaptive_views: bool = True
+    """V from event activity: a frame with few events renders V = 1"""
+    sharp_events_per_pixel: float = 0.05
+    """below this many events per pixel an exposure is sharp"""
+    view_spacing: float = 0.0
+    """> 0: at fraction train.coarse_until of the run (where the coarse phase ends), each blurry frame's V becomes its
+    learnt image path length / view_spacing pixels, within [2, max_views] (ebad.virtual_views); 0: num_views throughout
+    """
+    max_views: int = 9
+    """the most virtual views view_spacing gives a frame"""
+    init_noise: float = 1e-3
+    """std of the initial start/end perturbation (radians; x scene scale for translation) that breaks the zero-motion
+    symmetry of the blur loss"""
+    lr: float = 5e-4
+    """Adam learning rate of the knots (radians; translations in scene-scale units); 2e-3 before, whose jitter kept
+    noisy poses 4 dB (deblurred) from the truth (benchmarks/results/pose_lr_*.json)"""
+    lr_final: float = 1.0
+    """the knots' learning rate decays exponentially to this fraction of lr over the run (1: constant)"""
+    average_from: float = 0.7
+    """from this fraction of the run on, the knots' running mean is kept, and the run's trajectories (deblurred frames,
+    exports) are that mean: it removes Adam's step-to-step jitter from the final poses (1: the last step's knots)"""
+    anchor_mid: Literal["auto", "yes", "no"] = "auto"
+    """keep the mid-exposure poses fixed and learn only the motion; auto: yes when the capture states its poses are
+    exact (pose_trust), no for approximate poses and after SfM, which then optimise every frame's whole trajectory (a
+    sharp frame's pose too)"""
+    pose_source: PoseSource = "auto"
+    """auto: capture poses when present and not marked pose_trust none, else pycolmap SfM; static: a camera on a tripod
+    (every frame at the identity pose)"""
 
     def check(self) -> None:
         _finite(self, "trajectory")
@@ -121,23 +158,39 @@ class TrajectoryConfig:
 class LossConfig:
     """Which losses, against what, and their weights (the paper's: 1, 0.1, 1)."""
 
-    target: Target = "blurry"  # what L_blur compares to: the blurry frames or their EDI latents
-    w_blur: float = 1.0  # weight of L_blur (0.8 L1 + 0.2 (1 - SSIM) of the mean of V renders)
-    w_event: float = 0.1  # weight of L_ev (log-render differences vs c x events); 0 disables
-    w_edi: float = 1.0  # weight of L_EDI (renders vs EDI latents at their instants, loss.edi_instants); 0 disables
-    ssim_weight: float = 0.2  # the 0.2 in 0.8 L1 + 0.2 (1 - SSIM)
-    ssim_window: int = 7  # SSIM window (odd; small images need a small one)
-    contrast: tuple[float, float] | None = None  # event contrast thresholds (c_pos, c_neg) in natural-log units; None: estimated from the data (edi.estimate_c, one per polarity)
-    # refine c (as log c) jointly, through L_ev. Off by default: c -> 0 with flat renders is a
-    # degenerate minimum of L_ev and c drifts towards it (benchmarks/learn_contrast.py, small
-    # grey scene, true c 0.2, 60 s: c 0.187 -> 0.07 in two runs), while novel-view PSNR is
-    # equal within run-to-run noise (learnt minus fixed: -0.24 dB in one run, +0.26 dB in another)
-    learn_contrast: bool = False  # refine (c_pos, c_neg) (as logs) jointly through L_ev (off: c drifts to a degenerate minimum)
-    lr_contrast: float = 1e-2  # Adam learning rate of log c_pos and log c_neg
-    event_windows: EventWindows = "consecutive"  # L_ev windows: every pair of consecutive virtual instants, or one random pair of them per step (the paper samples its window start t_s at random)
-    event_norm: EventNorm = "l1"  # L_ev residual norm: l1 (mean |r|, robust to noise events) or l2 (mean r^2, the paper's)
-    edi_prior: EdiPrior = "edi"  # the latents of L_EDI: per-frame EDI, or mEDI (all training frames jointly, linked by the events between their centres)
-    edi_instants: EdiInstants = "views"  # where L_EDI compares: every virtual view with the EDI latent at its own instant (mean over the views), or only the mid-exposure render with the latent at mid-exposure (views needs edi_prior edi; benchmarks/results/edi_views.json)
+    target: Target = "blurry"
+    """what L_blur compares to: the blurry frames or their EDI latents"""
+    w_blur: float = 1.0
+    """weight of L_blur (0.8 L1 + 0.2 (1 - SSIM) of the mean of V renders)"""
+    w_event: float = 0.1
+    """weight of L_ev (log-render differences vs c x events); 0 disables"""
+    w_edi: float = 1.0
+    """weight of L_EDI (renders vs EDI latents at their instants, loss.edi_instants); 0 disables"""
+    ssim_weight: float = 0.2
+    """the 0.2 in 0.8 L1 + 0.2 (1 - SSIM)"""
+    ssim_window: int = 7
+    """SSIM window (odd; small images need a small one)"""
+    contrast: tuple[float, float] | None = None
+    """event contrast thresholds (c_pos, c_neg) in natural-log units; None: estimated from the data (edi.estimate_c, one
+    per polarity)"""
+    learn_contrast: bool = False
+    """refine (c_pos, c_neg) (as logs) jointly through L_ev. Off by default: c -> 0 with flat renders is a degenerate
+    minimum of L_ev, and c drifts towards it while novel-view PSNR stays within run-to-run noise
+    (benchmarks/learn_contrast.py)"""
+    lr_contrast: float = 1e-2
+    """Adam learning rate of log c_pos and log c_neg"""
+    event_windows: EventWindows = "consecutive"
+    """L_ev windows: every pair of consecutive virtual instants, or one random pair of them per step (the paper samples
+    its window start t_s at random)"""
+    event_norm: EventNorm = "l1"
+    """L_ev residual norm: l1 (mean |r|, robust to noise events) or l2 (mean r^2, the paper's)"""
+    edi_prior: EdiPrior = "edi"
+    """the latents of L_EDI: per-frame EDI, or mEDI (all training frames jointly, linked by the events between their
+    centres)"""
+    edi_instants: EdiInstants = "views"
+    """where L_EDI compares: every virtual view with the EDI latent at its own instant (mean over the views), or only
+    the mid-exposure render with the latent at mid-exposure (views needs edi_prior edi;
+    benchmarks/results/edi_views.json)"""
 
     def check(self) -> None:
         _finite(self, "loss")
@@ -162,18 +215,31 @@ class LossConfig:
 class StrategyConfig:
     """Densification and pruning (gsplat's default strategy)."""
 
-    kind: StrategyKind = "default"  # densification strategy (ebad.strategy.STRATEGIES): default | none
-    grad_threshold: float = 2e-4  # mean screen-space gradient norm (NDC units) that triggers clone/split
-    split_scale: float = 0.01  # Gaussians larger than this x scene scale split, smaller ones clone
-    split_shrink: float = 1.6  # a split Gaussian becomes two, each this many times smaller (3DGS: 0.8 x 2)
-    prune_opacity: float = 0.01  # Gaussians below this activated opacity are removed
-    prune_scale: float = 0.2  # Gaussians larger than this x scene scale are removed (after a reset)
-    refine_start: int = 50  # first step that refines
-    refine_stop: int = 10_000  # last step that refines
-    refine_every: int = 50  # steps between refinements
-    reset_every: int = 600  # steps between opacity resets (0: never)
-    reset_opacity: float = 0.05  # opacities are clamped to at most this at a reset
-    reset_until: float = 0.5  # no opacity reset after this fraction of the run (steps over iters, or time over max_seconds): the scene needs steps to recover from one (gsplat resets until half its iterations)
+    kind: StrategyKind = "default"
+    """densification strategy (ebad.strategy.STRATEGIES): default | none"""
+    grad_threshold: float = 2e-4
+    """mean screen-space gradient norm (NDC units) that triggers clone/split"""
+    split_scale: float = 0.01
+    """Gaussians larger than this x scene scale split, smaller ones clone"""
+    split_shrink: float = 1.6
+    """a split Gaussian becomes two, each this many times smaller (3DGS: 0.8 x 2)"""
+    prune_opacity: float = 0.01
+    """Gaussians below this activated opacity are removed"""
+    prune_scale: float = 0.2
+    """Gaussians larger than this x scene scale are removed (after a reset)"""
+    refine_start: int = 50
+    """first step that refines"""
+    refine_stop: int = 10_000
+    """last step that refines"""
+    refine_every: int = 50
+    """steps between refinements"""
+    reset_every: int = 600
+    """steps between opacity resets (0: never)"""
+    reset_opacity: float = 0.05
+    """opacities are clamped to at most this at a reset"""
+    reset_until: float = 0.5
+    """no opacity reset after this fraction of the run (steps over iters, or time over max_seconds): the scene needs
+    steps to recover from one (gsplat resets until half its iterations)"""
 
     def check(self) -> None:
         _finite(self, "strategy")
@@ -190,24 +256,43 @@ class StrategyConfig:
 class TrainConfig:
     """The optimisation loop."""
 
-    iters: int = 600  # optimisation steps (one frame per step)
-    max_seconds: float | None = None  # wall-time budget; the loop stops when it is spent
-    plateau_patience: int = 0  # stop after this many loss windows without improvement (0: never)
-    plateau_every: int = 50  # steps between plateau checks (mean loss over the window)
-    plateau_tol: float = 1e-3  # relative improvement that counts as progress
-    lr_means: float = 1.6e-3  # Adam lr of means, times the scene scale (decays to lr_means_final x itself over the run)
-    lr_means_final: float = 0.1  # the means' learning rate decays exponentially to this fraction of lr_means (3DGS: 0.01)
-    lr_scales: float = 1e-2  # Adam lr of log-scales
-    lr_quats: float = 2e-3  # Adam lr of quaternions
-    lr_opacities: float = 5e-2  # Adam lr of opacity logits
-    lr_colors: float = 1e-2  # Adam lr of colours (SH DC coefficients)
-    pose_warmup: int = 0  # steps before the trajectories start moving
-    coarse_scale: int = 2  # the first ``coarse_until`` of the run trains at 1/coarse_scale of the resolution (ebad.data.downscale); 1: never
-    coarse_until: float = 0.3  # fraction of the run (steps over iters, or time over max_seconds when further) at the coarse resolution
-    eval_every: int = 100  # steps between test-view PSNR evaluations (when test images exist; 0: never)
-    checkpoint_every: int = 200  # steps between checkpoints of a run folder (0: only at the end)
-    seed: int = 0  # torch / numpy seed of the run
-    progress: bool = True  # tqdm progress bar
+    iters: int = 600
+    """optimisation steps (one frame per step)"""
+    max_seconds: float | None = None
+    """wall-time budget; the loop stops when it is spent"""
+    plateau_patience: int = 0
+    """stop after this many loss windows without improvement (0: never)"""
+    plateau_every: int = 50
+    """steps between plateau checks (mean loss over the window)"""
+    plateau_tol: float = 1e-3
+    """relative improvement that counts as progress"""
+    lr_means: float = 1.6e-3
+    """Adam lr of means, times the scene scale (decays to lr_means_final x itself over the run)"""
+    lr_means_final: float = 0.1
+    """the means' learning rate decays exponentially to this fraction of lr_means (3DGS: 0.01)"""
+    lr_scales: float = 1e-2
+    """Adam lr of log-scales"""
+    lr_quats: float = 2e-3
+    """Adam lr of quaternions"""
+    lr_opacities: float = 5e-2
+    """Adam lr of opacity logits"""
+    lr_colors: float = 1e-2
+    """Adam lr of colours (SH DC coefficients)"""
+    pose_warmup: int = 0
+    """steps before the trajectories start moving"""
+    coarse_scale: int = 2
+    """the first ``coarse_until`` of the run trains at 1/coarse_scale of the resolution (ebad.data.downscale); 1: never
+    """
+    coarse_until: float = 0.3
+    """fraction of the run (steps over iters, or time over max_seconds when further) at the coarse resolution"""
+    eval_every: int = 100
+    """steps between test-view PSNR evaluations (when test images exist; 0: never)"""
+    checkpoint_every: int = 200
+    """steps between checkpoints of a run folder (0: only at the end)"""
+    seed: int = 0
+    """torch / numpy seed of the run"""
+    progress: bool = True
+    """tqdm progress bar"""
 
     def check(self) -> None:
         _finite(self, "train")
@@ -232,7 +317,8 @@ class TrainConfig:
 class Config:
     """A full reconstruction configuration."""
 
-    name: str = "ebad"  # the preset it came from (informational)
+    name: str = "ebad"
+    """the preset it came from (informational)"""
     model: ModelConfig = field(default_factory=ModelConfig)
     trajectory: TrajectoryConfig = field(default_factory=TrajectoryConfig)
     loss: LossConfig = field(default_factory=LossConfig)
@@ -374,7 +460,7 @@ def config_from_dict(data: dict[str, Any]) -> Config:
 
 def save_config(cfg: Config, path: str | Path) -> None:
     """Write ``cfg`` as JSON, atomically (a temporary file renamed into place)."""
-    from scenes._atomic import write_text_atomic  # here, not at the top: ``scenes`` loads scipy, the config nothing heavy
+    from scenes._atomic import write_text_atomic  # here: importing ``scenes`` loads scipy, this module nothing heavy
 
     write_text_atomic(Path(path), json.dumps(config_to_dict(cfg), indent=2) + "\n")
 

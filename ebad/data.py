@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 import torch
@@ -22,8 +23,11 @@ from .gaussians import scene_scale
 from .trajectory import virtual_instants
 from .virtual_views import choose_num_views, event_counts, events_per_pixel
 
-__all__ = ["TrainingData", "PrepareReport", "prepare", "downscale", "focus_depth", "depth_range", "align_poses", "test_poses",
-           "FOCUS_DEPTH_RANGE", "SPREAD_DEPTH_RANGE"]
+if TYPE_CHECKING:
+    from scenes import Capture, TestView
+
+__all__ = ["TrainingData", "PrepareReport", "PoseSourceUsed", "PoseTrust", "ContrastSource", "prepare", "downscale",
+           "focus_depth", "depth_range", "align_poses", "test_poses", "FOCUS_DEPTH_RANGE", "SPREAD_DEPTH_RANGE"]
 
 # Intrinsics outside this horizontal/vertical field of view (degrees) are taken for a mistake
 # (focal length in the wrong unit, or of another image size): no scene can be seen through them.
@@ -36,19 +40,24 @@ FOCUS_DEPTH_RANGE = (0.4, 2.5)  # the depth of the point the optical axes conver
 SPREAD_DEPTH_RANGE = (0.5, 2.0)  # the camera-spread scene scale (forward-facing captures: no such point)
 
 
+PoseSourceUsed = Literal["capture", "colmap", "static"]  # where a run's mid-exposure poses came from
+PoseTrust = Literal["exact", "approximate", "none"]  # how far they are trusted
+ContrastSource = Literal["config", "edi.estimate_c"]  # where the contrast thresholds came from
+
+
 @dataclass
 class PrepareReport:
     """What ``prepare`` decided (every "skip what the scene does not need" decision)."""
 
-    pose_source: str  # where the mid-exposure poses came from: capture | colmap | static
-    pose_trust: str  # how far they are trusted: exact | approximate (capture.pose_trust; SfM: approximate)
+    pose_source: PoseSourceUsed  # where the mid-exposure poses came from: capture | colmap | static
+    pose_trust: PoseTrust  # how far they are trusted: exact | approximate (capture.pose_trust; SfM: approximate)
     train_frames: int  # frames trained on
     channels: int  # D: 1 renders one channel (grey capture), 3 colour
     views: list[int]  # V per training frame (1: sharp, no trajectory)
     renders_per_pass: int  # sum of V: renders of one pass over the frames
     renders_without_skip: int  # what a pass would cost with the configured V for every frame
     c: tuple[float, float] | None = None  # contrast thresholds (c_pos, c_neg) in use (None: no events used)
-    c_source: str | None = None  # config | edi.estimate_c
+    c_source: ContrastSource | None = None  # config | edi.estimate_c
     skipped: str | None = None  # a loss switched off for lack of data, and why
     events_per_pixel: list[float] | None = None  # events during each exposure per sensor pixel
     anchored_mid_poses: bool | None = None  # the trajectories keep the given mid-exposure poses
@@ -73,7 +82,7 @@ class TrainingData:
     report: PrepareReport
     points: Tensor | None = None  # [P, 3] SfM points, when any
     point_colors: Tensor | None = None  # [P, D]
-    test_views: list = field(default_factory=list)  # the capture's test views that carry an image
+    test_views: list[TestView] = field(default_factory=list)  # the capture's test views that carry an image
     test_c2w: dict[str, np.ndarray] = field(default_factory=dict)  # their poses in this run's frame, by name
     events: EventStream | None = None  # the events of L_ev and of the views' latents (kept to count them again when V changes)
     view_latents: list[Tensor | None] | None = None  # per frame [V, H, W, D] EDI latents at its virtual instants (loss.edi_instants views; None for a sharp frame), else None
@@ -166,7 +175,7 @@ def view_latents(frame: np.ndarray,  # [H, W, D] one blurry frame
     return torch.from_numpy(_edi_at(frame, exposure, events, c, _view_times(exposure, V)))
 
 
-def _train_indices(capture) -> list[int]:
+def _train_indices(capture: Capture) -> list[int]:
     if not capture.split:
         return list(range(capture.num_frames))
     idx = [i for i, s in enumerate(capture.split) if s == "train"]
@@ -175,7 +184,7 @@ def _train_indices(capture) -> list[int]:
     return idx
 
 
-def _check_capture(capture) -> None:
+def _check_capture(capture: Capture) -> None:
     """The capture is well formed (``Capture.validate``: shapes, dtypes, ranges, rigid poses) and its
     intrinsics can see a scene."""
     capture.validate()
@@ -191,7 +200,7 @@ def _check_capture(capture) -> None:
                         f"{W} x {H} image")
 
 
-def _poses(capture, cfg: Config, idx: list[int]):
+def _poses(capture: Capture, cfg: Config, idx: list[int]):
     """Mid-exposure poses of the training frames, SfM points and test-view poses when SfM ran."""
     src = cfg.trajectory.pose_source
     usable = capture.c2w is not None and (src == "capture" or capture.effective_pose_trust != "none")
@@ -233,7 +242,7 @@ def align_poses(ref_src: np.ndarray,  # [N, 4, 4] cameras in the frame the poses
     return apply_similarity(poses, *align_similarity(ref_src, ref_dst))
 
 
-def test_poses(capture, pose_source: str, idx: list[int], c2w: np.ndarray,  # [F, 4, 4] the run's train poses
+def test_poses(capture: Capture, pose_source: str, idx: list[int], c2w: np.ndarray,  # [F, 4, 4] the run's train poses
                registered: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     """The pose of every test view with an image, in the run's frame, by name: SfM's registration
     when there is one; else the capture's pose, as it is when the run uses the capture's poses, or
@@ -289,7 +298,7 @@ def focus_depth(c2w: np.ndarray) -> float | None:  # [F, 4, 4]
     return float(np.median(z))
 
 
-def prepare(capture, cfg: Config) -> TrainingData:
+def prepare(capture: Capture, cfg: Config) -> TrainingData:
     """Validate the capture and make every "skip what is not needed" decision (``TrainingData.report``)."""
     _check_capture(capture)
     idx = _train_indices(capture)

@@ -14,7 +14,7 @@ import threading
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any, Literal, Sequence
 
 import numpy as np
 import torch
@@ -27,13 +27,17 @@ from .gaussians import normalise_quats_, num_gaussians, render
 from .losses import event_loss, exposure_losses, l1_ssim_each
 from .metrics import psnr
 from .response import Response
+from .schedule import Phase, Schedule
 from .state import StepStats, TrainState
 from .strategy import RenderInfo, Strategy
 from .trajectory import virtual_instants
 from .virtual_views import path_lengths_px, random_window, views_from_blur, window_counts
 
-__all__ = ["FrameLosses", "frame_losses", "train_step", "train", "should_stop", "step_profile", "coarse_data",
-           "views_from_trajectories", "RASTER_FORWARD", "RASTER_BACKWARD"]
+__all__ = ["StopReason", "FrameLosses", "frame_losses", "train_step", "train", "should_stop", "step_profile",
+           "coarse_data", "views_from_trajectories", "RASTER_FORWARD", "RASTER_BACKWARD"]
+
+
+StopReason = Literal["iters", "time", "plateau", "interrupted (SIGINT)", "interrupted (SIGTERM)"]  # why train() stopped
 
 
 @dataclass
@@ -113,18 +117,14 @@ def _losses_through_response(images: Tensor, V: int, blurry: Tensor, edi_target:
     return blur, (edi[0] if edi else None), ev, recorded_blur.detach()[0]
 
 
-def _budget_fraction(state: TrainState, cfg: Config, elapsed: float) -> float:
-    """How far through the run: steps over iterations, or time over the budget when that is further."""
-    frac = state.step / max(cfg.train.iters, 1)
-    if cfg.train.max_seconds:
-        frac = max(frac, elapsed / cfg.train.max_seconds)
-    return min(frac, 1.0)
-
-
 def train_step(data: TrainingData, state: TrainState, strategy: Strategy, f: int, cfg: Config,
-               elapsed: float = 0.0) -> StepStats:
+               elapsed: float = 0.0, phase: Phase | None = None) -> StepStats:
     """Forward, backward, Adam steps, densification of frame ``f``; advances ``state.step``.
+    ``phase``: where the step stands in the run's ``Schedule`` (learning rates, whether opacity
+    resets may fire); by default the config's schedule at ``state.step`` and ``elapsed`` seconds.
     ``StepStats.profile`` says where the step's time went (``step_profile``)."""
+    if phase is None:
+        phase = Schedule.from_config(cfg, data.scale).at(state.step, elapsed)
     t0 = time.perf_counter()
     for opt in state.optimizers.values():  # zero_grad(set_to_none=True), without its per-optimizer hooks
         for group in opt.param_groups:
@@ -133,16 +133,15 @@ def train_step(data: TrainingData, state: TrainState, strategy: Strategy, f: int
     out = frame_losses(data, state, f, cfg)
     if not torch.isfinite(out.total):
         raise FloatingPointError(f"non-finite loss at step {state.step} (frame {data.names[f]})")
-    frac = _budget_fraction(state, cfg, elapsed)
-    out.info.progress = frac
+    out.info.progress, out.info.resets = phase.fraction, phase.resets
     t1 = time.perf_counter()
     strategy.step_pre_backward(state.params, state.optimizers, state.strategy_state, state.step, out.info)
     t2 = time.perf_counter()
     out.total.backward()
     t3 = time.perf_counter()
-    state.optimizers["means"].param_groups[0]["lr"] = cfg.train.lr_means * data.scale * cfg.train.lr_means_final ** frac
+    state.optimizers["means"].param_groups[0]["lr"] = phase.lr_means
     if "poses" in state.optimizers:
-        state.optimizers["poses"].param_groups[0]["lr"] = cfg.trajectory.lr * cfg.trajectory.lr_final ** frac
+        state.optimizers["poses"].param_groups[0]["lr"] = phase.lr_poses
     for name, opt in state.optimizers.items():
         if name == "poses" and state.step < cfg.train.pose_warmup:
             continue
@@ -190,7 +189,7 @@ def step_profile(history: Sequence[StepStats]) -> dict[str, float] | None:
 
 
 
-def should_stop(history: Sequence[StepStats], elapsed: float, cfg: Config) -> str | None:
+def should_stop(history: Sequence[StepStats], elapsed: float, cfg: Config) -> Literal["time", "plateau"] | None:
     """'time' when the wall-time budget is spent, 'plateau' when the windowed loss stalled."""
     tc = cfg.train
     if tc.max_seconds is not None and elapsed >= tc.max_seconds:
@@ -274,39 +273,41 @@ def views_from_trajectories(data: TrainingData, state: TrainState, cfg: Config) 
 
 
 def train(data: TrainingData, state: TrainState, strategy: Strategy, cfg: Config,
-          callbacks: Sequence[Callback] = ()) -> str:
+          callbacks: Sequence[Callback] = ()) -> StopReason:
     """Steps until ``train.iters``, a stop rule or a signal; returns why it stopped:
     'iters', 'time', 'plateau' or 'interrupted (SIGINT)' / 'interrupted (SIGTERM)'.
 
-    The first ``train.coarse_until`` of the run trains on ``coarse_data``; where that phase ends,
-    ``trajectory.view_spacing`` > 0 gives each frame its V from the trajectories learnt so far
-    (``views_from_trajectories``, ``data.set_views``: ``data`` changes in place; a resumed run
-    past that point chooses again at its first step). From ``trajectory.average_from`` on, every
-    step's knots are added to ``state.knots_sum`` (``reconstruct`` gives the run their mean)."""
+    What happens when is the run's ``Schedule`` (``ebad.schedule``), made here once: the coarse
+    phase trains on ``coarse_data``; where it ends, ``trajectory.view_spacing`` > 0 gives each
+    frame its V from the trajectories learnt so far (``views_from_trajectories``,
+    ``data.set_views``: ``data`` changes in place; a resumed run past that point chooses again at
+    its first step); from ``trajectory.average_from`` on, every step's knots are added to
+    ``state.knots_sum`` (``reconstruct`` gives the run their mean)."""
     started = time.perf_counter() - state.elapsed
-    reason = "iters"
+    reason: StopReason = "iters"
     coarse = coarse_data(data, cfg)
-    views_due = cfg.trajectory.view_spacing > 0 and bool((data.V > 1).any())
-    averaging = cfg.trajectory.average_from < 1 and "poses" in state.optimizers
+    schedule = Schedule.from_config(cfg, data.scale, coarse=coarse is not None, choose_views=bool((data.V > 1).any()),
+                                    averaging="poses" in state.optimizers)
+    views_pending = schedule.views_at is not None
     with _Interrupts() as interrupts, _torch_single_threaded():
         try:
             while state.step < cfg.train.iters:
                 f = state.next_frame()
                 elapsed = time.perf_counter() - started
-                fine = _budget_fraction(state, cfg, elapsed) >= cfg.train.coarse_until
-                if views_due and fine:
+                phase = schedule.at(state.step, elapsed)
+                if views_pending and phase.views_due:
                     data.set_views(views_from_trajectories(data, state, cfg))
-                    views_due = False
-                level = data if fine or coarse is None else coarse
-                stats = train_step(level, state, strategy, f, cfg, elapsed)
+                    views_pending = False
+                level = coarse if phase.coarse and coarse is not None else data
+                stats = train_step(level, state, strategy, f, cfg, elapsed, phase)
                 state.elapsed = stats.time = time.perf_counter() - started
-                if averaging and _budget_fraction(state, cfg, state.elapsed) >= cfg.trajectory.average_from:
+                if schedule.at(state.step, state.elapsed).averaging:  # judged where the step ended
                     state.accumulate_knots()
                 state.history.append(stats)
                 for cb in callbacks:
                     cb.on_step(state, stats)
                 if interrupts.received:
-                    reason = f"interrupted ({interrupts.received})"
+                    reason = "interrupted (SIGINT)" if interrupts.received == "SIGINT" else "interrupted (SIGTERM)"
                     break
                 stop = should_stop(state.history, state.elapsed, cfg)
                 if stop:

@@ -19,10 +19,10 @@ from torch import Tensor
 
 from .callbacks import Callback, Checkpointer, Evaluator, ProgressBar, StepHook
 from .config import Config, preset
-from .data import PrepareReport, prepare
+from .data import PoseSourceUsed, PrepareReport, prepare
 from .errors import ConfigError
 from .gaussians import num_gaussians
-from .loop import train
+from .loop import StopReason, train
 from .response import Response
 from .scoring import ViewScores, render_images
 from .state import StepStats, TrainState, capture_fingerprint, max_gaussians
@@ -40,9 +40,8 @@ def warm_up() -> float:
     """Compile every numba kernel a reconstruction runs (or load it from numba's cache): three
     steps of the ``ebad`` preset on a tiny synthetic capture, which reach the rasteriser, SSIM
     and L_ev kernels that every preset uses. Timed comparisons call it first so that no
-    method's budget pays for compilation: on a cold cache the first step of a run took 15 s
-    (the rasteriser's backward and SSIM) and 1.7 s more for L_ev. Returns its seconds (about
-    1 s on a warm cache)."""
+    method's budget pays for compilation (on a cold cache, mostly the rasteriser's backward,
+    SSIM and L_ev). Returns its seconds."""
     import scenes
 
     t0 = time.perf_counter()
@@ -58,7 +57,7 @@ class RunMetrics:
 
     preset: str
     steps: int
-    stop_reason: str  # iters | time | plateau | interrupted (...)
+    stop_reason: StopReason  # iters | time | plateau | interrupted (SIGINT | SIGTERM)
     complete: bool  # False when interrupted: resume with --resume
     train_seconds: float
     prepare_seconds: float
@@ -99,7 +98,7 @@ class Run:
     names: list[str]
     exposures: np.ndarray  # [F, 2]
     V: np.ndarray  # [F]
-    pose_source: str = "capture"  # where the training poses came from: capture | colmap | static
+    pose_source: PoseSourceUsed = "capture"  # where the training poses came from: capture | colmap | static
     test_c2w: dict[str, np.ndarray] = field(default_factory=dict)  # test-view poses in the run's frame, by name
     response: Response = field(default_factory=Response)  # rendered irradiance -> recorded values
     history: list[StepStats] = field(default_factory=list)
@@ -157,8 +156,8 @@ def _resolve(config: Config | str | None) -> Config:
 
 
 def reconstruct(capture: Capture, config: Config | str | None = None, out_dir: str | Path | None = None,
-                resume: bool = False, gt_views: Sequence[TestView] | None = None, on_step: Callable[[int, StepStats], None] | None = None,
-                callbacks: Sequence[Callback] = ()) -> Run:
+                resume: bool = False, gt_views: Sequence[TestView] | None = None,
+                on_step: Callable[[int, StepStats], None] | None = None, callbacks: Sequence[Callback] = ()) -> Run:
     """Recover Gaussians and per-exposure trajectories from ``capture``.
 
     Args:
@@ -196,15 +195,14 @@ def reconstruct(capture: Capture, config: Config | str | None = None, out_dir: s
     views = data.test_views if gt_views is None else gt_views  # poses from data.test_c2w where known
     evaluator = Evaluator(data, cfg, views, cfg.train.eval_every, cfg.train.iters)
     init_eval = evaluator.scores(state) if state.step == 0 else None
-    extra = list(callbacks)
-    callbacks: list[Callback] = [evaluator]
+    built: list[Callback] = [evaluator]
     if cfg.train.progress:
-        callbacks.append(ProgressBar(cfg, state.step))
+        built.append(ProgressBar(cfg, state.step))
     if on_step is not None:
-        callbacks.append(StepHook(on_step))
+        built.append(StepHook(on_step))
     if ckpt is not None:
-        callbacks.append(Checkpointer(ckpt, cfg.train.checkpoint_every, fingerprint))
-    stop_reason = train(data, state, strategy, cfg, [*callbacks, *extra])
+        built.append(Checkpointer(ckpt, cfg.train.checkpoint_every, fingerprint))
+    stop_reason = train(data, state, strategy, cfg, [*built, *callbacks])
     mean = state.knots_mean()
     if mean is not None:  # the checkpoint keeps the last step's knots and the sum, to resume from
         with torch.no_grad():

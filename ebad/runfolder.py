@@ -32,6 +32,8 @@ import numpy as np
 import torch
 from torch import nn
 
+from scenes._atomic import atomic_path, write_text_atomic
+
 from .config import load_config, save_config
 from .errors import UserError
 from .export import write_exports
@@ -64,30 +66,6 @@ def json_safe(x):
     return x
 
 
-def write_text_atomic(path: Path, text: str) -> None:
-    """``path.write_text(text)`` through a temporary file unique to this process, renamed into place."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        tmp.write_text(text)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-
-
-def _atomic(path: Path, write) -> None:
-    """``write(tmp_path)`` then rename into ``path``; the temporary keeps the suffix for writers that look at it."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-
-
 def check_out_dir(out: Path) -> None:
     """``out`` can be a run folder: not an existing file, and writable."""
     if out.exists() and not out.is_dir():
@@ -101,7 +79,12 @@ class RunLock:
     """An advisory lock on a run folder: ``RUN/.lock`` holds the pid and host of the writer.
 
     A second process is refused with a message naming the holder; a lock left by a process of
-    this host that no longer exists is taken over, with a message."""
+    this host that no longer exists (killed, even by SIGKILL) is taken over, with a message.
+
+    Not filelock: its ``FileLock`` (flock) records no holder to name, and a waiting process
+    truncates its file; its ``SoftFileLock`` records and reclaims holders as this does only
+    since filelock 3.22, in its own format, and filelock is not a dependency of ours (only of
+    torch's, at any version). This is the same O_EXCL marker in a few lines."""
 
     def __init__(self, folder: Path, say=print):
         self.path = Path(folder) / LOCK_NAME
@@ -160,7 +143,7 @@ def _alive(pid: int) -> bool:
     return True
 
 
-def write_run(run, out: str | Path, gt_trajectories: np.ndarray | None = None) -> Path:
+def write_run(run: Run, out: str | Path, gt_trajectories: np.ndarray | None = None) -> Path:
     """Write every file of the run folder except the checkpoint (written while training);
     ``config.json`` only when the run start did not already write it, ``metrics.json`` last."""
     out = Path(out)
@@ -168,7 +151,8 @@ def write_run(run, out: str | Path, gt_trajectories: np.ndarray | None = None) -
     if not (out / "config.json").exists():
         save_config(run.config, out / "config.json")
     write_text_atomic(out / "history.json", json.dumps(json_safe([h.to_dict() for h in run.history])) + "\n")
-    _atomic(out / "point_cloud.ply", lambda p: write_ply(p, run.params))
+    with atomic_path(out / "point_cloud.ply") as tmp:
+        write_ply(tmp, run.params)
     model = {"K": run.K.tolist(), "width": run.width, "height": run.height, "names": run.names,
              "exposures": run.exposures.tolist(), "views": run.V.tolist(), "kind": run.trajectories.kind,
              "anchored": run.trajectories.anchored, "scale": run.trajectories.scale,
@@ -178,11 +162,13 @@ def write_run(run, out: str | Path, gt_trajectories: np.ndarray | None = None) -
              "response": {"kind": run.response.kind, "raw": run.response.raw.detach().tolist()}}
     write_text_atomic(out / "model.json", json.dumps(model) + "\n")
     poses, u = run.exposure_poses()
-    _atomic(out / "trajectories.json", lambda p: write_trajectories(p, run.names, run.exposures, poses, u))
-    _atomic(out / "trajectories.png", lambda p: plot_trajectories(p, poses, gt_trajectories))
+    with atomic_path(out / "trajectories.json") as tmp:
+        write_trajectories(tmp, run.names, run.exposures, poses, u)
+    with atomic_path(out / "trajectories.png") as tmp:
+        plot_trajectories(tmp, poses, gt_trajectories)
     write_exports(run, out)  # cameras.json, point_cloud.splat, trajectories_tum.txt
     for name, img in zip(run.names, run.deblurred_frames()):
-        _atomic(out / "deblurred" / f"{name}.png", lambda p: write_png16(p, img))
+        write_png16(out / "deblurred" / f"{name}.png", img)  # atomic itself (scenes.images, scenes._atomic)
     metrics = json_safe(run.metrics.to_dict() if run.metrics is not None else {"complete": False})
     write_text_atomic(out / "metrics.json", json.dumps(metrics, indent=2) + "\n")
     return out

@@ -18,13 +18,11 @@ and restores the count after).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Literal
 
 from splat_cpu import _omp
+from splat_cpu._omp import NumbaLayer
 
 __all__ = ["ThreadSetup", "configure"]
-
-NumbaLayer = Literal["omp", "workqueue", "user", "launched"]
 
 
 @dataclass(frozen=True)

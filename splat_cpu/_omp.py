@@ -15,13 +15,16 @@ from __future__ import annotations
 
 import os
 import sys
+from typing import Literal
 
-__all__ = ["openmp_loaded", "set_wait_policy", "openmp_threads_sleep", "choose_threading_layer", "WORKQUEUE"]
+__all__ = ["NumbaLayer", "openmp_loaded", "set_wait_policy", "openmp_threads_sleep", "choose_threading_layer",
+           "WORKQUEUE"]
 
+NumbaLayer = Literal["omp", "workqueue", "user", "launched"]  # what choose_threading_layer did
 POLICY = "OMP_WAIT_POLICY"
-WORKQUEUE = "workqueue"  # numba's own pool: idle workers block on a condition variable, never spin
+WORKQUEUE: Literal["workqueue"] = "workqueue"  # numba's own pool: idle workers block on a condition, never spin
 _noted: list[str | None] = []  # the policy a set-up saw while torch was not loaded (what torch then reads)
-_chosen: list[str] = []  # the layer choose_threading_layer settled on, once
+_chosen: list[NumbaLayer] = []  # the layer choose_threading_layer settled on, once
 
 
 def openmp_loaded() -> bool:
@@ -71,7 +74,7 @@ def openmp_threads_sleep() -> bool:
     return _passive((start if start is not None else os.environ).get(POLICY))
 
 
-def choose_threading_layer() -> str:  # "omp" | "workqueue" | "user" | "launched"
+def choose_threading_layer() -> NumbaLayer:
     """numba's threading layer, chosen once before its first parallel launch: "omp" first when
     OpenMP's threads sleep (``openmp_threads_sleep``; "workqueue" if numba has no omp layer),
     "workqueue" otherwise. A layer the user chose (NUMBA_THREADING_LAYER, or

@@ -180,3 +180,19 @@ def test_resume_with_another_capture_is_refused_and_the_run_kept(tmp_path, capsy
     after = {p.name: p.read_bytes() for p in run.rglob("*") if p.is_file()}
     assert set(after) - set(before) <= {"config.json"} and after["last.pt"] == before["last.pt"]
     assert load_run(run).step == 4
+
+
+def test_an_atomic_write_that_fails_leaves_the_old_file_and_no_temporary(tmp_path):
+    from scenes._atomic import atomic_path
+
+    target = tmp_path / "x.ply"
+    target.write_text("old")
+    with pytest.raises(RuntimeError, match="disk full"):
+        with atomic_path(target) as tmp:
+            assert tmp.parent == tmp_path and tmp.suffix == ".ply" and tmp != target  # the writer sees the suffix
+            tmp.write_text("half")
+            raise RuntimeError("disk full")
+    assert target.read_text() == "old" and [p.name for p in tmp_path.iterdir()] == ["x.ply"]
+    with atomic_path(target) as tmp:
+        tmp.write_text("new")
+    assert target.read_text() == "new" and [p.name for p in tmp_path.iterdir()] == ["x.ply"]

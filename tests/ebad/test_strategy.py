@@ -136,16 +136,20 @@ def test_no_opacity_reset_after_reset_until_of_the_run():
     to end just after step 600 scored 0.5 dB instead of 3 dB over 3dgs): none after ``reset_until``."""
     import dataclasses
 
+    from ebad.config import Config, TrainConfig
+    from ebad.schedule import Schedule
+
     cfg = C.StrategyConfig(refine_start=10, refine_every=100, reset_every=4, reset_until=0.5)
     params = _params(4)
     opts = _optims(params)
     strat = DefaultStrategy(cfg, scene_scale=1.0, generator=torch.Generator().manual_seed(0))
     state = strat.initialize_state(4)
     before = params["opacities"].detach().clone()
-    late = dataclasses.replace(_info(4, torch.zeros(4)), progress=0.6)
+    schedule = Schedule.from_config(Config(strategy=cfg, train=TrainConfig(iters=10)), scale=1.0)
+    late = dataclasses.replace(_info(4, torch.zeros(4)), resets=schedule.at(6, 0.0).resets)  # 6 of 10 steps
     assert strat.step_post_backward(params, opts, state, 4, late).reset is False
     assert torch.equal(params["opacities"].detach(), before)
-    early = dataclasses.replace(_info(4, torch.zeros(4)), progress=0.4)
+    early = dataclasses.replace(_info(4, torch.zeros(4)), resets=schedule.at(4, 0.0).resets)
     assert strat.step_post_backward(params, opts, state, 8, early).reset is True
     with pytest.raises(Exception, match="strategy.reset_until"):
         C.StrategyConfig(reset_until=1.5).check()
