@@ -3,6 +3,7 @@
 Run every benchmark as a module from the repository root, ``python -m benchmarks.NAME``,
 so the project's packages (not a benchmark file) are found first on ``sys.path``.
 """
+
 from __future__ import annotations
 
 import datetime
@@ -29,12 +30,17 @@ def commit() -> str | None:
     results files do not count), or None outside a git checkout."""
     root = str(Path(__file__).resolve().parents[1])
     try:
-        head = subprocess.run(["git", "-C", root, "rev-parse", "--short=12", "HEAD"], capture_output=True, text=True,
-                              timeout=10)
+        head = subprocess.run(
+            ["git", "-C", root, "rev-parse", "--short=12", "HEAD"], capture_output=True, text=True, timeout=10
+        )
         if head.returncode != 0:
             return None
-        status = subprocess.run(["git", "-C", root, "status", "--porcelain", "--untracked-files=no"],
-                                capture_output=True, text=True, timeout=10)
+        status = subprocess.run(
+            ["git", "-C", root, "status", "--porcelain", "--untracked-files=no"],
+            capture_output=True,
+            text=True,
+            timeout=10,
+        )
     except (OSError, subprocess.SubprocessError):
         return None
     return head.stdout.strip() + ("+dirty" if status.returncode == 0 and status.stdout.strip() else "")

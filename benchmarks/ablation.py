@@ -22,6 +22,7 @@ at their run-frame poses refined against their images (scene frozen), and the de
 training frames against the sharp truth; mean +- std over seeds. Timings are noisy on a
 shared machine: compare presets within one run.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -69,14 +70,22 @@ def run_one(scene, name: str, iters: int, seconds: float | None, seed: int, refi
     ev = evaluate(run, scene.capture, refine=True, gt_frames=scene.gt_frames, refine_iters=refine_iters)
     m = run.metrics
     return {
-        "preset": name, "seed": seed, "steps": m.steps, "train_seconds": m.train_seconds, "wall_seconds": wall,
-        "prepare_seconds": m.prepare_seconds, "gaussians": m.gaussians, "pose_source": m.prepare.pose_source,
-        "anchored": m.anchored_mid_poses, "c": m.prepare.c,
+        "preset": name,
+        "seed": seed,
+        "steps": m.steps,
+        "train_seconds": m.train_seconds,
+        "wall_seconds": wall,
+        "prepare_seconds": m.prepare_seconds,
+        "gaussians": m.gaussians,
+        "pose_source": m.prepare.pose_source,
+        "anchored": m.anchored_mid_poses,
+        "c": m.prepare.c,
         "test_psnr": ev["test"].psnr if "test" in ev else None,
         "test_refined_psnr": ev["test_refined"].psnr if "test_refined" in ev else None,
         "test_refined_ssim": ev["test_refined"].ssim if "test_refined" in ev else None,
         "test_views": ev["test"].n if "test" in ev else 0,
-        "deblur_psnr": ev["deblurred"].psnr, "deblur_ssim": ev["deblurred"].ssim,
+        "deblur_psnr": ev["deblurred"].psnr,
+        "deblur_ssim": ev["deblurred"].ssim,
     }
 
 
@@ -91,10 +100,17 @@ def summarise(rows: list[dict]) -> dict:
         out[setting] = {}
         for name in dict.fromkeys(r["preset"] for r in rows if r["setting"] == setting):
             rs = [r for r in rows if r["setting"] == setting and r["preset"] == name]
-            out[setting][name] = {k: (float(np.mean([r[k] for r in rs if r[k] is not None])) if any(
-                r[k] is not None for r in rs) else None, float(np.std([r[k] for r in rs if r[k] is not None])) if any(
-                r[k] is not None for r in rs) else None) for k in ("test_refined_psnr", "test_refined_ssim",
-                                                                    "deblur_psnr", "deblur_ssim", "steps")}
+            out[setting][name] = {
+                k: (
+                    float(np.mean([r[k] for r in rs if r[k] is not None]))
+                    if any(r[k] is not None for r in rs)
+                    else None,
+                    float(np.std([r[k] for r in rs if r[k] is not None]))
+                    if any(r[k] is not None for r in rs)
+                    else None,
+                )
+                for k in ("test_refined_psnr", "test_refined_ssim", "deblur_psnr", "deblur_ssim", "steps")
+            }
             out[setting][name]["seeds"] = len(rs)
     return out
 
@@ -103,8 +119,11 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="tiny scenes, one seed, short budget")
     ap.add_argument("--settings", default="ideal,noisy,sfm")
-    ap.add_argument("--presets", default=",".join(PRESETS),
-                    help="presets, or a preset with options (ebad+loss.w_edi=2), comma-separated")
+    ap.add_argument(
+        "--presets",
+        default=",".join(PRESETS),
+        help="presets, or a preset with options (ebad+loss.w_edi=2), comma-separated",
+    )
     ap.add_argument("--seeds", default="0,1,2")
     ap.add_argument("--size", default=None, help="scene size (default small; quick tiny)")
     ap.add_argument("--seconds", type=float, default=None, help="wall-time budget per run (default 60; quick 15)")
@@ -139,9 +158,12 @@ def main(argv=None) -> int:
                 r = run_one(sc, name, iters, seconds, seed, args.refine_iters)
                 r.update({"setting": setting, "size": size, "blurry_psnr": blurry})
                 rows.append(r)
-                print(f"{setting:6s} seed {seed} {name:10s} novel (refined) {r['test_refined_psnr'] or float('nan'):6.2f} dB"
-                      f"  deblurred {r['deblur_psnr']:6.2f} dB  {r['steps']:5d} steps  {r['train_seconds']:6.1f} s"
-                      f"  poses {r['pose_source']}{' (held)' if r['anchored'] else ''}", flush=True)
+                print(
+                    f"{setting:6s} seed {seed} {name:10s} novel (refined) {r['test_refined_psnr'] or float('nan'):6.2f} dB"
+                    f"  deblurred {r['deblur_psnr']:6.2f} dB  {r['steps']:5d} steps  {r['train_seconds']:6.1f} s"
+                    f"  poses {r['pose_source']}{' (held)' if r['anchored'] else ''}",
+                    flush=True,
+                )
     summary = summarise(rows)
     print(f"\n{size}, {seconds:g} s / {iters} steps per run, seeds {seeds}; mean ± std over seeds")
     print("| setting | preset | novel PSNR (refined) | novel SSIM | deblurred PSNR | deblurred SSIM | steps |")
@@ -149,14 +171,29 @@ def main(argv=None) -> int:
     for setting, by in summary.items():
         for name, s in by.items():
             f = {k: (f"{v[0]:.2f} ± {v[1]:.2f}" if v[0] is not None else "-") for k, v in s.items() if k != "seeds"}
-            f["test_refined_ssim"] = (f"{s['test_refined_ssim'][0]:.3f} ± {s['test_refined_ssim'][1]:.3f}"
-                                      if s["test_refined_ssim"][0] is not None else "-")
+            f["test_refined_ssim"] = (
+                f"{s['test_refined_ssim'][0]:.3f} ± {s['test_refined_ssim'][1]:.3f}"
+                if s["test_refined_ssim"][0] is not None
+                else "-"
+            )
             f["deblur_ssim"] = f"{s['deblur_ssim'][0]:.3f} ± {s['deblur_ssim'][1]:.3f}"
-            print(f"| {setting} | {name} | {f['test_refined_psnr']} | {f['test_refined_ssim']} | {f['deblur_psnr']} | "
-                  f"{f['deblur_ssim']} | {s['steps'][0]:.0f} |")
-    path = write_json(args.name, {"size": size, "seconds": seconds, "iters": iters, "seeds": seeds,
-                                  "settings": {k: SETTINGS[k] for k in settings}, "rows": rows, "summary": summary,
-                                  "argv": sys.argv[1:]})
+            print(
+                f"| {setting} | {name} | {f['test_refined_psnr']} | {f['test_refined_ssim']} | {f['deblur_psnr']} | "
+                f"{f['deblur_ssim']} | {s['steps'][0]:.0f} |"
+            )
+    path = write_json(
+        args.name,
+        {
+            "size": size,
+            "seconds": seconds,
+            "iters": iters,
+            "seeds": seeds,
+            "settings": {k: SETTINGS[k] for k in settings},
+            "rows": rows,
+            "summary": summary,
+            "argv": sys.argv[1:],
+        },
+    )
     print(f"\nwrote {path}")
     return 0
 

@@ -36,6 +36,7 @@ its frames linearised by a range of gamma (only gamma x c is seen); the street r
 gamma 0.45 and 2.2, whether it is at a bracket end, and a no-reference sharpness/noise
 measure of the deblurred frame against the blurry one).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -89,12 +90,20 @@ def texture_case(seed: int, lead: float = TEXTURE_LEAD, generator: str = "textur
 def scene_case(name: str, rgb: bool, shake: float, seed: int, generator: str) -> Case:
     from scenes import make_scene
 
-    sc = make_scene(name, "small", seed=seed, rgb=rgb, sensor="ideal", c=0.2, sigma_c=0.03, shake=shake, n_frames=3,
-                    n_test=0)
+    sc = make_scene(
+        name, "small", seed=seed, rgb=rgb, sensor="ideal", c=0.2, sigma_c=0.03, shake=shake, n_frames=3, n_test=0
+    )
     cap = sc.capture
     c_true = Contrast(float(sc.c_pos.mean()), float(sc.c_neg.mean()))
-    return Case(generator, seed, np.asarray(cap.frames, np.float64), np.asarray(cap.exposures), cap.events,
-                c_true, np.asarray(sc.gt_frames, np.float64))
+    return Case(
+        generator,
+        seed,
+        np.asarray(cap.frames, np.float64),
+        np.asarray(cap.exposures),
+        cap.events,
+        c_true,
+        np.asarray(sc.gt_frames, np.float64),
+    )
 
 
 def realistic_case(seed: int, gamma: float = REAL_GAMMA, generator: str = "realistic") -> Case:
@@ -102,8 +111,9 @@ def realistic_case(seed: int, gamma: float = REAL_GAMMA, generator: str = "reali
     from scenes import make_scene
     from scenes.simulate import MIN_C_FRACTION, _crossings_numba
 
-    sc = make_scene("boxes", "small", seed=seed, rgb=False, sensor="ideal", c=0.2, sigma_c=0.03, shake=1.0, n_frames=3,
-                    n_test=0)
+    sc = make_scene(
+        "boxes", "small", seed=seed, rgb=False, sensor="ideal", c=0.2, sigma_c=0.03, shake=1.0, n_frames=3, n_test=0
+    )
     cap = sc.capture
     ex = np.asarray(cap.exposures)
     n_blur = int(sc.truth["n_blur"])  # the generator's own setting (benchmark side)
@@ -193,8 +203,7 @@ def street_gain(frames: np.ndarray, exposures: np.ndarray, events: edi.EventStre
 DARK = 0.02
 
 
-def regression_bounds(frames: np.ndarray, exposures: np.ndarray, events: edi.EventStream,
-                      gap: int = 1) -> dict:
+def regression_bounds(frames: np.ndarray, exposures: np.ndarray, events: edi.EventStream, gap: int = 1) -> dict:
     """The errors-in-variables bracket of c from frames k and k + gap (grey [F, H, W]) and the
     signed counts N between their centres, over the pixels that fired, are neither saturated
     nor darker than ``DARK``: with D = log(F_{k+gap} + eps) - log(F_k + eps) = c N + errors in
@@ -208,14 +217,19 @@ def regression_bounds(frames: np.ndarray, exposures: np.ndarray, events: edi.Eve
         i0, i1 = edi.events_in_window(events, centres[k], centres[k + gap])
         win = events[i0:i1]
         n = win.count_image(1).astype(np.float64) - win.count_image(-1)
-        ok = (n != 0)
+        ok = n != 0
         for f in (frames[k], frames[k + gap]):
             ok &= (f < edi.SATURATION) & (f > DARK)
         xs.append(n[ok])
         ys.append((np.log(frames[k + gap] + LOG_EPS) - np.log(frames[k] + LOG_EPS))[ok])
     x, y = np.concatenate(xs), np.concatenate(ys)
-    return {"gap": gap, "forward": float((x * y).sum() / (x * x).sum()), "reverse": float((y * y).sum() / (x * y).sum()),
-            "pixels": int(x.size), "fraction_one_event": float(np.mean(np.abs(x) == 1))}
+    return {
+        "gap": gap,
+        "forward": float((x * y).sum() / (x * x).sum()),
+        "reverse": float((y * y).sum() / (x * y).sum()),
+        "pixels": int(x.size),
+        "fraction_one_event": float(np.mean(np.abs(x) == 1)),
+    }
 
 
 # --- the single-frame and multi-frame estimators on the synthetic generators ---------------------------
@@ -229,8 +243,17 @@ def deblur_psnr(case: Case, c, gamma: float = 1.0) -> float:
     """Mean PSNR (dB) of the mid-exposure EDI latents of every frame (frames linearised with
     ``gamma``, latents mapped back) against the true sharp frames as the camera records them
     (sharp ** the true gamma)."""
-    return float(np.mean([psnr(edi.deblur(case.frames[i], case.exposures[i], case.events, c=c, gamma=gamma),
-                               case.sharp[i] ** case.gamma) for i in range(len(case.frames))]))
+    return float(
+        np.mean(
+            [
+                psnr(
+                    edi.deblur(case.frames[i], case.exposures[i], case.events, c=c, gamma=gamma),
+                    case.sharp[i] ** case.gamma,
+                )
+                for i in range(len(case.frames))
+            ]
+        )
+    )
 
 
 ESTIMATORS = {
@@ -250,16 +273,27 @@ def run_case(case: Case) -> dict:
         frames, ex = (case.frames, case.exposures) if multi else (case.frames[0], case.exposures[0])
         rep = edi.estimate_contrast(frames, ex, case.events, **kw)
         # a pair against the true pair; one c against the true mean (c_pos + c_neg) / 2
-        ratio = ([rep.c.pos / case.c_true.pos, rep.c.neg / case.c_true.neg] if kw.get("pair")
-                 else [rep.c.mean / case.c_true.mean])
-        row[name] = {"c": list(rep.c), "ratio": ratio, "at_bound": rep.at_bound, "reliable": rep.reliable,
-                     "explained": rep.explained, "method": rep.method, "seconds": time.perf_counter() - t}
+        ratio = (
+            [rep.c.pos / case.c_true.pos, rep.c.neg / case.c_true.neg]
+            if kw.get("pair")
+            else [rep.c.mean / case.c_true.mean]
+        )
+        row[name] = {
+            "c": list(rep.c),
+            "ratio": ratio,
+            "at_bound": rep.at_bound,
+            "reliable": rep.reliable,
+            "explained": rep.explained,
+            "method": rep.method,
+            "seconds": time.perf_counter() - t,
+        }
     # what `ebad deblur CAPTURE` does (the joint pair, frames taken as linear) against EDI with
     # the true mean pair and the true response, both scored in the camera's recorded units
     row["psnr_true_c"] = deblur_psnr(case, case.c_true, case.gamma)
     row["psnr_estimated_c"] = deblur_psnr(case, row["consistency_pair"]["c"])
-    row["psnr_blurry"] = float(np.mean([psnr(case.frames[i], case.sharp[i] ** case.gamma)
-                                        for i in range(len(case.frames))]))
+    row["psnr_blurry"] = float(
+        np.mean([psnr(case.frames[i], case.sharp[i] ** case.gamma) for i in range(len(case.frames))])
+    )
     return row
 
 
@@ -270,20 +304,39 @@ def summarise(rows: list[dict]) -> list[dict]:
         for name, (_, multi) in ESTIMATORS.items():
             err = np.array([max(abs(v - 1) for v in r[name]["ratio"]) for r in rs])  # worst polarity
             tol = 0.05 if multi else 0.10
-            out.append({"generator": gen, "estimator": name, "seeds": len(rs),
-                        "median_ratio": float(np.median([np.mean(r[name]["ratio"]) for r in rs])),
-                        "min_ratio": float(min(min(r[name]["ratio"]) for r in rs)),
-                        "max_ratio": float(max(max(r[name]["ratio"]) for r in rs)),
-                        "tolerance": tol, "within": int((err <= tol).sum()),
-                        "at_bound": int(sum(r[name]["at_bound"] for r in rs)),
-                        "unreliable": int(sum(not r[name]["reliable"] for r in rs)),
-                        "min_explained": min((r[name]["explained"] for r in rs if r[name]["explained"] is not None),
-                                             default=None)})
+            out.append(
+                {
+                    "generator": gen,
+                    "estimator": name,
+                    "seeds": len(rs),
+                    "median_ratio": float(np.median([np.mean(r[name]["ratio"]) for r in rs])),
+                    "min_ratio": float(min(min(r[name]["ratio"]) for r in rs)),
+                    "max_ratio": float(max(max(r[name]["ratio"]) for r in rs)),
+                    "tolerance": tol,
+                    "within": int((err <= tol).sum()),
+                    "at_bound": int(sum(r[name]["at_bound"] for r in rs)),
+                    "unreliable": int(sum(not r[name]["reliable"] for r in rs)),
+                    "min_explained": min(
+                        (r[name]["explained"] for r in rs if r[name]["explained"] is not None), default=None
+                    ),
+                }
+            )
         d = np.array([r["psnr_estimated_c"] - r["psnr_true_c"] for r in rs])
-        out.append({"generator": gen, "estimator": "deblur dB (estimated - true c, gamma)", "seeds": len(rs),
-                    "median_ratio": float(np.median(d)), "min_ratio": float(d.min()), "max_ratio": float(d.max()),
-                    "tolerance": 0.5, "within": int((d >= -0.5).sum()), "at_bound": 0, "unreliable": 0,
-                    "min_explained": None})
+        out.append(
+            {
+                "generator": gen,
+                "estimator": "deblur dB (estimated - true c, gamma)",
+                "seeds": len(rs),
+                "median_ratio": float(np.median(d)),
+                "min_ratio": float(d.min()),
+                "max_ratio": float(d.max()),
+                "tolerance": 0.5,
+                "within": int((d >= -0.5).sum()),
+                "at_bound": 0,
+                "unreliable": 0,
+                "min_explained": None,
+            }
+        )
     return out
 
 
@@ -315,10 +368,18 @@ def prediction_metric_check(cases: list[Case]) -> list[dict]:
         ex = np.stack([mid, mid], axis=1)
         gains = [street_gain(sharp, ex, case.events, float(c)) for c in grid]
         est = edi.estimate_c(sharp, ex, case.events).mean
-        out.append({"generator": case.generator, "seed": case.seed, "c_true": case.c_true.mean,
-                    "best_fixed_c": float(grid[int(np.argmax(gains))]), "best_gain_db": float(max(gains)),
-                    "estimate": est, "estimate_gain_db": street_gain(sharp, ex, case.events, est),
-                    "bounds": regression_bounds(sharp, ex, case.events)})
+        out.append(
+            {
+                "generator": case.generator,
+                "seed": case.seed,
+                "c_true": case.c_true.mean,
+                "best_fixed_c": float(grid[int(np.argmax(gains))]),
+                "best_gain_db": float(max(gains)),
+                "estimate": est,
+                "estimate_gain_db": street_gain(sharp, ex, case.events, est),
+                "bounds": regression_bounds(sharp, ex, case.events),
+            }
+        )
     return out
 
 
@@ -357,12 +418,22 @@ def gamma_scan(cases: list[Case]) -> list[dict]:
     out = []
     for case in cases:
         for g in GAMMA_SCAN:
-            rep = edi.estimate_contrast(case.frames, case.exposures, case.events, method="consistency", pair=True,
-                                        gamma=g)
+            rep = edi.estimate_contrast(
+                case.frames, case.exposures, case.events, method="consistency", pair=True, gamma=g
+            )
             c = rep.c
-            out.append({"generator": case.generator, "seed": case.seed, "gamma_true": case.gamma, "gamma": g,
-                        "c_mean": c.mean, "c_true_mean": case.c_true.mean, "gamma_times_c": g * c.mean,
-                        "energy": rep.energy})
+            out.append(
+                {
+                    "generator": case.generator,
+                    "seed": case.seed,
+                    "gamma_true": case.gamma,
+                    "gamma": g,
+                    "c_mean": c.mean,
+                    "c_true_mean": case.c_true.mean,
+                    "gamma_times_c": g * c.mean,
+                    "energy": rep.energy,
+                }
+            )
     return out
 
 
@@ -393,17 +464,28 @@ def events_displacement(ev: edi.EventStream) -> dict:
     """How far the scene moved during the events' window, from the events alone (contrast
     maximisation): the global translation (px over the window) whose warped-event image has the
     largest variance, and that variance over the unwarped one's (1: warping concentrates nothing)."""
+
     def var(d):
         return float(_warped_count(ev, *d).var())
 
-    coarse = [(dx, dy) for dx in np.arange(-CMAX_GRID_X, CMAX_GRID_X + 1e-9, CMAX_STEP)
-              for dy in np.arange(-CMAX_GRID_Y, CMAX_GRID_Y + 1e-9, CMAX_STEP)]
+    coarse = [
+        (dx, dy)
+        for dx in np.arange(-CMAX_GRID_X, CMAX_GRID_X + 1e-9, CMAX_STEP)
+        for dy in np.arange(-CMAX_GRID_Y, CMAX_GRID_Y + 1e-9, CMAX_STEP)
+    ]
     bx, by = max(coarse, key=var)
-    fine = [(bx + a, by + b) for a in np.arange(-CMAX_STEP, CMAX_STEP + 1e-9, CMAX_FINE)
-            for b in np.arange(-CMAX_STEP, CMAX_STEP + 1e-9, CMAX_FINE)]
+    fine = [
+        (bx + a, by + b)
+        for a in np.arange(-CMAX_STEP, CMAX_STEP + 1e-9, CMAX_FINE)
+        for b in np.arange(-CMAX_STEP, CMAX_STEP + 1e-9, CMAX_FINE)
+    ]
     best = max(fine, key=var)
-    return {"dx": float(best[0]), "dy": float(best[1]), "px": float(math.hypot(*best)),
-            "variance_gain": var(best) / var((0.0, 0.0))}
+    return {
+        "dx": float(best[0]),
+        "dy": float(best[1]),
+        "px": float(math.hypot(*best)),
+        "variance_gain": var(best) / var((0.0, 0.0)),
+    }
 
 
 def _line_kernel(length: float, angle_deg: float) -> np.ndarray:
@@ -442,10 +524,16 @@ def frame_blur_against_events(B: np.ndarray, ev: edi.EventStream) -> dict:
         x, y = a[m] - a[m].mean(), frame_edges[m] - frame_edges[m].mean()
         return float((x * y).sum() / math.sqrt((x * x).sum() * (y * y).sum()))
 
-    fits = {(l, a): ncc(fftconvolve(ev_edges, _line_kernel(l, a), mode="same")) for l in BLUR_LENGTHS for a in BLUR_ANGLES}
+    fits = {
+        (l, a): ncc(fftconvolve(ev_edges, _line_kernel(l, a), mode="same")) for l in BLUR_LENGTHS for a in BLUR_ANGLES
+    }
     (l, a) = max(fits, key=fits.get)
-    return {"length_px": float(l), "angle_deg": float(a), "ncc": fits[(l, a)],
-            "ncc_unblurred": max(v for (ll, _), v in fits.items() if ll == BLUR_LENGTHS[0])}
+    return {
+        "length_px": float(l),
+        "angle_deg": float(a),
+        "ncc": fits[(l, a)],
+        "ncc_unblurred": max(v for (ll, _), v in fits.items() if ll == BLUR_LENGTHS[0]),
+    }
 
 
 #: partial_window: fractions of the exposure whose events the estimator gets, and the seeds
@@ -483,22 +571,39 @@ def ni_rows() -> list[dict]:
         ex = (ev.t[0] * 1e-6, (ev.t[-1] + 1) * 1e-6)
         s_b, n_b = sharpness_and_noise(B / 255.0)
         cnt = np.bincount(ev.y.astype(np.int64) * ev.width + ev.x, minlength=ev.width * ev.height)
-        row = {"name": name, "window_ms": (ex[1] - ex[0]) * 1e3, "events": len(ev),
-               "positive_fraction": float(np.mean(ev.p > 0)), "events_per_fired_pixel": float(cnt[cnt > 0].mean()),
-               "max_events_per_pixel": int(cnt.max()), "events_motion": events_displacement(ev),
-               "frame_blur": frame_blur_against_events(B, ev)}
+        row = {
+            "name": name,
+            "window_ms": (ex[1] - ex[0]) * 1e3,
+            "events": len(ev),
+            "positive_fraction": float(np.mean(ev.p > 0)),
+            "events_per_fired_pixel": float(cnt[cnt > 0].mean()),
+            "max_events_per_pixel": int(cnt.max()),
+            "events_motion": events_displacement(ev),
+            "frame_blur": frame_blur_against_events(B, ev),
+        }
         for energy in ("flow", "paper"):
             rep = edi.estimate_contrast(B, ex, ev, energy=energy)
             c = rep.c.mean
             s_l, n_l = sharpness_and_noise(edi.deblur(B, ex, ev, c=c))
-            row[energy] = {"c": c, "at_bound": rep.at_bound, "reliable": rep.reliable, "explained": rep.explained,
-                           "sharpness_gain": s_l / s_b, "noise_gain": n_l / n_b, "evals": sorted(rep.evals)}
+            row[energy] = {
+                "c": c,
+                "at_bound": rep.at_bound,
+                "reliable": rep.reliable,
+                "explained": rep.explained,
+                "sharpness_gain": s_l / s_b,
+                "noise_gain": n_l / n_b,
+                "evals": sorted(rep.evals),
+            }
         for g in NI_GAMMAS:  # is a non-linear response why the estimate ends at the bracket?
             rep = edi.estimate_contrast(B, ex, ev, gamma=g)
             c = rep.c.mean
             s_l, n_l = sharpness_and_noise(edi.deblur(B, ex, ev, c=c, gamma=g))
-            row[f"flow_gamma_{g:g}"] = {"c": c, "at_bound": rep.at_bound, "sharpness_gain": s_l / s_b,
-                                        "noise_gain": n_l / n_b}
+            row[f"flow_gamma_{g:g}"] = {
+                "c": c,
+                "at_bound": rep.at_bound,
+                "sharpness_gain": s_l / s_b,
+                "noise_gain": n_l / n_b,
+            }
         s_t, n_t = sharpness_and_noise(edi.deblur(B, ex, ev, c=edi.contrast.DEFAULT_BRACKET[1]))
         row["bracket_top"] = {"sharpness_gain": s_t / s_b, "noise_gain": n_t / n_b}
         rows.append(row)
@@ -523,71 +628,107 @@ def main(argv: list[str] | None = None) -> None:
             rows.append(run_case(load_case(gen, seed, args.cache)))
             print(f"{gen} seed {seed}: done ({time.perf_counter() - t0:.0f} s)", flush=True)
     table = summarise(rows)
-    print(f"\n{'generator':20s} {'estimator':32s} {'median':>7s} {'min':>6s} {'max':>6s} {'within':>8s} {'at_bound':>8s} "
-          f"{'unreliable':>10s} {'min explained':>13s}")
+    print(
+        f"\n{'generator':20s} {'estimator':32s} {'median':>7s} {'min':>6s} {'max':>6s} {'within':>8s} {'at_bound':>8s} "
+        f"{'unreliable':>10s} {'min explained':>13s}"
+    )
     for r in table:
         expl = "" if r["min_explained"] is None else f"{r['min_explained']:.3f}"
-        print(f"{r['generator']:20s} {r['estimator']:32s} {r['median_ratio']:7.3f} {r['min_ratio']:6.3f} "
-              f"{r['max_ratio']:6.3f} {r['within']:>3d}/{r['seeds']:<2d}{'':2s} {r['at_bound']:>8d} "
-              f"{r['unreliable']:>10d} {expl:>13s}")
-    check = prediction_metric_check([load_case(g, seed, args.cache) for g in ("boxes_grey_strong", "realistic_linear")
-                                     for seed in range(2 if args.quick else 3)])
+        print(
+            f"{r['generator']:20s} {r['estimator']:32s} {r['median_ratio']:7.3f} {r['min_ratio']:6.3f} "
+            f"{r['max_ratio']:6.3f} {r['within']:>3d}/{r['seeds']:<2d}{'':2s} {r['at_bound']:>8d} "
+            f"{r['unreliable']:>10d} {expl:>13s}"
+        )
+    check = prediction_metric_check(
+        [
+            load_case(g, seed, args.cache)
+            for g in ("boxes_grey_strong", "realistic_linear")
+            for seed in range(2 if args.quick else 3)
+        ]
+    )
     print("\nnext-frame prediction on synthetic sharp frames (known c), and the regression bracket:")
     for r in check:
         b = r["bounds"]
-        print(f"  {r['generator']:18s} seed {r['seed']}: true c {r['c_true']:.3f}, best fixed c {r['best_fixed_c']:.3f} "
-              f"({r['best_gain_db']:.2f} dB), estimate {r['estimate']:.3f} ({r['estimate_gain_db']:.2f} dB); "
-              f"forward {b['forward']:.3f}, reverse {b['reverse']:.3f}")
+        print(
+            f"  {r['generator']:18s} seed {r['seed']}: true c {r['c_true']:.3f}, best fixed c {r['best_fixed_c']:.3f} "
+            f"({r['best_gain_db']:.2f} dB), estimate {r['estimate']:.3f} ({r['estimate_gain_db']:.2f} dB); "
+            f"forward {b['forward']:.3f}, reverse {b['reverse']:.3f}"
+        )
     scan = gamma_scan([load_case("realistic", seed, args.cache) for seed in range(2 if args.quick else 3)])
     print("\nrealistic (gamma 0.8): consistency with the frames linearised by gamma (c mean, gamma x c, residual):")
     for r in scan:
-        print(f"  seed {r['seed']} gamma {r['gamma']:.2f}: c {r['c_mean']:.4f} (true {r['c_true_mean']:.4f}), "
-              f"gamma x c {r['gamma_times_c']:.4f}, residual {r['energy']:.5f}")
+        print(
+            f"  seed {r['seed']} gamma {r['gamma']:.2f}: c {r['c_mean']:.4f} (true {r['c_true_mean']:.4f}), "
+            f"gamma x c {r['gamma_times_c']:.4f}, residual {r['energy']:.5f}"
+        )
     street = street_rows()
     if "scan" in street:
-        print(f"\nstreet: best fixed c {street['best_fixed_c']} gains {street['best_gain_db']:.2f} dB; "
-              f"estimate {street['estimate']['c'][0]:.3f} gains {street['estimate']['gain_db']:.2f} dB; pair "
-              f"({street['estimate_pair']['c'][0]:.3f}, {street['estimate_pair']['c'][1]:.3f}) gains "
-              f"{street['estimate_pair']['gain_db']:.2f} dB")
+        print(
+            f"\nstreet: best fixed c {street['best_fixed_c']} gains {street['best_gain_db']:.2f} dB; "
+            f"estimate {street['estimate']['c'][0]:.3f} gains {street['estimate']['gain_db']:.2f} dB; pair "
+            f"({street['estimate_pair']['c'][0]:.3f}, {street['estimate_pair']['c'][1]:.3f}) gains "
+            f"{street['estimate_pair']['gain_db']:.2f} dB"
+        )
         for b in street["bounds"]:
-            print(f"  regression bracket, frames k and k + {b['gap']}: forward {b['forward']:.3f}, reverse "
-                  f"{b['reverse']:.3f} ({b['pixels']} pixels, {100 * b['fraction_one_event']:.0f}% with one event)")
+            print(
+                f"  regression bracket, frames k and k + {b['gap']}: forward {b['forward']:.3f}, reverse "
+                f"{b['reverse']:.3f} ({b['pixels']} pixels, {100 * b['fraction_one_event']:.0f}% with one event)"
+            )
         print(f"  estimate within every bracket: {street['estimate_within_bounds']}")
     ni = ni_rows()
     if ni:
-        print(f"\n{'ni_joint':18s} {'energy':15s} {'c':>7s} {'bound':>6s} {'sharp x':>8s} {'noise x':>8s} "
-              f"{'explained':>9s} {'reliable':>8s}")
+        print(
+            f"\n{'ni_joint':18s} {'energy':15s} {'c':>7s} {'bound':>6s} {'sharp x':>8s} {'noise x':>8s} "
+            f"{'explained':>9s} {'reliable':>8s}"
+        )
         for r in ni:
             for energy in ("flow", "paper") + tuple(f"flow_gamma_{g:g}" for g in NI_GAMMAS):
                 e = r[energy]
                 expl = f"{e['explained']:.3f}" if e.get("explained") is not None else ""
                 rel = str(e["reliable"]) if "reliable" in e else ""
-                print(f"{r['name']:18s} {energy:15s} {e['c']:7.4f} {str(e['at_bound']):>6s} "
-                      f"{e['sharpness_gain']:8.2f} {e['noise_gain']:8.2f} {expl:>9s} {rel:>8s}")
-            print(f"{r['name']:18s} {'c=1.5':15s} {'':7s} {'':6s} {r['bracket_top']['sharpness_gain']:8.2f} "
-                  f"{r['bracket_top']['noise_gain']:8.2f}")
+                print(
+                    f"{r['name']:18s} {energy:15s} {e['c']:7.4f} {str(e['at_bound']):>6s} "
+                    f"{e['sharpness_gain']:8.2f} {e['noise_gain']:8.2f} {expl:>9s} {rel:>8s}"
+                )
+            print(
+                f"{r['name']:18s} {'c=1.5':15s} {'':7s} {'':6s} {r['bracket_top']['sharpness_gain']:8.2f} "
+                f"{r['bracket_top']['noise_gain']:8.2f}"
+            )
     if ni:
         print("\nni_joint: the events' motion over their window against the frame's blur")
         for r in ni:
             m, b = r["events_motion"], r["frame_blur"]
-            print(f"  {r['name']:18s} window {r['window_ms']:5.1f} ms, {r['events']:6d} events, {100 * r['positive_fraction']:.0f}% "
-                  f"positive, {r['events_per_fired_pixel']:.2f} per fired pixel (max {r['max_events_per_pixel']}); "
-                  f"events moved ({m['dx']:+.1f}, {m['dy']:+.1f}) px (warp variance gain {m['variance_gain']:.3f}); "
-                  f"frame blur {b['length_px']:.0f} px at {b['angle_deg']:.0f} deg (ncc {b['ncc']:.2f}, unblurred "
-                  f"{b['ncc_unblurred']:.2f})")
+            print(
+                f"  {r['name']:18s} window {r['window_ms']:5.1f} ms, {r['events']:6d} events, {100 * r['positive_fraction']:.0f}% "
+                f"positive, {r['events_per_fired_pixel']:.2f} per fired pixel (max {r['max_events_per_pixel']}); "
+                f"events moved ({m['dx']:+.1f}, {m['dy']:+.1f}) px (warp variance gain {m['variance_gain']:.3f}); "
+                f"frame blur {b['length_px']:.0f} px at {b['angle_deg']:.0f} deg (ncc {b['ncc']:.2f}, unblurred "
+                f"{b['ncc_unblurred']:.2f})"
+            )
             ev_f = r["flow"]["evals"]
-            print(f"  {'':18s} flow energy {ev_f[0][1]:.4f} at c {ev_f[0][0]:.3f} .. {ev_f[-1][1]:.4f} at c {ev_f[-1][0]:.3f}, "
-                  f"increasing: {all(b2 >= a2 for (_, a2), (_, b2) in zip(ev_f, ev_f[1:]))}")
+            print(
+                f"  {'':18s} flow energy {ev_f[0][1]:.4f} at c {ev_f[0][0]:.3f} .. {ev_f[-1][1]:.4f} at c {ev_f[-1][0]:.3f}, "
+                f"increasing: {all(b2 >= a2 for (_, a2), (_, b2) in zip(ev_f, ev_f[1:]))}"
+            )
     partial = partial_window()
     print("\nmoving texture, events of a centred fraction of the exposure only: c / c_true per seed (* bracket end)")
     for frac in PARTIAL_FRACTIONS:
         rs = [r for r in partial if r["fraction"] == frac]
         print(f"  {frac:4.0%}: " + " ".join(f"{r['ratio']:.2f}{'*' if r['at_bound'] else ''}" for r in rs))
-    path = write_json("calibration_quick" if args.quick else "calibration",
-                      {"seeds": len(seeds), "table": table, "rows": rows, "street": street, "ni_joint": ni,
-                       "partial_window": partial,
-                       "prediction_metric_check": check, "gamma_scan": scan,
-                       "seconds": time.perf_counter() - t0})
+    path = write_json(
+        "calibration_quick" if args.quick else "calibration",
+        {
+            "seeds": len(seeds),
+            "table": table,
+            "rows": rows,
+            "street": street,
+            "ni_joint": ni,
+            "partial_window": partial,
+            "prediction_metric_check": check,
+            "gamma_scan": scan,
+            "seconds": time.perf_counter() - t0,
+        },
+    )
     print(f"\nwrote {path} ({time.perf_counter() - t0:.0f} s)")
 
 

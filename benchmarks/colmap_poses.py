@@ -17,6 +17,7 @@ aligned to the true mid-exposure poses by ``align_similarity`` (Sim(3)); ATE is 
 camera centres in % of the trajectory extent; the test views are moved by the same Sim(3) and
 scored the same way. One thread per SfM (deterministic). Writes JSON.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -28,17 +29,34 @@ import numpy as np
 
 RESULTS = Path(__file__).resolve().parent / "results"
 SLIDER = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "slider_depth"
-INPUTS = {"blurry": dict(deblur=False), "edi c": dict(deblur=True, c_polarity=False),
-          "edi c+-": dict(deblur=True, c_polarity=True)}
+INPUTS = {
+    "blurry": dict(deblur=False),
+    "edi c": dict(deblur=True, c_polarity=False),
+    "edi c+-": dict(deblur=True, c_polarity=True),
+}
 
 
 def synthetic_row(sc, size: str, seed: int, sensor: str, inp: str, threads: int) -> dict:
-    from scenes.colmap import (ColmapConfig, SfMError, align_similarity, apply_similarity, estimate_poses, pose_errors,
-                               rotation_errors_deg)
+    from scenes.colmap import (
+        ColmapConfig,
+        SfMError,
+        align_similarity,
+        apply_similarity,
+        estimate_poses,
+        pose_errors,
+        rotation_errors_deg,
+    )
 
     cap, name = sc.capture, sc.name
-    row = {"scene": name, "size": size, "seed": seed, "sensor": sensor, "input": inp, "frames": cap.num_frames,
-           "test_views": len(cap.test_views)}
+    row = {
+        "scene": name,
+        "size": size,
+        "seed": seed,
+        "sensor": sensor,
+        "input": inp,
+        "frames": cap.num_frames,
+        "test_views": len(cap.test_views),
+    }
     t0 = time.perf_counter()
     try:
         est = estimate_poses(cap, ColmapConfig(num_threads=threads, **INPUTS[inp]))
@@ -48,17 +66,26 @@ def synthetic_row(sc, size: str, seed: int, sensor: str, inp: str, threads: int)
     reg = est.registered
     e = pose_errors(est.c2w[reg], sc.gt_c2w[reg])
     ext = e["trajectory_extent"]
-    row.update(registered=int(reg.sum()), points=len(est.points), c_estimated=est.report.get("c_estimated"),
-               c_true=[sc.sensor.c_pos, sc.sensor.c_neg], ate_pct=100 * e["ate_rmse"] / ext,
-               rot_mean_deg=e["rot_mean_deg"], rot_max_deg=e["rot_max_deg"], test_registered=len(est.test_c2w))
+    row.update(
+        registered=int(reg.sum()),
+        points=len(est.points),
+        c_estimated=est.report.get("c_estimated"),
+        c_true=[sc.sensor.c_pos, sc.sensor.c_neg],
+        ate_pct=100 * e["ate_rmse"] / ext,
+        rot_mean_deg=e["rot_mean_deg"],
+        rot_max_deg=e["rot_max_deg"],
+        test_registered=len(est.test_c2w),
+    )
     if est.test_c2w:
         s, r, t = align_similarity(est.c2w[reg], sc.gt_c2w[reg])
         names = [tv.name for tv in cap.test_views]
         j = [i for i, n in enumerate(names) if n in est.test_c2w]
         test = apply_similarity(np.stack([est.test_c2w[names[i]] for i in j]), s, r, t)
         pos = np.linalg.norm(test[:, :3, 3] - sc.gt_test_c2w[j, :3, 3], axis=1)
-        row.update(test_pos_pct=float(100 * np.sqrt((pos**2).mean()) / ext),
-                   test_rot_deg=float(rotation_errors_deg(sc.gt_test_c2w[j], test).mean()))
+        row.update(
+            test_pos_pct=float(100 * np.sqrt((pos**2).mean()) / ext),
+            test_rot_deg=float(rotation_errors_deg(sc.gt_test_c2w[j], test).mean()),
+        )
     return row
 
 
@@ -78,10 +105,19 @@ def slider_rows(steps: list[int], threads: int) -> list[dict]:
             continue
         reg = est.registered
         e = pose_errors(est.c2w[reg], cap.c2w[idx][reg])
-        rows.append({"step": step, "frames": len(idx), "registered": int(reg.sum()), "points": len(est.points),
-                     "ate_m": e["ate_rmse"], "ate_pct": 100 * e["ate_rmse"] / e["trajectory_extent"],
-                     "rot_mean_deg": e["rot_mean_deg"], "reproj_px": est.report["mean_reprojection_error_px"],
-                     "time_s": time.perf_counter() - t0})
+        rows.append(
+            {
+                "step": step,
+                "frames": len(idx),
+                "registered": int(reg.sum()),
+                "points": len(est.points),
+                "ate_m": e["ate_rmse"],
+                "ate_pct": 100 * e["ate_rmse"] / e["trajectory_extent"],
+                "rot_mean_deg": e["rot_mean_deg"],
+                "reproj_px": est.report["mean_reprojection_error_px"],
+                "time_s": time.perf_counter() - t0,
+            }
+        )
     return rows
 
 
@@ -114,12 +150,18 @@ def main(argv=None) -> int:
                     for inp in split(args.inputs):
                         r = synthetic_row(sc, size, seed, sensor, inp, args.threads)
                         rows.append(r)
-                        print(json.dumps({k: (round(v, 4) if isinstance(v, float) else v) for k, v in r.items()}),
-                              flush=True)
-    print("\nSfM on synthetic blurry captures without poses (12 frames + 3 test views registered together); "
-          "mean ± std over scenes and seeds")
-    print(f"{'size':>6} {'sensor':>9} {'input':>8} {'runs':>4} {'failed':>6} {'ATE %':>14} {'rot deg':>14} "
-          f"{'test pos %':>14} {'test rot deg':>14} {'time s':>7}")
+                        print(
+                            json.dumps({k: (round(v, 4) if isinstance(v, float) else v) for k, v in r.items()}),
+                            flush=True,
+                        )
+    print(
+        "\nSfM on synthetic blurry captures without poses (12 frames + 3 test views registered together); "
+        "mean ± std over scenes and seeds"
+    )
+    print(
+        f"{'size':>6} {'sensor':>9} {'input':>8} {'runs':>4} {'failed':>6} {'ATE %':>14} {'rot deg':>14} "
+        f"{'test pos %':>14} {'test rot deg':>14} {'time s':>7}"
+    )
     summary = []
     for size in split(args.sizes):
         for sensor in split(args.sensors):
@@ -127,14 +169,24 @@ def main(argv=None) -> int:
                 sel = [r for r in rows if r["size"] == size and r["sensor"] == sensor and r["input"] == inp]
                 ok = [r for r in sel if "error" not in r]
                 tst = [r for r in ok if "test_pos_pct" in r]
-                s = {"size": size, "sensor": sensor, "input": inp, "runs": len(sel), "failed": len(sel) - len(ok),
-                     "ate_pct": [r["ate_pct"] for r in ok], "rot_deg": [r["rot_mean_deg"] for r in ok],
-                     "test_pos_pct": [r["test_pos_pct"] for r in tst], "test_rot_deg": [r["test_rot_deg"] for r in tst],
-                     "time_s": [r["time_s"] for r in ok]}
+                s = {
+                    "size": size,
+                    "sensor": sensor,
+                    "input": inp,
+                    "runs": len(sel),
+                    "failed": len(sel) - len(ok),
+                    "ate_pct": [r["ate_pct"] for r in ok],
+                    "rot_deg": [r["rot_mean_deg"] for r in ok],
+                    "test_pos_pct": [r["test_pos_pct"] for r in tst],
+                    "test_rot_deg": [r["test_rot_deg"] for r in tst],
+                    "time_s": [r["time_s"] for r in ok],
+                }
                 summary.append(s)
-                print(f"{size:>6} {sensor:>9} {inp:>8} {len(sel):>4} {s['failed']:>6} {_mean_std(s['ate_pct']):>14} "
-                      f"{_mean_std(s['rot_deg']):>14} {_mean_std(s['test_pos_pct']):>14} "
-                      f"{_mean_std(s['test_rot_deg']):>14} {np.mean(s['time_s']) if ok else float('nan'):>7.1f}")
+                print(
+                    f"{size:>6} {sensor:>9} {inp:>8} {len(sel):>4} {s['failed']:>6} {_mean_std(s['ate_pct']):>14} "
+                    f"{_mean_std(s['rot_deg']):>14} {_mean_std(s['test_pos_pct']):>14} "
+                    f"{_mean_std(s['test_rot_deg']):>14} {np.mean(s['time_s']) if ok else float('nan'):>7.1f}"
+                )
     slider = []
     if args.slider and SLIDER.is_dir():
         slider = slider_rows([int(s) for s in split(args.slider_steps)], args.threads)
@@ -144,8 +196,10 @@ def main(argv=None) -> int:
             if "error" in r:
                 print(f"{r['step']:>4} {r['frames']:>6}  FAILED: {r['error']}")
             else:
-                print(f"{r['step']:>4} {r['frames']:>6} {r['registered']:>4} {r['ate_m']:>8.4f} {r['ate_pct']:>6.2f} "
-                      f"{r['rot_mean_deg']:>8.3f} {r['time_s']:>7.1f}")
+                print(
+                    f"{r['step']:>4} {r['frames']:>6} {r['registered']:>4} {r['ate_m']:>8.4f} {r['ate_pct']:>6.2f} "
+                    f"{r['rot_mean_deg']:>8.3f} {r['time_s']:>7.1f}"
+                )
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps({"args": vars(args), "rows": rows, "summary": summary, "slider": slider}, indent=1))

@@ -10,6 +10,7 @@
   (``edi.moving_texture``, c = 0.2) as the c used departs from the true one.
 * wall time of ``estimate_c`` (single-frame and consistency) on that synthetic scene.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -48,10 +49,21 @@ def throughput(sizes, repeats):
         for n_inst in (1, 8):
             times = None if n_inst == 1 else np.linspace(0.0, 0.04, n_inst)
             fast = best_time(lambda: edi.deblur(B, ex, ev, times=times, c=0.2), repeats)
-            naive = best_time(lambda: edi.deblur(B, ex, ev, times=times, c=0.2, impl="binned", n_bins=100),
-                              1 if m >= 10**7 else repeats)
-            rows.append(dict(events=m, instants=n_inst, fast_s=fast, naive_binned_s=naive,
-                             fast_mev_per_s=m / fast / 1e6, naive_mev_per_s=m / naive / 1e6, speedup=naive / fast))
+            naive = best_time(
+                lambda: edi.deblur(B, ex, ev, times=times, c=0.2, impl="binned", n_bins=100),
+                1 if m >= 10**7 else repeats,
+            )
+            rows.append(
+                dict(
+                    events=m,
+                    instants=n_inst,
+                    fast_s=fast,
+                    naive_binned_s=naive,
+                    fast_mev_per_s=m / fast / 1e6,
+                    naive_mev_per_s=m / naive / 1e6,
+                    speedup=naive / fast,
+                )
+            )
     return rows
 
 
@@ -91,15 +103,19 @@ def main(argv=None) -> int:
 
     print(f"{'events':>10} {'inst':>4} {'fast s':>9} {'Mev/s':>8} {'naive s':>9} {'Mev/s':>8} {'speedup':>8}")
     for r in res["throughput"]:
-        print(f"{r['events']:>10} {r['instants']:>4} {r['fast_s']:>9.4f} {r['fast_mev_per_s']:>8.1f} "
-              f"{r['naive_binned_s']:>9.4f} {r['naive_mev_per_s']:>8.2f} {r['speedup']:>8.1f}")
+        print(
+            f"{r['events']:>10} {r['instants']:>4} {r['fast_s']:>9.4f} {r['fast_mev_per_s']:>8.1f} "
+            f"{r['naive_binned_s']:>9.4f} {r['naive_mev_per_s']:>8.2f} {r['speedup']:>8.1f}"
+        )
     print("\nlatent RMSE vs c used (true c = 0.2; c = 0 is the blurry frame)")
     for r in res["c_error"]:
         print(f"  c = {r['c']:.3f} ({r['c_factor']:.2f}x): RMSE {r['rmse']:.4f}")
     ec = res["estimate_c"]
     print(f"\nestimate_c on {ec['scene']}")
     for m in ("single", "consistency"):
-        print(f"  {m:12s} {ec[m]['seconds']:.3f} s, c = {ec[m]['c']:.4f} ({ec[m]['rel_error']:.1%} off), {ec[m]['evals']} evaluations")
+        print(
+            f"  {m:12s} {ec[m]['seconds']:.3f} s, c = {ec[m]['c']:.4f} ({ec[m]['rel_error']:.1%} off), {ec[m]['evals']} evaluations"
+        )
     out = write_json("edi_speed_quick" if args.quick else "edi_speed", res)
     print(f"\nwritten {out}")
     return 0

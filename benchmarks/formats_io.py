@@ -14,6 +14,7 @@ Rows (median of repeats, milliseconds; compare ratios within one run, the machin
 
 Writes benchmarks/results/formats_io.json.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -54,15 +55,27 @@ def bench_png(tmp: Path, repeats: int) -> list[dict]:
     p8 = write_image(tmp / "a8", img8, bits=8)
     pil16 = np.asarray(Image.open(p16))
     rows = [
-        {"case": "16-bit RGB PNG write (pypng)", "ms": _median_ms(lambda: write_image(tmp / "w16", img16, bits=16), repeats),
-         "exact": bool(np.array_equal(read_image(tmp / "w16.png"), img16))},
-        {"case": "16-bit RGB PNG read (read_image, pypng)", "ms": _median_ms(lambda: read_image(p16), repeats),
-         "exact": bool(np.array_equal(read_image(p16), img16))},
-        {"case": "16-bit RGB PNG read (Pillow)", "ms": _median_ms(lambda: np.asarray(Image.open(p16)), repeats),
-         "exact": bool(pil16.dtype == np.uint16 and np.array_equal(pil16 / 65535.0, img16)),
-         "note": f"Pillow returns {pil16.dtype} mode {Image.open(p16).mode}"},
-        {"case": "8-bit RGB PNG read (read_image, Pillow)", "ms": _median_ms(lambda: read_image(p8), repeats),
-         "exact": bool(np.array_equal(read_image(p8), img8))},
+        {
+            "case": "16-bit RGB PNG write (pypng)",
+            "ms": _median_ms(lambda: write_image(tmp / "w16", img16, bits=16), repeats),
+            "exact": bool(np.array_equal(read_image(tmp / "w16.png"), img16)),
+        },
+        {
+            "case": "16-bit RGB PNG read (read_image, pypng)",
+            "ms": _median_ms(lambda: read_image(p16), repeats),
+            "exact": bool(np.array_equal(read_image(p16), img16)),
+        },
+        {
+            "case": "16-bit RGB PNG read (Pillow)",
+            "ms": _median_ms(lambda: np.asarray(Image.open(p16)), repeats),
+            "exact": bool(pil16.dtype == np.uint16 and np.array_equal(pil16 / 65535.0, img16)),
+            "note": f"Pillow returns {pil16.dtype} mode {Image.open(p16).mode}",
+        },
+        {
+            "case": "8-bit RGB PNG read (read_image, Pillow)",
+            "ms": _median_ms(lambda: read_image(p8), repeats),
+            "exact": bool(np.array_equal(read_image(p8), img8)),
+        },
     ]
     return rows
 
@@ -76,8 +89,14 @@ def bench_bins(views: int, repeats: int) -> list[dict]:
     exps = nominal_exposures(views, 4)
     n = int(np.abs(counts).sum())
     ms = _median_ms(lambda: events_from_bins(counts, exps, W, H), repeats)
-    return [{"case": f"events_from_bins {views} views x 4 bins x {W}x{H}", "ms": ms, "events": n,
-             "M_events_per_s": n / ms / 1e3}]
+    return [
+        {
+            "case": f"events_from_bins {views} views x 4 bins x {W}x{H}",
+            "ms": ms,
+            "events": n,
+            "M_events_per_s": n / ms / 1e3,
+        }
+    ]
 
 
 def bench_rosbag(tmp: Path, messages: int, per_message: int, repeats: int) -> list[dict]:
@@ -94,9 +113,18 @@ def bench_rosbag(tmp: Path, messages: int, per_message: int, repeats: int) -> li
         conn = writer.add_connection("/dvs/events", "dvs_msgs/msg/EventArray", typestore=store)
         for k in range(messages):
             t = 1_600_000_000 + k
-            evs = [Event(x=int(rng.integers(W)), y=int(rng.integers(H)), ts=Time(sec=t, nanosec=1000 * j),
-                         polarity=bool(j % 2)) for j in range(per_message)]
-            msg = EventArray(header=Header(seq=k, stamp=Time(sec=t, nanosec=0), frame_id=""), height=H, width=W, events=evs)
+            evs = [
+                Event(
+                    x=int(rng.integers(W)),
+                    y=int(rng.integers(H)),
+                    ts=Time(sec=t, nanosec=1000 * j),
+                    polarity=bool(j % 2),
+                )
+                for j in range(per_message)
+            ]
+            msg = EventArray(
+                header=Header(seq=k, stamp=Time(sec=t, nanosec=0), frame_id=""), height=H, width=W, events=evs
+            )
             writer.write(conn, t * 1_000_000_000, store.serialize_ros1(msg, conn.msgtype))
     with Reader(path) as reader:
         raws = [bytes(raw) for _, _, raw in reader.messages()]
@@ -109,15 +137,27 @@ def bench_rosbag(tmp: Path, messages: int, per_message: int, repeats: int) -> li
 
     a = numpy_decode()
     b = rosbags_decode()
-    same = bool(np.array_equal(a["x"], [e.x for m in b for e in m.events])
-                and np.array_equal(a["nsec"], [e.ts.nanosec for m in b for e in m.events]))
+    same = bool(
+        np.array_equal(a["x"], [e.x for m in b for e in m.events])
+        and np.array_equal(a["nsec"], [e.ts.nanosec for m in b for e in m.events])
+    )
     n = messages * per_message
     ms_np = _median_ms(numpy_decode, repeats)
     ms_rb = _median_ms(rosbags_decode, max(1, repeats // 3))
-    return [{"case": f"EventArray decode, numpy ({n} events)", "ms": ms_np, "M_events_per_s": n / ms_np / 1e3,
-             "exact": same},
-            {"case": f"EventArray decode, rosbags objects ({n} events)", "ms": ms_rb, "M_events_per_s": n / ms_rb / 1e3,
-             "ratio_vs_numpy": ms_rb / ms_np}]
+    return [
+        {
+            "case": f"EventArray decode, numpy ({n} events)",
+            "ms": ms_np,
+            "M_events_per_s": n / ms_np / 1e3,
+            "exact": same,
+        },
+        {
+            "case": f"EventArray decode, rosbags objects ({n} events)",
+            "ms": ms_rb,
+            "M_events_per_s": n / ms_rb / 1e3,
+            "ratio_vs_numpy": ms_rb / ms_np,
+        },
+    ]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -132,8 +172,9 @@ def main(argv: list[str] | None = None) -> int:
         rows += bench_rosbag(tmp, 20 if args.quick else 50, 1000 if args.quick else 4000, repeats)
     print(f"{'case':58s} {'ms':>10s}  extra")
     for r in rows:
-        extra = ", ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}"
-                          for k, v in r.items() if k not in ("case", "ms"))
+        extra = ", ".join(
+            f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in r.items() if k not in ("case", "ms")
+        )
         print(f"{r['case']:58s} {r['ms']:10.2f}  {extra}")
     RESULTS.parent.mkdir(parents=True, exist_ok=True)
     out = RESULTS.with_name("formats_io_quick.json") if args.quick else RESULTS

@@ -5,6 +5,7 @@ log c, through the event loss) against c fixed at `edi.estimate_c`'s value, equa
 
 The true thresholds are read from the synthetic scene's truth for the table only.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -35,14 +36,26 @@ def main() -> None:
         seed_all(0)
         run = reconstruct(scene.capture, cfg)
         ev = evaluate(run, scene.capture, refine=True, gt_frames=scene.gt_frames)
-        rows.append({"learn_contrast": learn, "test_refined_psnr": ev["test_refined"].psnr,
-                     "deblur_psnr": ev["deblurred"].psnr, "steps": run.metrics.steps, "c_start": run.metrics.prepare.c,
-                     "c_final": run.metrics.c_final, "c_true": scene.truth["c"]})
-    print(f"| c | novel PSNR dB (refined) | deblurred PSNR dB | steps | c_pos/c_neg start -> end (true {rows[0]['c_true']}) |")
+        rows.append(
+            {
+                "learn_contrast": learn,
+                "test_refined_psnr": ev["test_refined"].psnr,
+                "deblur_psnr": ev["deblurred"].psnr,
+                "steps": run.metrics.steps,
+                "c_start": run.metrics.prepare.c,
+                "c_final": run.metrics.c_final,
+                "c_true": scene.truth["c"],
+            }
+        )
+    print(
+        f"| c | novel PSNR dB (refined) | deblurred PSNR dB | steps | c_pos/c_neg start -> end (true {rows[0]['c_true']}) |"
+    )
     print("|---|---|---|---|---|")
     for r in rows:
-        print(f"| {'learnt' if r['learn_contrast'] else 'fixed'} | {r['test_refined_psnr']:.2f} | {r['deblur_psnr']:.2f} | "
-              f"{r['steps']} | {r['c_start'][0]:.3f}/{r['c_start'][1]:.3f} -> {r['c_final'][0]:.3f}/{r['c_final'][1]:.3f} |")
+        print(
+            f"| {'learnt' if r['learn_contrast'] else 'fixed'} | {r['test_refined_psnr']:.2f} | {r['deblur_psnr']:.2f} | "
+            f"{r['steps']} | {r['c_start'][0]:.3f}/{r['c_start'][1]:.3f} -> {r['c_final'][0]:.3f}/{r['c_final'][1]:.3f} |"
+        )
     print(f"wrote {write_json('learn_contrast', {'args': vars(args), 'rows': rows})}")
 
 

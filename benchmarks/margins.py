@@ -15,6 +15,7 @@ and test-pose refinement): a source that differs is an error naming both files. 
 and seed found in two sources is an error too. The sources' dates and commands are printed, so
 a reader sees when each row ran.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -74,21 +75,36 @@ def load_rows(sources: list[str]) -> tuple[list[dict], list[dict]]:
         if not isinstance(d, dict) or not isinstance(d.get("rows"), list) or not d["rows"]:
             raise MarginsError(f"{path}: no 'rows' of a benchmarks.ablation result")
         argv = [str(a) for a in d.get("argv", [])]
-        budget = {"size": d.get("size"), "seconds": d.get("seconds"), "iters": d.get("iters"),
-                  "refine_iters": _refine_iters(argv)}
+        budget = {
+            "size": d.get("size"),
+            "seconds": d.get("seconds"),
+            "iters": d.get("iters"),
+            "refine_iters": _refine_iters(argv),
+        }
         if headers and any(budget[k] != headers[0]["budget"][k] for k in BUDGET):
-            raise MarginsError(f"{path}: budget {budget} differs from {headers[0]['path']}'s "
-                               f"{headers[0]['budget']}; rows of different budgets are not paired")
-        headers.append({"path": str(path), "name": path.stem, "date_utc": d.get("environment", {}).get("date_utc"),
-                        "commit": d.get("environment", {}).get("commit"), "argv": argv, "budget": budget})
+            raise MarginsError(
+                f"{path}: budget {budget} differs from {headers[0]['path']}'s "
+                f"{headers[0]['budget']}; rows of different budgets are not paired"
+            )
+        headers.append(
+            {
+                "path": str(path),
+                "name": path.stem,
+                "date_utc": d.get("environment", {}).get("date_utc"),
+                "commit": d.get("environment", {}).get("commit"),
+                "argv": argv,
+                "budget": budget,
+            }
+        )
         for r in d["rows"]:
             missing = [k for k in ("setting", "preset", "seed") if k not in r]
             if missing:
                 raise MarginsError(f"{path}: a row without {missing}")
             key = (r["setting"], r["preset"], r["seed"])
             if key in seen:
-                raise MarginsError(f"{path}: {r['preset']} in setting {r['setting']}, seed {r['seed']}, "
-                                   f"is in {seen[key]} too")
+                raise MarginsError(
+                    f"{path}: {r['preset']} in setting {r['setting']}, seed {r['seed']}, is in {seen[key]} too"
+                )
             seen[key] = str(path)
             rows.append({**r, "source": path.stem})
     return rows, headers
@@ -101,8 +117,11 @@ def _mean_std(values: list[float | None]) -> tuple[float, float] | None:
 
 def stronger_3dgs(by_preset: dict[str, list[dict]]) -> str | None:
     """``3dgs`` or ``3dgs-po``, whichever has the higher mean novel PSNR (None when neither ran)."""
-    cands = {p: _mean_std([r.get("test_refined_psnr") for r in rs]) for p, rs in by_preset.items()
-             if p in ("3dgs", "3dgs-po")}
+    cands = {
+        p: _mean_std([r.get("test_refined_psnr") for r in rs])
+        for p, rs in by_preset.items()
+        if p in ("3dgs", "3dgs-po")
+    }
     cands = {p: m for p, m in cands.items() if m is not None}
     return max(cands, key=lambda p: cands[p][0]) if cands else None
 
@@ -121,8 +140,12 @@ def paired_margins(rows: list[dict], reference: str = "ebad") -> dict:
         strong = stronger_3dgs(by)
         entry: dict = {}
         for preset, rs in by.items():
-            e: dict = {"seeds": sorted(r["seed"] for r in rs), "sources": sorted({r["source"] for r in rs}),
-                       "steps": _mean_std([r.get("steps") for r in rs]), "stronger_3dgs": preset == strong}
+            e: dict = {
+                "seeds": sorted(r["seed"] for r in rs),
+                "sources": sorted({r["source"] for r in rs}),
+                "steps": _mean_std([r.get("steps") for r in rs]),
+                "stronger_3dgs": preset == strong,
+            }
             for k in KEYS:
                 e[k] = _mean_std([r.get(k) for r in rs])
             if preset != reference and ref:
@@ -134,8 +157,11 @@ def paired_margins(rows: list[dict], reference: str = "ebad") -> dict:
                         other = next(r for r in rs if r["seed"] == s)
                         if ref[s].get(k) is not None and other.get(k) is not None:
                             diffs[s] = float(ref[s][k] - other[k])
-                    e["margin"][k] = ({"mean": float(np.mean(list(diffs.values()))), "per_seed": diffs,
-                                       "seeds": sorted(diffs)} if diffs else None)
+                    e["margin"][k] = (
+                        {"mean": float(np.mean(list(diffs.values()))), "per_seed": diffs, "seeds": sorted(diffs)}
+                        if diffs
+                        else None
+                    )
             entry[preset] = e
         out[setting] = entry
     return out
@@ -153,9 +179,12 @@ def _fmt_margin(m: dict | None, digits: int) -> str:
 
 
 def table(margins: dict, reference: str) -> str:
-    lines = [f"| setting | preset | novel PSNR dB | deblurred PSNR dB | novel SSIM | deblurred SSIM | steps | "
-             f"{reference} minus it, novel PSNR (by seed) | deblurred PSNR (by seed) | novel SSIM | deblurred SSIM | "
-             f"source |", "|" + "---|" * 12]
+    lines = [
+        f"| setting | preset | novel PSNR dB | deblurred PSNR dB | novel SSIM | deblurred SSIM | steps | "
+        f"{reference} minus it, novel PSNR (by seed) | deblurred PSNR (by seed) | novel SSIM | deblurred SSIM | "
+        f"source |",
+        "|" + "---|" * 12,
+    ]
     for setting, by in margins.items():
         for preset, e in by.items():
             m = e.get("margin") or {}
@@ -166,7 +195,8 @@ def table(margins: dict, reference: str) -> str:
                 f"{_fmt(e['test_refined_ssim'], 3)} | {_fmt(e['deblur_ssim'], 3)} | {steps} | "
                 f"{_fmt_margin(m.get('test_refined_psnr'), 2)} | {_fmt_margin(m.get('deblur_psnr'), 2)} | "
                 f"{_fmt_margin(m.get('test_refined_ssim'), 3)} | {_fmt_margin(m.get('deblur_ssim'), 3)} | "
-                f"{', '.join(e['sources'])} |")
+                f"{', '.join(e['sources'])} |"
+            )
     return "\n".join(lines)
 
 
@@ -183,17 +213,30 @@ def plot(margins: dict, reference: str, path, title: str = "") -> None:
     for ax, setting in zip(axes[0], settings):
         presets = list(margins[setting])
         x = np.arange(len(presets))
-        for off, key, label in ((-0.2, "test_refined_psnr", "novel views (refined poses)"),
-                                (0.2, "deblur_psnr", "deblurred training frames")):
+        for off, key, label in (
+            (-0.2, "test_refined_psnr", "novel views (refined poses)"),
+            (0.2, "deblur_psnr", "deblurred training frames"),
+        ):
             vals = [margins[setting][p][key] for p in presets]
-            ax.bar(x + off, [v[0] if v else np.nan for v in vals], 0.4, yerr=[v[1] if v else 0 for v in vals],
-                   capsize=3, label=label,
-                   edgecolor=["black" if p == reference else "none" for p in presets], linewidth=1.2)
+            ax.bar(
+                x + off,
+                [v[0] if v else np.nan for v in vals],
+                0.4,
+                yerr=[v[1] if v else 0 for v in vals],
+                capsize=3,
+                label=label,
+                edgecolor=["black" if p == reference else "none" for p in presets],
+                linewidth=1.2,
+            )
         ax.set_xticks(x, presets, rotation=30, ha="right")
         ax.set_title(LABELS.get(setting, setting))
         ax.grid(axis="y", alpha=0.3)
-        lo = min(v[0] for p in presets for v in (margins[setting][p]["test_refined_psnr"],
-                                                 margins[setting][p]["deblur_psnr"]) if v)
+        lo = min(
+            v[0]
+            for p in presets
+            for v in (margins[setting][p]["test_refined_psnr"], margins[setting][p]["deblur_psnr"])
+            if v
+        )
         ax.set_ylim(max(0.0, lo - 3.0), None)
     axes[0, 0].set_ylabel("PSNR dB, mean ± std over seeds")
     axes[0, 0].legend(loc="lower left", fontsize=8)
@@ -217,23 +260,31 @@ def main(argv=None) -> int:
         return 2
     margins = paired_margins(rows, args.reference)
     if not any(args.reference in by for by in margins.values()):
-        print(f"benchmarks.margins: no row of the reference preset {args.reference!r} in {args.sources}",
-              file=sys.stderr)
+        print(
+            f"benchmarks.margins: no row of the reference preset {args.reference!r} in {args.sources}", file=sys.stderr
+        )
         return 2
     b = headers[0]["budget"]
-    print(f"{b['size']}, {b['seconds']:g} s and at most {b['iters']} steps per run, test poses refined "
-          f"({b['refine_iters']} steps at most); mean ± std over seeds, margins paired per seed")
+    print(
+        f"{b['size']}, {b['seconds']:g} s and at most {b['iters']} steps per run, test poses refined "
+        f"({b['refine_iters']} steps at most); mean ± std over seeds, margins paired per seed"
+    )
     for h in headers:
         commit = f", commit {h['commit']}" if h.get("commit") else ""
         print(f"  {h['name']}: {h['date_utc']}{commit}: {' '.join(h['argv'])}")
     print()
     print(table(margins, args.reference))
     if args.name:
-        path = write_json(args.name, {"reference": args.reference, "sources": headers, "margins": margins,
-                                      "argv": sys.argv[1:]})
+        path = write_json(
+            args.name, {"reference": args.reference, "sources": headers, "margins": margins, "argv": sys.argv[1:]}
+        )
         b = headers[0]["budget"]
-        plot(margins, args.reference, path.with_suffix(".png"),
-             f"{b['size']} scene, {b['seconds']:g} s per run, seeds pooled as mean ± std")
+        plot(
+            margins,
+            args.reference,
+            path.with_suffix(".png"),
+            f"{b['size']} scene, {b['seconds']:g} s per run, seeds pooled as mean ± std",
+        )
         print(f"\nwrote {path} and {path.with_suffix('.png').name}")
     return 0
 

@@ -20,6 +20,7 @@ frames against the sharp truth), mean ± std over seeds. ``prior PSNR`` is the L
 (per-frame EDI or mEDI, with the run's estimated c) against the sharp truth: what the prior
 itself gives. The JSON is rewritten after every run, so an interrupted run keeps its rows.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -31,9 +32,21 @@ import numpy as np
 from ._common import config_spec, seed_all, write_json
 from .ablation import SETTINGS, summarise
 
-SPECS = ["ebad", "ebad+loss.event_windows=random", "ebad+loss.event_norm=l2", "ebad+loss.edi_prior=medi+loss.edi_instants=mid"]
-KEYS = ("test_refined_psnr", "test_refined_ssim", "deblur_psnr", "deblur_ssim", "ms_per_step", "prior_psnr",
-        "prepare_seconds")
+SPECS = [
+    "ebad",
+    "ebad+loss.event_windows=random",
+    "ebad+loss.event_norm=l2",
+    "ebad+loss.edi_prior=medi+loss.edi_instants=mid",
+]
+KEYS = (
+    "test_refined_psnr",
+    "test_refined_ssim",
+    "deblur_psnr",
+    "deblur_ssim",
+    "ms_per_step",
+    "prior_psnr",
+    "prepare_seconds",
+)
 
 
 def prior_psnr(scene, c: tuple[float, float], kind: str) -> float:
@@ -49,8 +62,12 @@ def prior_psnr(scene, c: tuple[float, float], kind: str) -> float:
     if kind == "medi":
         lat = np.asarray(edi.medi(frames, ex, cap.events, c=c)).reshape(frames.shape)
     else:
-        lat = np.stack([np.asarray(edi.deblur(fr, (t0, t1), cap.events, times=0.5 * (t0 + t1), c=c)).reshape(fr.shape)
-                        for fr, (t0, t1) in zip(frames, ex)])
+        lat = np.stack(
+            [
+                np.asarray(edi.deblur(fr, (t0, t1), cap.events, times=0.5 * (t0 + t1), c=c)).reshape(fr.shape)
+                for fr, (t0, t1) in zip(frames, ex)
+            ]
+        )
     return score_frames(np.clip(lat, 0, 1), np.asarray(scene.gt_frames)[idx]).psnr
 
 
@@ -68,15 +85,24 @@ def run_one(scene, spec: str, iters: int, seed: int, refine: bool, refine_iters:
     m = run.metrics
     novel = ev.get("test_refined", ev.get("test"))
     return {
-        "preset": spec, "seed": seed, "steps": m.steps, "train_seconds": m.train_seconds, "wall_seconds": wall,
-        "ms_per_step": 1e3 * m.train_seconds / max(m.steps, 1), "prepare_seconds": m.prepare_seconds,
-        "gaussians": m.gaussians, "c": m.prepare.c, "refined": refine,
+        "preset": spec,
+        "seed": seed,
+        "steps": m.steps,
+        "train_seconds": m.train_seconds,
+        "wall_seconds": wall,
+        "ms_per_step": 1e3 * m.train_seconds / max(m.steps, 1),
+        "prepare_seconds": m.prepare_seconds,
+        "gaussians": m.gaussians,
+        "c": m.prepare.c,
+        "refined": refine,
         "test_psnr": ev["test"].psnr if "test" in ev else None,
         "test_refined_psnr": novel.psnr if novel is not None else None,
         "test_refined_ssim": novel.ssim if novel is not None else None,
-        "deblur_psnr": ev["deblurred"].psnr, "deblur_ssim": ev["deblurred"].ssim,
+        "deblur_psnr": ev["deblurred"].psnr,
+        "deblur_ssim": ev["deblurred"].ssim,
         "prior_psnr": prior_psnr(scene, tuple(m.prepare.c), "medi" if "edi_prior=medi" in spec else "edi")
-        if m.prepare.c is not None else None,
+        if m.prepare.c is not None
+        else None,
     }
 
 
@@ -94,24 +120,34 @@ def _summary(rows: list[dict]) -> dict:
                 vals = [r[k] for r in rs if r.get(k) is not None]
                 s[k] = (float(np.mean(vals)), float(np.std(vals))) if vals else (None, None)
             for k in ("test_refined_psnr", "deblur_psnr"):
-                d = [r[k] - base_rows[r["seed"]][k] for r in rs
-                     if r["seed"] in base_rows and r[k] is not None and base_rows[r["seed"]][k] is not None]
-                s[f"delta_{k}"] = (float(np.mean(d)), float(np.std(d)), int(sum(x > 0 for x in d)), len(d)) if d else (
-                    None, None, 0, 0)
+                d = [
+                    r[k] - base_rows[r["seed"]][k]
+                    for r in rs
+                    if r["seed"] in base_rows and r[k] is not None and base_rows[r["seed"]][k] is not None
+                ]
+                s[f"delta_{k}"] = (
+                    (float(np.mean(d)), float(np.std(d)), int(sum(x > 0 for x in d)), len(d))
+                    if d
+                    else (None, None, 0, 0)
+                )
     return out
 
 
 def print_table(summary: dict) -> None:
-    print("| setting | config | novel PSNR dB | Δ novel (seeds ahead) | novel SSIM | deblurred PSNR dB | "
-          "Δ deblurred (seeds ahead) | deblurred SSIM | prior PSNR dB | ms/step | prepare s |")
+    print(
+        "| setting | config | novel PSNR dB | Δ novel (seeds ahead) | novel SSIM | deblurred PSNR dB | "
+        "Δ deblurred (seeds ahead) | deblurred SSIM | prior PSNR dB | ms/step | prepare s |"
+    )
     print("|---|---|---|---|---|---|---|---|---|---|---|")
     for setting, by in summary.items():
         for i, (spec, s) in enumerate(by.items()):
             dn, dd = s["delta_test_refined_psnr"], s["delta_deblur_psnr"]
-            fd = (lambda d: "-" if i == 0 or d[0] is None else f"{d[0]:+.2f} ± {d[1]:.2f} ({d[2]}/{d[3]})")
-            print(f"| {setting} | `{spec}` | {_fmt(s['test_refined_psnr'])} | {fd(dn)} | {_fmt(s['test_refined_ssim'], 3)} | "
-                  f"{_fmt(s['deblur_psnr'])} | {fd(dd)} | {_fmt(s['deblur_ssim'], 3)} | {_fmt(s['prior_psnr'])} | "
-                  f"{_fmt(s['ms_per_step'], 0)} | {_fmt(s['prepare_seconds'], 1)} |")
+            fd = lambda d: "-" if i == 0 or d[0] is None else f"{d[0]:+.2f} ± {d[1]:.2f} ({d[2]}/{d[3]})"
+            print(
+                f"| {setting} | `{spec}` | {_fmt(s['test_refined_psnr'])} | {fd(dn)} | {_fmt(s['test_refined_ssim'], 3)} | "
+                f"{_fmt(s['deblur_psnr'])} | {fd(dd)} | {_fmt(s['deblur_ssim'], 3)} | {_fmt(s['prior_psnr'])} | "
+                f"{_fmt(s['ms_per_step'], 0)} | {_fmt(s['prepare_seconds'], 1)} |"
+            )
 
 
 def _fmt(v: tuple, digits: int = 2) -> str:
@@ -122,14 +158,20 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="tiny scene, seed 0, 100 steps")
     ap.add_argument("--settings", default="ideal,noisy")
-    ap.add_argument("--specs", default=",".join(SPECS), help="configs (benchmarks._common.config_spec), comma-separated")
+    ap.add_argument(
+        "--specs", default=",".join(SPECS), help="configs (benchmarks._common.config_spec), comma-separated"
+    )
     ap.add_argument("--seeds", default="0,1,2")
     ap.add_argument("--size", default=None, help="scene size (default small; quick tiny)")
     ap.add_argument("--iters", type=int, default=None, help="steps per run (default 600; quick 100)")
     ap.add_argument("--refine-iters", type=int, default=150, help="test-pose refinement steps at most")
     ap.add_argument("--name", default=None, help="results file benchmarks/results/NAME.json")
-    ap.add_argument("--summarise", default=None, metavar="JSON",
-                    help="print the table of an earlier run's JSON (and rewrite its summary), without training")
+    ap.add_argument(
+        "--summarise",
+        default=None,
+        metavar="JSON",
+        help="print the table of an earlier run's JSON (and rewrite its summary), without training",
+    )
     args = ap.parse_args(argv)
     if args.summarise:
         import json
@@ -138,8 +180,10 @@ def main(argv=None) -> int:
         d = json.loads(Path(args.summarise).read_text())
         d["summary"] = _summary(d["rows"])
         d["summarised_from_run_of"] = d.pop("environment", None)  # the environment of the run that trained
-        print(f"{d['size']} boxes, {d['iters']} steps per run, seeds {d['seeds']}; mean ± std over seeds "
-              f"(novel views at refined poses in settings without exact poses; Δ: paired per seed against {d['specs'][0]})")
+        print(
+            f"{d['size']} boxes, {d['iters']} steps per run, seeds {d['seeds']}; mean ± std over seeds "
+            f"(novel views at refined poses in settings without exact poses; Δ: paired per seed against {d['specs'][0]})"
+        )
         print_table(d["summary"])
         print(f"\nwrote {write_json(Path(args.summarise).stem, d)}")
         return 0
@@ -160,9 +204,20 @@ def main(argv=None) -> int:
     rows: list[dict] = []
 
     def save():
-        return write_json(name, {"size": size, "iters": iters, "seeds": seeds, "refine_iters": args.refine_iters,
-                                 "settings": {k: SETTINGS[k] for k in settings}, "specs": specs, "rows": rows,
-                                 "summary": _summary(rows), "argv": sys.argv[1:]})
+        return write_json(
+            name,
+            {
+                "size": size,
+                "iters": iters,
+                "seeds": seeds,
+                "refine_iters": args.refine_iters,
+                "settings": {k: SETTINGS[k] for k in settings},
+                "specs": specs,
+                "rows": rows,
+                "summary": _summary(rows),
+                "argv": sys.argv[1:],
+            },
+        )
 
     for setting in settings:
         for seed in seeds:
@@ -173,11 +228,16 @@ def main(argv=None) -> int:
                 r.update({"setting": setting, "size": size})
                 rows.append(r)
                 save()
-                print(f"{setting:6s} seed {seed} {spec:34s} novel {r['test_refined_psnr'] or float('nan'):6.2f} dB"
-                      f"  deblurred {r['deblur_psnr']:6.2f} dB  prior {r['prior_psnr'] or float('nan'):6.2f} dB"
-                      f"  {r['ms_per_step']:6.1f} ms/step  prepare {r['prepare_seconds']:5.1f} s", flush=True)
-    print(f"\n{size} boxes, {iters} steps per run, seeds {seeds}; mean ± std over seeds "
-          f"(novel views at refined poses in settings without exact poses; Δ: paired per seed against {specs[0]})")
+                print(
+                    f"{setting:6s} seed {seed} {spec:34s} novel {r['test_refined_psnr'] or float('nan'):6.2f} dB"
+                    f"  deblurred {r['deblur_psnr']:6.2f} dB  prior {r['prior_psnr'] or float('nan'):6.2f} dB"
+                    f"  {r['ms_per_step']:6.1f} ms/step  prepare {r['prepare_seconds']:5.1f} s",
+                    flush=True,
+                )
+    print(
+        f"\n{size} boxes, {iters} steps per run, seeds {seeds}; mean ± std over seeds "
+        f"(novel views at refined poses in settings without exact poses; Δ: paired per seed against {specs[0]})"
+    )
     print_table(_summary(rows))
     print(f"\nwrote {save()}")
     return 0

@@ -204,8 +204,11 @@ def omp_check(reps: int, rounds: int, timeout: float) -> dict:
     summary = {}
     for policy, rs in runs.items():
         ok = [r for r in rs if "fwd_bwd_ms" in r]
-        summary[policy] = {"fwd_bwd_ms": med([r["fwd_bwd_ms"] for r in ok]),
-                           "fwd_bwd_units": med([r["fwd_bwd_units"] for r in ok]), "runs": rs}
+        summary[policy] = {
+            "fwd_bwd_ms": med([r["fwd_bwd_ms"] for r in ok]),
+            "fwd_bwd_units": med([r["fwd_bwd_units"] for r in ok]),
+            "runs": rs,
+        }
     summary["ratio_unset_over_passive_ms"] = summary["unset"]["fwd_bwd_ms"] / summary["PASSIVE"]["fwd_bwd_ms"]
     return summary
 
@@ -238,20 +241,30 @@ def extent_check(seed: int = 0) -> dict:
         y0 = torch.clamp(torch.ceil(v - ry - 0.5), min=0)
         y1 = torch.clamp(torch.floor(v + ry - 0.5), max=h - 1)
         keep = keep & (x0 <= x1) & (y0 <= y1)
-        nt = ((torch.div(x1, TILE, rounding_mode="floor") - torch.div(x0, TILE, rounding_mode="floor") + 1)
-              * (torch.div(y1, TILE, rounding_mode="floor") - torch.div(y0, TILE, rounding_mode="floor") + 1))
+        nt = (torch.div(x1, TILE, rounding_mode="floor") - torch.div(x0, TILE, rounding_mode="floor") + 1) * (
+            torch.div(y1, TILE, rounding_mode="floor") - torch.div(y0, TILE, rounding_mode="floor") + 1
+        )
         return int(nt[keep].sum())
 
     ext = torch.sqrt(2 * torch.log(torch.clamp(op * 255, min=1.0)))
     three = tiles(torch.ceil(3 * sd_x), torch.ceil(3 * sd_y), geo.valid[0])
     aware = tiles(torch.ceil(ext * sd_x), torch.ceil(ext * sd_y), proj.valid[0])
     _, _, meta = splat_cpu.rasterize(*scene, w, h)
-    return {"three_sigma_box": three, "opacity_aware_box": aware, "binned": meta["n_isect"],
-            "opacity_share_below_0.353": float((op < 0.353).double().mean())}
+    return {
+        "three_sigma_box": three,
+        "opacity_aware_box": aware,
+        "binned": meta["n_isect"],
+        "opacity_share_below_0.353": float((op < 0.353).double().mean()),
+    }
 
 
-PHASES = [("project_ms", "project"), ("bin_ms", "bin"), ("composite_ms", "forward"),
-          ("backward_composite_ms", "backward"), ("backward_project_ms", "bwd proj")]
+PHASES = [
+    ("project_ms", "project"),
+    ("bin_ms", "bin"),
+    ("composite_ms", "forward"),
+    ("backward_composite_ms", "backward"),
+    ("backward_project_ms", "bwd proj"),
+]
 
 
 def _print_phases(rows: list[dict]) -> None:
@@ -276,15 +289,25 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--target", action="store_true", help="only the target configuration (20k, 346x260, C=1, grey)")
     ap.add_argument("--no-reference", action="store_true", help="time only the fast path")
     ap.add_argument("--baseline", metavar="ROOT", help="also time the fast path of the splat_cpu under ROOT")
-    ap.add_argument("--omp-check", action="store_true",
-                    help="time the target configuration without and with OMP_WAIT_POLICY=PASSIVE (issue 8)")
+    ap.add_argument(
+        "--omp-check",
+        action="store_true",
+        help="time the target configuration without and with OMP_WAIT_POLICY=PASSIVE (issue 8)",
+    )
     ap.add_argument("--omp-rounds", type=int, default=3, help="subprocess pairs for --omp-check")
     ap.add_argument("--reps", type=int, default=7, help="timed repetitions per configuration (median reported)")
     ap.add_argument("--timeout", type=float, default=300.0, help="seconds before a configuration is skipped")
-    ap.add_argument("--omp-wait-policy", default="unset", choices=["unset", "PASSIVE", "ACTIVE"],
-                    help="OMP_WAIT_POLICY of the measuring subprocesses of the table ('unset': removed)")
-    ap.add_argument("--extent-check", action="store_true",
-                    help="count the target scene's tile entries under 3-sigma and opacity-aware extents, and exit")
+    ap.add_argument(
+        "--omp-wait-policy",
+        default="unset",
+        choices=["unset", "PASSIVE", "ACTIVE"],
+        help="OMP_WAIT_POLICY of the measuring subprocesses of the table ('unset': removed)",
+    )
+    ap.add_argument(
+        "--extent-check",
+        action="store_true",
+        help="count the target scene's tile entries under 3-sigma and opacity-aware extents, and exit",
+    )
     ap.add_argument("--one", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.one:
@@ -302,46 +325,64 @@ def main(argv: list[str] | None = None) -> int:
     else:
         configs = [(w, h, n, c, d) for (w, h) in FULL_SIZES for n in FULL_NS for c in FULL_CS for d in FULL_DS]
     rows = []
-    hdr = (f"{'W x H':>9} {'N':>7} {'C':>2} {'D':>2} | {'unit':>6} | {'fast fwd':>8} {'fast f+b':>8} {'units':>6} "
-           f"{'MB':>5} | {'base f+b':>8} {'units':>6} | {'ref f+b':>8} {'units':>6} | {'ref/fast':>8}")
+    hdr = (
+        f"{'W x H':>9} {'N':>7} {'C':>2} {'D':>2} | {'unit':>6} | {'fast fwd':>8} {'fast f+b':>8} {'units':>6} "
+        f"{'MB':>5} | {'base f+b':>8} {'units':>6} | {'ref f+b':>8} {'units':>6} | {'ref/fast':>8}"
+    )
     print(hdr)
     print("-" * len(hdr))
     for w, h, n, c, d in configs:
         cfg = {"width": w, "height": h, "n": n, "c": c, "d": d, "reps": args.reps}
         fast = _run_sub({**cfg, "path": "fast"}, args.timeout, args.omp_wait_policy)
-        base = (_run_sub({**cfg, "path": "fast", "root": args.baseline}, args.timeout, args.omp_wait_policy)
-                if args.baseline else {"skipped": "no --baseline"})
+        base = (
+            _run_sub({**cfg, "path": "fast", "root": args.baseline}, args.timeout, args.omp_wait_policy)
+            if args.baseline
+            else {"skipped": "no --baseline"}
+        )
         if args.no_reference:
             ref = {"skipped": "--no-reference"}
         elif n * w * h * c > REF_LIMIT:
             ref = {"skipped": "too slow for the torch reference (see REF_LIMIT)"}
         else:
-            ref = _run_sub({**cfg, "path": "reference", "reps": max(1, min(args.reps, 2))}, args.timeout,
-                           args.omp_wait_policy)
+            ref = _run_sub(
+                {**cfg, "path": "reference", "reps": max(1, min(args.reps, 2))}, args.timeout, args.omp_wait_policy
+            )
         ratio = ref["fwd_bwd_ms"] / fast["fwd_bwd_ms"] if "fwd_bwd_ms" in ref and "fwd_bwd_ms" in fast else None
         rows.append({"config": cfg, "fast": fast, "baseline": base, "reference": ref, "ratio_fwd_bwd": ratio})
-        print(f"{w:>4}x{h:<4} {n:>7} {c:>2} {d:>2} | {_cell(fast, 'unit_ms', '{:6.1f}')} | "
-              f"{_cell(fast, 'fwd_ms')} {_cell(fast, 'fwd_bwd_ms')} {_cell(fast, 'fwd_bwd_units', '{:6.2f}')} "
-              f"{_cell(fast, 'peak_rss_mb', '{:5.0f}')} | {_cell(base, 'fwd_bwd_ms')} "
-              f"{_cell(base, 'fwd_bwd_units', '{:6.2f}')} | {_cell(ref, 'fwd_bwd_ms')} "
-              f"{_cell(ref, 'fwd_bwd_units', '{:6.2f}')} | {('%8.1f' % ratio) if ratio else '       -'}", flush=True)
+        print(
+            f"{w:>4}x{h:<4} {n:>7} {c:>2} {d:>2} | {_cell(fast, 'unit_ms', '{:6.1f}')} | "
+            f"{_cell(fast, 'fwd_ms')} {_cell(fast, 'fwd_bwd_ms')} {_cell(fast, 'fwd_bwd_units', '{:6.2f}')} "
+            f"{_cell(fast, 'peak_rss_mb', '{:5.0f}')} | {_cell(base, 'fwd_bwd_ms')} "
+            f"{_cell(base, 'fwd_bwd_units', '{:6.2f}')} | {_cell(ref, 'fwd_bwd_ms')} "
+            f"{_cell(ref, 'fwd_bwd_units', '{:6.2f}')} | {('%8.1f' % ratio) if ratio else '       -'}",
+            flush=True,
+        )
     _print_phases(rows)
     notes = sorted({r["reference"]["skipped"] for r in rows if "skipped" in r["reference"]})
     for note in notes:
         print(f"reference skipped: {note}")
-    print("times in ms (median); units = time / unit, unit = torch.exp over 16M float32 values into a preallocated "
-          "output in the same process; "
-          f"MB = peak resident memory of the measuring process; OMP_WAIT_POLICY={args.omp_wait_policy}"
-          + (f"; base = {args.baseline}" if args.baseline else ""))
-    result = {"rows": rows, "cpu_count": os.cpu_count(), "quick": args.quick, "omp_wait_policy": args.omp_wait_policy,
-              "baseline": {"root": args.baseline, "commit": _git_head(args.baseline)} if args.baseline else None,
-              "commit": _git_head(str(Path(__file__).resolve().parents[1]))}
+    print(
+        "times in ms (median); units = time / unit, unit = torch.exp over 16M float32 values into a preallocated "
+        "output in the same process; "
+        f"MB = peak resident memory of the measuring process; OMP_WAIT_POLICY={args.omp_wait_policy}"
+        + (f"; base = {args.baseline}" if args.baseline else "")
+    )
+    result = {
+        "rows": rows,
+        "cpu_count": os.cpu_count(),
+        "quick": args.quick,
+        "omp_wait_policy": args.omp_wait_policy,
+        "baseline": {"root": args.baseline, "commit": _git_head(args.baseline)} if args.baseline else None,
+        "commit": _git_head(str(Path(__file__).resolve().parents[1])),
+    }
     if args.omp_check:
         chk = omp_check(args.reps, args.omp_rounds, args.timeout)
         result["omp_check"] = chk
         n, w, h, c, d = TARGET
-        print(f"\nOMP_WAIT_POLICY check ({n} Gaussians, {w}x{h}, C={c}, D={d}; median of {args.omp_rounds} "
-              f"alternating subprocesses each):")
+        print(
+            f"\nOMP_WAIT_POLICY check ({n} Gaussians, {w}x{h}, C={c}, D={d}; median of {args.omp_rounds} "
+            f"alternating subprocesses each):"
+        )
         for policy in ("unset", "PASSIVE"):
             print(f"  {policy:>8}: f+b {chk[policy]['fwd_bwd_ms']:7.1f} ms  {chk[policy]['fwd_bwd_units']:5.2f} units")
         print(f"  unset / PASSIVE = {chk['ratio_unset_over_passive_ms']:.2f}")

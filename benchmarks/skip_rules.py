@@ -12,6 +12,7 @@ On a synthetic capture (idealised sensor, exact poses) where half of the frames 
 
 The PSNR-against-time curves of the presets are ``benchmarks.time_to_quality``.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -56,10 +57,14 @@ def skip_rules(size: str, iters: int) -> dict:
     off.trajectory.adaptive_views = False
     r_on, _ = _timed(sc.capture, on)
     r_off, _ = _timed(sc.capture, off)
-    res["adaptive_views"] = {"seconds_with": r_on.metrics.train_seconds, "seconds_without": r_off.metrics.train_seconds,
-                             "renders_per_pass_with": r_on.metrics.prepare.renders_per_pass,
-                             "renders_per_pass_without": r_off.metrics.prepare.renders_per_pass,
-                             "psnr_with": _psnr(r_on), "psnr_without": _psnr(r_off)}
+    res["adaptive_views"] = {
+        "seconds_with": r_on.metrics.train_seconds,
+        "seconds_without": r_off.metrics.train_seconds,
+        "renders_per_pass_with": r_on.metrics.prepare.renders_per_pass,
+        "renders_per_pass_without": r_off.metrics.prepare.renders_per_pass,
+        "psnr_with": _psnr(r_on),
+        "psnr_without": _psnr(r_off),
+    }
     r1, _ = _timed(sc.capture, _cfg("3dgs", iters))
     cap3 = copy.copy(sc.capture)
     cap3.frames = np.repeat(sc.capture.frames, 3, -1)
@@ -67,24 +72,35 @@ def skip_rules(size: str, iters: int) -> dict:
     for v in cap3.test_views:
         v.image = np.repeat(v.image, 3, -1)
     r3, _ = _timed(cap3, _cfg("3dgs", iters))
-    res["grey_one_channel"] = {"seconds_with": r1.metrics.train_seconds, "seconds_without": r3.metrics.train_seconds,
-                               "psnr_with": _psnr(r1), "psnr_without": _psnr(r3)}
+    res["grey_one_channel"] = {
+        "seconds_with": r1.metrics.train_seconds,
+        "seconds_without": r3.metrics.train_seconds,
+        "psnr_with": _psnr(r1),
+        "psnr_without": _psnr(r3),
+    }
     cap0 = copy.copy(sc.capture)
     cap0.events = EventStream.empty(sc.capture.width, sc.capture.height)
     cfg_e, cfg_0 = _cfg("ebad", iters), _cfg("ebad", iters)
     cfg_e.trajectory.adaptive_views = cfg_0.trajectory.adaptive_views = False
     r_e, _ = _timed(sc.capture, cfg_e)
     r_0, _ = _timed(cap0, cfg_0)
-    res["no_events_skip_losses"] = {"seconds_with": r_0.metrics.train_seconds + r_0.metrics.prepare_seconds,
-                                    "seconds_without": r_e.metrics.train_seconds + r_e.metrics.prepare_seconds,
-                                    "note": "with = capture without events (losses skipped); without = computed"}
+    res["no_events_skip_losses"] = {
+        "seconds_with": r_0.metrics.train_seconds + r_0.metrics.prepare_seconds,
+        "seconds_without": r_e.metrics.train_seconds + r_e.metrics.prepare_seconds,
+        "note": "with = capture without events (losses skipped); without = computed",
+    }
     p_on = _cfg("3dgs", 3 * iters)
     p_on.train.plateau_patience, p_on.train.plateau_every, p_on.train.plateau_tol = 2, 50, 0.01
     rp, _ = _timed(sc.capture, p_on)
     rf, _ = _timed(sc.capture, _cfg("3dgs", 3 * iters))
-    res["plateau_stop"] = {"seconds_with": rp.metrics.train_seconds, "seconds_without": rf.metrics.train_seconds,
-                           "steps_with": rp.metrics.steps, "steps_without": rf.metrics.steps,
-                           "psnr_with": _psnr(rp), "psnr_without": _psnr(rf)}
+    res["plateau_stop"] = {
+        "seconds_with": rp.metrics.train_seconds,
+        "seconds_without": rf.metrics.train_seconds,
+        "steps_with": rp.metrics.steps,
+        "steps_without": rf.metrics.steps,
+        "psnr_with": _psnr(rp),
+        "psnr_without": _psnr(rf),
+    }
     for v in res.values():
         v["time_ratio_without_over_with"] = v["seconds_without"] / max(v["seconds_with"], 1e-9)
     return res
@@ -104,10 +120,15 @@ def main(argv=None) -> int:
     print(f"\n{size}, {iters} steps per run\n| skip rule | seconds with | seconds without | without/with | notes |")
     print("|---|---|---|---|---|")
     for k, v in res.items():
-        notes = {kk: (round(vv, 2) if isinstance(vv, float) else vv) for kk, vv in v.items()
-                 if kk not in ("seconds_with", "seconds_without", "time_ratio_without_over_with")}
-        print(f"| {k} | {v['seconds_with']:.2f} | {v['seconds_without']:.2f} | {v['time_ratio_without_over_with']:.2f} "
-              f"| {notes} |")
+        notes = {
+            kk: (round(vv, 2) if isinstance(vv, float) else vv)
+            for kk, vv in v.items()
+            if kk not in ("seconds_with", "seconds_without", "time_ratio_without_over_with")
+        }
+        print(
+            f"| {k} | {v['seconds_with']:.2f} | {v['seconds_without']:.2f} | {v['time_ratio_without_over_with']:.2f} "
+            f"| {notes} |"
+        )
     print(f"wrote {write_json(args.name, {'size': size, 'iters': iters, 'skip_rules': res})}")
     return 0
 

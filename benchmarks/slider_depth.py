@@ -14,6 +14,7 @@ per-frame pose optimisation) optimise them, plain ``3dgs`` holds them. Scores
 (``ebad.evaluate``): the novel views at the capture's poses, before and after refining each
 against its image (scene frozen). Prints the table and writes JSON.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -41,8 +42,15 @@ def held_out_capture(cap, every: int = 8, stride: int = 1):
     out.c2w = cap.c2w[train]
     out.names = [cap.names[i] for i in train] if cap.names else [f"{i:04d}" for i in train]
     out.split = ["train"] * len(train)
-    out.test_views = [TestView(name=(cap.names[i] if cap.names else f"{i:04d}"), t=float(cap.exposures[i].mean()),
-                               c2w=cap.c2w[i], image=cap.frames[i]) for i in test]
+    out.test_views = [
+        TestView(
+            name=(cap.names[i] if cap.names else f"{i:04d}"),
+            t=float(cap.exposures[i].mean()),
+            c2w=cap.c2w[i],
+            image=cap.frames[i],
+        )
+        for i in test
+    ]
     return out
 
 
@@ -50,7 +58,9 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="every 3rd training frame, one seed, 20 s per run")
     ap.add_argument("--data", default=str(DEFAULT_DATA))
-    ap.add_argument("--presets", default="3dgs,3dgs-po,ebad", help="comma-separated (3dgs-po: 3dgs with pose optimisation)")
+    ap.add_argument(
+        "--presets", default="3dgs,3dgs-po,ebad", help="comma-separated (3dgs-po: 3dgs with pose optimisation)"
+    )
     ap.add_argument("--seeds", default="0,1,2")
     ap.add_argument("--seconds", type=float, default=None, help="training wall time per run (default 120; quick 20)")
     ap.add_argument("--iters", type=int, default=1000000, help="step cap per run")
@@ -85,32 +95,63 @@ def main(argv=None) -> int:
             wall = time.perf_counter() - t0
             ev = evaluate(run, cap, refine=True, refine_iters=args.refine_iters)
             m = run.metrics
-            rows.append({"preset": name, "seed": seed, "test_psnr": ev["test"].psnr, "test_ssim": ev["test"].ssim,
-                         "test_refined_psnr": ev["test_refined"].psnr, "test_refined_ssim": ev["test_refined"].ssim,
-                         "steps": m.steps, "train_seconds": m.train_seconds, "wall_seconds": wall,
-                         "pose_source": m.prepare.pose_source, "poses_held": m.anchored_mid_poses,
-                         "gaussians": run.num_gaussians, "train_frames": len(cap.frames),
-                         "test_views": len(cap.test_views)})
+            rows.append(
+                {
+                    "preset": name,
+                    "seed": seed,
+                    "test_psnr": ev["test"].psnr,
+                    "test_ssim": ev["test"].ssim,
+                    "test_refined_psnr": ev["test_refined"].psnr,
+                    "test_refined_ssim": ev["test_refined"].ssim,
+                    "steps": m.steps,
+                    "train_seconds": m.train_seconds,
+                    "wall_seconds": wall,
+                    "pose_source": m.prepare.pose_source,
+                    "poses_held": m.anchored_mid_poses,
+                    "gaussians": run.num_gaussians,
+                    "train_frames": len(cap.frames),
+                    "test_views": len(cap.test_views),
+                }
+            )
             r = rows[-1]
-            print(f"seed {seed} {name:8s} novel PSNR {r['test_psnr']:6.2f} dB, refined {r['test_refined_psnr']:6.2f} dB "
-                  f"(SSIM {r['test_refined_ssim']:.3f}), {r['steps']} steps in {r['train_seconds']:.0f} s, "
-                  f"{r['gaussians']} Gaussians, poses {'held' if r['poses_held'] else 'optimised'}", flush=True)
-    print(f"\nslider_depth, {len(cap.frames)} training frames, {len(cap.test_views)} test views, {seconds:g} s per run, "
-          f"seeds {seeds}; mean ± std over seeds")
+            print(
+                f"seed {seed} {name:8s} novel PSNR {r['test_psnr']:6.2f} dB, refined {r['test_refined_psnr']:6.2f} dB "
+                f"(SSIM {r['test_refined_ssim']:.3f}), {r['steps']} steps in {r['train_seconds']:.0f} s, "
+                f"{r['gaussians']} Gaussians, poses {'held' if r['poses_held'] else 'optimised'}",
+                flush=True,
+            )
+    print(
+        f"\nslider_depth, {len(cap.frames)} training frames, {len(cap.test_views)} test views, {seconds:g} s per run, "
+        f"seeds {seeds}; mean ± std over seeds"
+    )
     print("| preset | novel PSNR dB | refined | refined SSIM | steps |")
     print("|---|---|---|---|---|")
     summary = {}
     for name in presets:
         rs = [r for r in rows if r["preset"] == name]
-        summary[name] = {k: (float(np.mean([r[k] for r in rs])), float(np.std([r[k] for r in rs])))
-                         for k in ("test_psnr", "test_refined_psnr", "test_refined_ssim", "steps")}
+        summary[name] = {
+            k: (float(np.mean([r[k] for r in rs])), float(np.std([r[k] for r in rs])))
+            for k in ("test_psnr", "test_refined_psnr", "test_refined_ssim", "steps")
+        }
         s = summary[name]
-        print(f"| `{name}` | {s['test_psnr'][0]:.2f} ± {s['test_psnr'][1]:.2f} | {s['test_refined_psnr'][0]:.2f} ± "
-              f"{s['test_refined_psnr'][1]:.2f} | {s['test_refined_ssim'][0]:.3f} ± {s['test_refined_ssim'][1]:.3f} | "
-              f"{s['steps'][0]:.0f} |")
-    path = write_json(args.name, {"data": str(data), "seconds": seconds, "iters": args.iters, "seeds": seeds,
-                                  "refine_iters": args.refine_iters, "rows": rows, "summary": summary,
-                                  "argv": sys.argv[1:]})
+        print(
+            f"| `{name}` | {s['test_psnr'][0]:.2f} ± {s['test_psnr'][1]:.2f} | {s['test_refined_psnr'][0]:.2f} ± "
+            f"{s['test_refined_psnr'][1]:.2f} | {s['test_refined_ssim'][0]:.3f} ± {s['test_refined_ssim'][1]:.3f} | "
+            f"{s['steps'][0]:.0f} |"
+        )
+    path = write_json(
+        args.name,
+        {
+            "data": str(data),
+            "seconds": seconds,
+            "iters": args.iters,
+            "seeds": seeds,
+            "refine_iters": args.refine_iters,
+            "rows": rows,
+            "summary": summary,
+            "argv": sys.argv[1:],
+        },
+    )
     print(f"\nwrote {path}")
     return 0
 

@@ -21,6 +21,7 @@ Also the largest difference of the fused map from kornia's and of the fused loss
 1 - mean SSIM (float32). Prints a table, writes
 ``benchmarks/results/ssim[_quick].json`` (or ``NAME.json``).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -74,8 +75,11 @@ def main(argv=None) -> int:
     repeats = args.repeats or (5 if args.quick else 20)
     rows = []
     print(f"mean SSIM forward + backward, 7-tap window, float32, median of {repeats} calls (ms)")
-    print(f"{'shape [B, H, W, D]':>20s} " + " ".join(f"{k:>13s}" for k in impls)
-          + f" {'conv / fused loss':>17s} {'kornia / fused loss':>19s} {'max |fused - kornia|':>20s}")
+    print(
+        f"{'shape [B, H, W, D]':>20s} "
+        + " ".join(f"{k:>13s}" for k in impls)
+        + f" {'conv / fused loss':>17s} {'kornia / fused loss':>19s} {'max |fused - kornia|':>20s}"
+    )
     for shape in shapes:
         g = torch.Generator().manual_seed(0)
         a = torch.rand(shape, generator=g).requires_grad_()
@@ -97,16 +101,33 @@ def main(argv=None) -> int:
         with torch.no_grad():
             err = float((ssim_map(a, b) - ssim_map_kornia(a, b)).abs().max())
             loss_err = abs(float(l1_ssim(a, b, 1.0, 7)) - float(1 - ssim_map_kornia(a, b).mean()))
-        rows.append({"shape": list(shape), "median_ms": med,
-                     "conv_over_fused_loss": med["grouped conv"] / med["fused loss"],
-                     "kornia_over_fused_loss": med["kornia"] / med["fused loss"],
-                     "max_abs_diff_vs_kornia": err, "loss_abs_diff_vs_kornia": loss_err})
-        print(f"{str(list(shape)):>20s} " + " ".join(f"{med[k]:13.2f}" for k in impls)
-              + f" {rows[-1]['conv_over_fused_loss']:17.2f} {rows[-1]['kornia_over_fused_loss']:19.2f} {err:20.1e}",
-              flush=True)
-    write_json(args.name or ("ssim_quick" if args.quick else "ssim"),
-               {"repeats": repeats, "window": 7, "dtype": "float32", "rows": rows,
-                "torch_threads": torch.get_num_threads(), "argv": sys.argv[1:] if argv is None else list(argv)})
+        rows.append(
+            {
+                "shape": list(shape),
+                "median_ms": med,
+                "conv_over_fused_loss": med["grouped conv"] / med["fused loss"],
+                "kornia_over_fused_loss": med["kornia"] / med["fused loss"],
+                "max_abs_diff_vs_kornia": err,
+                "loss_abs_diff_vs_kornia": loss_err,
+            }
+        )
+        print(
+            f"{str(list(shape)):>20s} "
+            + " ".join(f"{med[k]:13.2f}" for k in impls)
+            + f" {rows[-1]['conv_over_fused_loss']:17.2f} {rows[-1]['kornia_over_fused_loss']:19.2f} {err:20.1e}",
+            flush=True,
+        )
+    write_json(
+        args.name or ("ssim_quick" if args.quick else "ssim"),
+        {
+            "repeats": repeats,
+            "window": 7,
+            "dtype": "float32",
+            "rows": rows,
+            "torch_threads": torch.get_num_threads(),
+            "argv": sys.argv[1:] if argv is None else list(argv),
+        },
+    )
     return 0
 
 

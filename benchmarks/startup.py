@@ -15,6 +15,7 @@ per-frame EDI latents at mid-exposure against the sharp truth (``benchmarks.pape
 .prior_psnr``, the L_EDI prior of training). Settings as ``benchmarks.time_to_quality``
 (``ideal``: linear sensor; ``realistic``: the realistic sensor). The truth is only used to score.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -36,8 +37,9 @@ def pixel_subset(frames: np.ndarray, events, stride: int):
         return frames, events
     keep = (events.x % stride == 0) & (events.y % stride == 0)
     W, H = -(-events.width // stride), -(-events.height // stride)
-    sub = EventStream(events.t[keep], events.x[keep] // stride, events.y[keep] // stride, events.p[keep], W, H,
-                      t0=events.t0)
+    sub = EventStream(
+        events.t[keep], events.x[keep] // stride, events.y[keep] // stride, events.p[keep], W, H, t0=events.t0
+    )
     return np.ascontiguousarray(frames[:, ::stride, ::stride]), sub
 
 
@@ -57,8 +59,14 @@ def measure(scene, strides: list[int]) -> dict:
         t0 = time.perf_counter()
         c = edi.estimate_c(fr, ex, ev, pair=True)
         sec = time.perf_counter() - t0
-        rows.append({"stride": s, "seconds": sec, "c": [float(c[0]), float(c[1])],
-                     "prior_psnr": prior_psnr(scene, (float(c[0]), float(c[1])), "edi")})
+        rows.append(
+            {
+                "stride": s,
+                "seconds": sec,
+                "c": [float(c[0]), float(c[1])],
+                "prior_psnr": prior_psnr(scene, (float(c[0]), float(c[1])), "edi"),
+            }
+        )
     for r in rows:
         r["seconds_ratio"] = r["seconds"] / rows[0]["seconds"]
         r["c_ratio"] = [r["c"][k] / rows[0]["c"][k] for k in range(2)]
@@ -91,8 +99,10 @@ def main(argv=None) -> int:
     measure(scenes.make_scene("boxes", "tiny", seed=0), [1, 2])  # compile the numba kernels outside the timings
     results = {}
     print(f"start-up at size {size}: contrast estimate on every stride-th pixel, plane-sweep initialisation")
-    print(f"{'mode':10s} {'seed':>4s} {'stride':>6s} {'seconds':>8s} {'x full':>7s} {'c_pos':>7s} {'c_neg':>7s} "
-          f"{'c/full':>13s} {'EDI prior dB':>12s}")
+    print(
+        f"{'mode':10s} {'seed':>4s} {'stride':>6s} {'seconds':>8s} {'x full':>7s} {'c_pos':>7s} {'c_neg':>7s} "
+        f"{'c/full':>13s} {'EDI prior dB':>12s}"
+    )
     for mode in modes:
         for seed in seeds:
             seed_all(seed)
@@ -100,13 +110,24 @@ def main(argv=None) -> int:
             r = measure(scene, strides)
             results.setdefault(mode, []).append({"seed": seed, **r})
             for e in r["estimates"]:
-                print(f"{mode:10s} {seed:4d} {e['stride']:6d} {e['seconds']:8.2f} {e['seconds_ratio']:7.2f} "
-                      f"{e['c'][0]:7.4f} {e['c'][1]:7.4f} {e['c_ratio'][0]:6.3f}/{e['c_ratio'][1]:6.3f} "
-                      f"{e['prior_psnr']:12.2f}")
+                print(
+                    f"{mode:10s} {seed:4d} {e['stride']:6d} {e['seconds']:8.2f} {e['seconds_ratio']:7.2f} "
+                    f"{e['c'][0]:7.4f} {e['c'][1]:7.4f} {e['c_ratio'][0]:6.3f}/{e['c_ratio'][1]:6.3f} "
+                    f"{e['prior_psnr']:12.2f}"
+                )
             print(f"{mode:10s} {seed:4d} plane-sweep initialisation {r['init_seconds']:.2f} s", flush=True)
     name = args.name or ("startup_quick" if args.quick else "startup")
-    write_json(name, {"size": size, "seeds": seeds, "strides": strides, "modes": {m: MODES[m] for m in modes},
-                      "results": results, "argv": sys.argv[1:] if argv is None else list(argv)})
+    write_json(
+        name,
+        {
+            "size": size,
+            "seeds": seeds,
+            "strides": strides,
+            "modes": {m: MODES[m] for m in modes},
+            "results": results,
+            "argv": sys.argv[1:] if argv is None else list(argv),
+        },
+    )
     return 0
 
 

@@ -14,6 +14,7 @@ Steps at the coarse phase's half resolution and at full resolution are reported 
 ``run`` is every step together: its share is the fraction of the run's step time outside the
 rasteriser. The first 20 steps (numba's first calls, torch's warm-up) are left out.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -58,10 +59,15 @@ def main(argv=None) -> int:
     iters = args.iters or (60 if args.quick else 400)
     modes = parse_modes(ap, args.modes)
     results = {}
-    print(f"step profile at size {size}, {iters} steps per run (the first {WARMUP_STEPS} left out), seed {args.seed}; "
-          "ms per step")
-    print(f"{'mode':10s} {'preset':8s} {'level':6s} {'steps':>5s} " + " ".join(f"{p:>15s}" for p in PARTS)
-          + f" {'outside share':>13s}")
+    print(
+        f"step profile at size {size}, {iters} steps per run (the first {WARMUP_STEPS} left out), seed {args.seed}; "
+        "ms per step"
+    )
+    print(
+        f"{'mode':10s} {'preset':8s} {'level':6s} {'steps':>5s} "
+        + " ".join(f"{p:>15s}" for p in PARTS)
+        + f" {'outside share':>13s}"
+    )
     for mode in modes:
         seed_all(args.seed)
         scene = scenes.make_scene("boxes", size, seed=args.seed, **MODES[mode])
@@ -72,12 +78,25 @@ def main(argv=None) -> int:
                 p = r[level]
                 if p is None:
                     continue
-                print(f"{mode:10s} {spec:8s} {level:6s} {p['steps']:5d} " + " ".join(f"{p[k]:15.1f}" for k in PARTS)
-                      + f" {p['outside_share']:13.2f}", flush=True)
+                print(
+                    f"{mode:10s} {spec:8s} {level:6s} {p['steps']:5d} "
+                    + " ".join(f"{p[k]:15.1f}" for k in PARTS)
+                    + f" {p['outside_share']:13.2f}",
+                    flush=True,
+                )
     name = args.name or ("step_profile_quick" if args.quick else "step_profile")
-    write_json(name, {"size": size, "iters": iters, "seed": args.seed, "warmup_steps": WARMUP_STEPS,
-                      "modes": {m: MODES[m] for m in modes}, "results": results,
-                      "argv": sys.argv[1:] if argv is None else list(argv)})
+    write_json(
+        name,
+        {
+            "size": size,
+            "iters": iters,
+            "seed": args.seed,
+            "warmup_steps": WARMUP_STEPS,
+            "modes": {m: MODES[m] for m in modes},
+            "results": results,
+            "argv": sys.argv[1:] if argv is None else list(argv),
+        },
+    )
     return 0
 
 

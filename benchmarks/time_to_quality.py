@@ -26,6 +26,7 @@ are not exact). Its wall and CPU seconds are recorded with the machine's load. T
 results are written to ``NAME_baseline.pt``; ``--baseline-file`` reuses such a file instead of
 training again (its rows then come from another run of the benchmark, which the table says).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -99,11 +100,18 @@ class Snapshots:
             self.take(state)
 
     def take(self, state) -> None:
-        self.taken.append({"seconds": state.elapsed, "step": state.step,
-                           "cpu_seconds": time.process_time() - self.cpu0, "load1": os.getloadavg()[0],
-                           "params": {k: v.detach().clone() for k, v in state.params.items()},
-                           "trajectories": copy.deepcopy(state.trajectories),
-                           "response": copy.deepcopy(state.response), "gaussians": state.num_gaussians})
+        self.taken.append(
+            {
+                "seconds": state.elapsed,
+                "step": state.step,
+                "cpu_seconds": time.process_time() - self.cpu0,
+                "load1": os.getloadavg()[0],
+                "params": {k: v.detach().clone() for k, v in state.params.items()},
+                "trajectories": copy.deepcopy(state.trajectories),
+                "response": copy.deepcopy(state.response),
+                "gaussians": state.num_gaussians,
+            }
+        )
 
     def on_end(self, state, reason: str) -> None:
         if not self.taken or self.taken[-1]["step"] != state.step:
@@ -124,11 +132,16 @@ def plateau_points(history, cfg, points: list[dict]) -> list[dict]:
     for patience in PLATEAU_PATIENCES:
         c = copy.deepcopy(cfg)
         c.train.plateau_patience, c.train.max_seconds = patience, None
-        hit = next((h for i, h in enumerate(history) if should_stop(history[:i + 1], 0.0, c) == "plateau"), None)
+        hit = next((h for i, h in enumerate(history) if should_stop(history[: i + 1], 0.0, c) == "plateau"), None)
         before = [p for p in points if hit is not None and p["step"] <= hit.step]
-        out.append({"patience": patience, "step": None if hit is None else hit.step,
-                    "seconds": None if hit is None else hit.time,
-                    "psnr_at_last_snapshot_before": before[-1]["test_psnr"] if before else None})
+        out.append(
+            {
+                "patience": patience,
+                "step": None if hit is None else hit.step,
+                "seconds": None if hit is None else hit.time,
+                "psnr_at_last_snapshot_before": before[-1]["test_psnr"] if before else None,
+            }
+        )
     return out
 
 
@@ -151,19 +164,38 @@ def run_one(scene, name: str, seconds: float, marks: int, exact: bool, refine_it
         r.params, r.trajectories, r.response = snap["params"], snap["trajectories"], snap["response"]
         ev = evaluate(r, scene.capture, refine=not exact, gt_frames=scene.gt_frames, refine_iters=refine_iters)
         test = ev["test" if exact else "test_refined"]
-        points.append({"seconds": snap["seconds"], "step": snap["step"], "gaussians": snap["gaussians"],
-                       "cpu_seconds": snap["cpu_seconds"], "load1": snap["load1"],
-                       "test_psnr": test.psnr, "test_ssim": test.ssim, "deblur_psnr": ev["deblurred"].psnr})
+        points.append(
+            {
+                "seconds": snap["seconds"],
+                "step": snap["step"],
+                "gaussians": snap["gaussians"],
+                "cpu_seconds": snap["cpu_seconds"],
+                "load1": snap["load1"],
+                "test_psnr": test.psnr,
+                "test_ssim": test.ssim,
+                "deblur_psnr": ev["deblurred"].psnr,
+            }
+        )
     m = run.metrics
     import resource
 
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # Linux: kB; the process's peak so far
-    return {"preset": name, "peak_rss_mb_so_far": peak_mb, "gaussians": m.gaussians, "steps": m.steps, "train_seconds": m.train_seconds, "prepare_seconds": m.prepare_seconds,
-            "wall_seconds": wall, "step_ms": 1000 * m.train_seconds / max(m.steps, 1), "points": points,
-            "cpu_seconds": points[-1]["cpu_seconds"], "final_psnr": points[-1]["test_psnr"],
-            "plateau": plateau_points(run.history, cfg, points),
-            "profile": step_profile([h for h in run.history if h.width == run.width]),  # full-resolution steps
-            "poses_refined": not exact}, run
+    return {
+        "preset": name,
+        "peak_rss_mb_so_far": peak_mb,
+        "gaussians": m.gaussians,
+        "steps": m.steps,
+        "train_seconds": m.train_seconds,
+        "prepare_seconds": m.prepare_seconds,
+        "wall_seconds": wall,
+        "step_ms": 1000 * m.train_seconds / max(m.steps, 1),
+        "points": points,
+        "cpu_seconds": points[-1]["cpu_seconds"],
+        "final_psnr": points[-1]["test_psnr"],
+        "plateau": plateau_points(run.history, cfg, points),
+        "profile": step_profile([h for h in run.history if h.width == run.width]),  # full-resolution steps
+        "poses_refined": not exact,
+    }, run
 
 
 def run_baseline(scene, checkout: str, steps: int, marks: int) -> dict:
@@ -178,10 +210,15 @@ def run_baseline(scene, checkout: str, steps: int, marks: int) -> dict:
         scenes.save(scene.capture, f"{tmp}/capture")
         (driver := Path(tmp) / "driver.py").write_text(OLD_DRIVER)
         env = dict(os.environ, PYTHONPATH=str(Path(checkout).resolve()), OMP_WAIT_POLICY="PASSIVE")
-        commit = subprocess.run(["git", "-C", checkout, "rev-parse", "--short", "HEAD"], capture_output=True,
-                                text=True).stdout.strip()
-        subprocess.run([sys.executable, str(driver), f"{tmp}/capture", f"{tmp}/out.pt", str(steps),
-                        str(max(steps // marks, 1))], check=True, env=env, cwd=tmp)
+        commit = subprocess.run(
+            ["git", "-C", checkout, "rev-parse", "--short", "HEAD"], capture_output=True, text=True
+        ).stdout.strip()
+        subprocess.run(
+            [sys.executable, str(driver), f"{tmp}/capture", f"{tmp}/out.pt", str(steps), str(max(steps // marks, 1))],
+            check=True,
+            env=env,
+            cwd=tmp,
+        )
         out = torch.load(f"{tmp}/out.pt", weights_only=False)
     out["checkout"], out["commit"] = str(checkout), commit
     return out
@@ -203,30 +240,49 @@ def score_baseline(run, base: dict, scene, exact: bool, refine_iters: int) -> di
         ev = evaluate(r, scene.capture, refine=not exact, refine_iters=refine_iters)
         test = ev["test" if exact else "test_refined"]
         points.append({**snap, "test_psnr": test.psnr, "test_ssim": test.ssim})
-    return {"preset": f"ebad@{base['commit']}", "baseline": True, "checkout": base["checkout"], "commit": base["commit"],
-            "steps": base["steps"], "stop_reason": base["stop_reason"], "train_seconds": base["train_seconds"],
-            "prepare_seconds": base["prepare_seconds"], "wall_seconds": base["wall_seconds"],
-            "cpu_seconds": points[-1]["cpu_seconds"] if points else None,
-            "step_ms": 1000 * base["train_seconds"] / max(base["steps"], 1), "gaussians": points[-1]["gaussians"],
-            "peak_rss_mb": base["peak_rss_mb"], "own_test_psnr": base["own_test_psnr"], "points": points,
-            "final_psnr": points[-1]["test_psnr"], "poses_refined": not exact}
+    return {
+        "preset": f"ebad@{base['commit']}",
+        "baseline": True,
+        "checkout": base["checkout"],
+        "commit": base["commit"],
+        "steps": base["steps"],
+        "stop_reason": base["stop_reason"],
+        "train_seconds": base["train_seconds"],
+        "prepare_seconds": base["prepare_seconds"],
+        "wall_seconds": base["wall_seconds"],
+        "cpu_seconds": points[-1]["cpu_seconds"] if points else None,
+        "step_ms": 1000 * base["train_seconds"] / max(base["steps"], 1),
+        "gaussians": points[-1]["gaussians"],
+        "peak_rss_mb": base["peak_rss_mb"],
+        "own_test_psnr": base["own_test_psnr"],
+        "points": points,
+        "final_psnr": points[-1]["test_psnr"],
+        "poses_refined": not exact,
+    }
 
 
 def time_to_baseline(rows: list[dict], margin: float = 0.5) -> dict:
     """The issue's target: the first snapshot of each run within ``margin`` dB of the baseline's
     final PSNR, and its time as a fraction of the baseline's (wall and CPU seconds)."""
     base = next(r for r in rows if r.get("baseline"))
-    out = {"baseline_psnr": base["final_psnr"], "baseline_seconds": base["train_seconds"],
-           "baseline_cpu_seconds": base["cpu_seconds"], "margin_db": margin, "presets": {}}
+    out = {
+        "baseline_psnr": base["final_psnr"],
+        "baseline_seconds": base["train_seconds"],
+        "baseline_cpu_seconds": base["cpu_seconds"],
+        "margin_db": margin,
+        "presets": {},
+    }
     for r in rows:
         if r.get("baseline"):
             continue
         hit = next((p for p in r["points"] if p["test_psnr"] >= base["final_psnr"] - margin), None)
         out["presets"][r["preset"]] = {
-            "seconds": None if hit is None else hit["seconds"], "step": None if hit is None else hit["step"],
+            "seconds": None if hit is None else hit["seconds"],
+            "step": None if hit is None else hit["step"],
             "psnr": None if hit is None else hit["test_psnr"],
             "wall_ratio": None if hit is None else hit["seconds"] / base["train_seconds"],
-            "cpu_ratio": None if hit is None else hit["cpu_seconds"] / base["cpu_seconds"]}
+            "cpu_ratio": None if hit is None else hit["cpu_seconds"] / base["cpu_seconds"],
+        }
     return out
 
 
@@ -259,8 +315,11 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="tiny scene, 20 s per run")
     ap.add_argument("--size", default=None, help="scene size (default davis; quick tiny)")
     ap.add_argument("--modes", default="ideal,realistic")
-    ap.add_argument("--presets", default="ebad,bad,3dgs",
-                    help="presets, each with optional overrides: ebad+train.coarse_scale=1 (benchmarks._common.config_spec)")
+    ap.add_argument(
+        "--presets",
+        default="ebad,bad,3dgs",
+        help="presets, each with optional overrides: ebad+train.coarse_scale=1 (benchmarks._common.config_spec)",
+    )
     ap.add_argument("--seconds", type=float, default=None, help="training budget per run (default 300; quick 20)")
     ap.add_argument("--marks", type=int, default=8, help="snapshots per run")
     ap.add_argument("--seed", type=int, default=0)
@@ -299,8 +358,11 @@ def main(argv=None) -> int:
             import torch
 
             torch.save(baselines, RESULTS / f"{args.name}_baseline.pt")
-            print(f"{mode:9s} baseline {baselines[mode]['commit']}: {baselines[mode]['steps']} steps in "
-                  f"{time.perf_counter() - t0:.0f} s", flush=True)
+            print(
+                f"{mode:9s} baseline {baselines[mode]['commit']}: {baselines[mode]['steps']} steps in "
+                f"{time.perf_counter() - t0:.0f} s",
+                flush=True,
+            )
         if args.baseline_only:
             continue
         for name in presets:
@@ -310,34 +372,58 @@ def main(argv=None) -> int:
                 b["from_earlier_run"] = not args.baseline
                 results[mode].append(b)
                 pts = "  ".join(f"{p['seconds']:.0f}s/{p['step']}:{p['test_psnr']:.2f}" for p in b["points"])
-                print(f"{mode:9s} {b['preset']}: {b['step_ms']:.0f} ms/step, {b['steps']} steps, "
-                      f"{b['train_seconds']:.0f} s ({b['cpu_seconds']:.0f} CPU s) -> {b['final_psnr']:.2f} dB   [{pts}]",
-                      flush=True)
+                print(
+                    f"{mode:9s} {b['preset']}: {b['step_ms']:.0f} ms/step, {b['steps']} steps, "
+                    f"{b['train_seconds']:.0f} s ({b['cpu_seconds']:.0f} CPU s) -> {b['final_psnr']:.2f} dB   [{pts}]",
+                    flush=True,
+                )
             results[mode].append(r)
             pts = "  ".join(f"{p['seconds']:.0f}s/{p['step']}:{p['test_psnr']:.2f}" for p in r["points"])
-            fired = ", ".join(f"patience {q['patience']}: " + ("never" if q["step"] is None else
-                              f"step {q['step']} ({q['seconds']:.0f} s)") for q in r["plateau"])
+            fired = ", ".join(
+                f"patience {q['patience']}: "
+                + ("never" if q["step"] is None else f"step {q['step']} ({q['seconds']:.0f} s)")
+                for q in r["plateau"]
+            )
             print(f"{mode:9s} {name:5s} plateau rule would stop at {fired}", flush=True)
-            print(f"{mode:9s} {name:5s} prepare {r['prepare_seconds']:.1f} s, {r['step_ms']:.0f} ms/step, "
-                  f"{r['steps']} steps, {r['gaussians']} Gaussians, peak RSS so far {r['peak_rss_mb_so_far']:.0f} MB "
-                  f"-> {r['final_psnr']:.2f} dB   [{pts}]", flush=True)
+            print(
+                f"{mode:9s} {name:5s} prepare {r['prepare_seconds']:.1f} s, {r['step_ms']:.0f} ms/step, "
+                f"{r['steps']} steps, {r['gaussians']} Gaussians, peak RSS so far {r['peak_rss_mb_so_far']:.0f} MB "
+                f"-> {r['final_psnr']:.2f} dB   [{pts}]",
+                flush=True,
+            )
             if r["profile"]:
                 p = r["profile"]
-                print(f"{mode:9s} {name:5s} full-resolution step {p['step']:.0f} ms: rasteriser forward "
-                      f"{p['raster_forward']:.0f} + backward {p['raster_backward']:.0f}, outside it "
-                      f"{100 * p['outside_share']:.0f}%", flush=True)
+                print(
+                    f"{mode:9s} {name:5s} full-resolution step {p['step']:.0f} ms: rasteriser forward "
+                    f"{p['raster_forward']:.0f} + backward {p['raster_backward']:.0f}, outside it "
+                    f"{100 * p['outside_share']:.0f}%",
+                    flush=True,
+                )
     if args.baseline_only:
         print(f"wrote {RESULTS / (args.name + '_baseline.pt')}")
         return 0
     targets = {mode: time_to_baseline(rows) for mode, rows in results.items() if any(r.get("baseline") for r in rows)}
     for mode, t in targets.items():
         for name, row in t["presets"].items():
-            reach = ("never within the run" if row["seconds"] is None else
-                     f"at {row['seconds']:.0f} s ({row['wall_ratio']:.2f} of the baseline's wall time, "
-                     f"{row['cpu_ratio']:.2f} of its CPU time)")
+            reach = (
+                "never within the run"
+                if row["seconds"] is None
+                else f"at {row['seconds']:.0f} s ({row['wall_ratio']:.2f} of the baseline's wall time, "
+                f"{row['cpu_ratio']:.2f} of its CPU time)"
+            )
             print(f"{mode:9s} {name} reaches the baseline's {t['baseline_psnr']:.2f} dB - 0.5 {reach}")
-    path = write_json(args.name, {"targets": targets, "size": size, "seconds": seconds, "seed": args.seed, "modes": MODES,
-                                  "results": results, "argv": sys.argv[1:]})
+    path = write_json(
+        args.name,
+        {
+            "targets": targets,
+            "size": size,
+            "seconds": seconds,
+            "seed": args.seed,
+            "modes": MODES,
+            "results": results,
+            "argv": sys.argv[1:],
+        },
+    )
     plot(results, RESULTS / f"{args.name}.png")
     print(f"wrote {path} and {RESULTS / (args.name + '.png')}")
     return 0

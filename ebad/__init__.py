@@ -8,6 +8,7 @@ Importing ``ebad`` changes no process-wide setting: the thread set-up (OpenMP's 
 numba's threading layer) is ``ebad.threads.configure``, which ``ebad.reconstruct`` and the
 command line call.
 """
+
 from typing import TYPE_CHECKING
 
 from .errors import ConfigError, EbadError, UserError
@@ -19,8 +20,19 @@ if TYPE_CHECKING:  # what ``__getattr__`` loads on first use, for type checkers 
     from .runfolder import load_run
     from .state import TrainState
 
-__all__ = ["EbadError", "UserError", "ConfigError", "reconstruct", "Run", "Config", "preset", "PRESETS", "load_run",
-           "prepare", "TrainState"]
+__all__ = [
+    "EbadError",
+    "UserError",
+    "ConfigError",
+    "reconstruct",
+    "Run",
+    "Config",
+    "preset",
+    "PRESETS",
+    "load_run",
+    "prepare",
+    "TrainState",
+]
 __version__ = "0.1.0"
 
 _LAZY = {

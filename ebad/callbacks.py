@@ -5,6 +5,7 @@ order, and ``on_end(state, reason)`` once when it stops. ``Evaluator`` scores th
 ``ProgressBar`` shows the losses, ``Checkpointer`` saves the state, ``StepHook`` hands each
 step to a user function.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -40,9 +41,12 @@ class Evaluator:
 
     def scores(self, state: TrainState) -> ViewScores | None:
         d = self.data
-        return evaluate_views(lambda c2w: render_images(state.params, c2w, d.K, d.width, d.height,
-                                                        self.cfg.model.background, response=state.response),
-                              self.views)
+        return evaluate_views(
+            lambda c2w: render_images(
+                state.params, c2w, d.K, d.width, d.height, self.cfg.model.background, response=state.response
+            ),
+            self.views,
+        )
 
     def on_step(self, state: TrainState, stats: StepStats) -> None:
         if self.views and self.every and (state.step % self.every == 0 or state.step == self.last):
@@ -63,8 +67,9 @@ class ProgressBar:
     def __init__(self, cfg: Config, initial: int):
         from tqdm import tqdm
 
-        self.bar = tqdm(total=cfg.train.iters, initial=initial, desc=f"ebad[{cfg.name}]", dynamic_ncols=True,
-                        leave=False)
+        self.bar = tqdm(
+            total=cfg.train.iters, initial=initial, desc=f"ebad[{cfg.name}]", dynamic_ncols=True, leave=False
+        )
         self.psnr: float | None = None
 
     def on_step(self, state: TrainState, stats: StepStats) -> None:
@@ -108,5 +113,3 @@ class StepHook:
 
     def on_end(self, state: TrainState, reason: str) -> None:
         return None
-
-

@@ -8,6 +8,7 @@ Presets are named functions in ``PRESETS`` returning a full ``Config``; a run sa
 resolved config as JSON beside its outputs, and ``config_from_dict`` reads it back (unknown
 keys and values of the wrong type are errors that name the key; nothing is ``eval``-ed).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -21,9 +22,20 @@ from typing import Any, Callable, Literal
 from .errors import ConfigError
 
 __all__ = [
-    "ModelConfig", "TrajectoryConfig", "LossConfig", "StrategyConfig", "TrainConfig", "Config",
-    "PRESETS", "preset", "config_to_dict", "config_from_dict", "save_config", "load_config",
-    "config_diff", "RESUMABLE_FIELDS",
+    "ModelConfig",
+    "TrajectoryConfig",
+    "LossConfig",
+    "StrategyConfig",
+    "TrainConfig",
+    "Config",
+    "PRESETS",
+    "preset",
+    "config_to_dict",
+    "config_from_dict",
+    "save_config",
+    "load_config",
+    "config_diff",
+    "RESUMABLE_FIELDS",
 ]
 
 Target = Literal["blurry", "edi"]
@@ -92,14 +104,22 @@ class ModelConfig:
         _require(0 < self.init_opacity < 1, "model.init_opacity", f"must be in (0, 1), got {self.init_opacity}")
         _require(self.init_scale_px > 0, "model.init_scale_px", f"must be > 0, got {self.init_scale_px}")
         if self.init_depth is not None:
-            _require(len(self.init_depth) == 2 and 0 < self.init_depth[0] < self.init_depth[1], "model.init_depth",
-                     f"must be two depths 0 < near < far, got {self.init_depth}")
+            _require(
+                len(self.init_depth) == 2 and 0 < self.init_depth[0] < self.init_depth[1],
+                "model.init_depth",
+                f"must be two depths 0 < near < far, got {self.init_depth}",
+            )
         _require(self.min_sfm_points >= 1, "model.min_sfm_points", f"must be >= 1, got {self.min_sfm_points}")
         _require(self.stereo_depths >= 2, "model.stereo_depths", f"must be >= 2, got {self.stereo_depths}")
         _require(self.stereo_neighbours >= 1, "model.stereo_neighbours", f"must be >= 1, got {self.stereo_neighbours}")
-        _require(self.stereo_patch >= 1 and self.stereo_patch % 2 == 1, "model.stereo_patch",
-                 f"must be an odd number >= 1, got {self.stereo_patch}")
-        _require(self.max_gaussians >= 0, "model.max_gaussians", f"must be >= 0 (0: automatic), got {self.max_gaussians}")
+        _require(
+            self.stereo_patch >= 1 and self.stereo_patch % 2 == 1,
+            "model.stereo_patch",
+            f"must be an odd number >= 1, got {self.stereo_patch}",
+        )
+        _require(
+            self.max_gaussians >= 0, "model.max_gaussians", f"must be >= 0 (0: automatic), got {self.max_gaussians}"
+        )
         _require(0 <= self.background <= 1, "model.background", f"must be in [0, 1], got {self.background}")
         _require(self.lr_response >= 0, "model.lr_response", f"must be >= 0, got {self.lr_response}")
 
@@ -144,14 +164,23 @@ class TrajectoryConfig:
     def check(self) -> None:
         _finite(self, "trajectory")
         _require(self.num_views >= 1, "trajectory.num_views", f"must be >= 1, got {self.num_views}")
-        _require(self.sharp_events_per_pixel >= 0, "trajectory.sharp_events_per_pixel",
-                 f"must be >= 0, got {self.sharp_events_per_pixel}")
-        _require(self.view_spacing >= 0, "trajectory.view_spacing", f"must be >= 0 pixels (0: off), got {self.view_spacing}")
+        _require(
+            self.sharp_events_per_pixel >= 0,
+            "trajectory.sharp_events_per_pixel",
+            f"must be >= 0, got {self.sharp_events_per_pixel}",
+        )
+        _require(
+            self.view_spacing >= 0, "trajectory.view_spacing", f"must be >= 0 pixels (0: off), got {self.view_spacing}"
+        )
         _require(self.max_views >= 2, "trajectory.max_views", f"must be >= 2, got {self.max_views}")
         _require(self.init_noise >= 0, "trajectory.init_noise", f"must be >= 0, got {self.init_noise}")
         _require(self.lr >= 0, "trajectory.lr", f"must be >= 0, got {self.lr}")
         _require(0 < self.lr_final <= 1, "trajectory.lr_final", f"must be in (0, 1], got {self.lr_final}")
-        _require(0 <= self.average_from <= 1, "trajectory.average_from", f"must be in [0, 1] (1: off), got {self.average_from}")
+        _require(
+            0 <= self.average_from <= 1,
+            "trajectory.average_from",
+            f"must be in [0, 1] (1: off), got {self.average_from}",
+        )
 
 
 @dataclass
@@ -194,21 +223,37 @@ class LossConfig:
 
     def check(self) -> None:
         _finite(self, "loss")
-        for name, kind in (("event_windows", EventWindows), ("event_norm", EventNorm), ("edi_prior", EdiPrior),
-                           ("edi_instants", EdiInstants)):
-            _require(getattr(self, name) in typing.get_args(kind), f"loss.{name}",
-                     f"must be one of {', '.join(typing.get_args(kind))}, got {getattr(self, name)!r}")
+        for name, kind in (
+            ("event_windows", EventWindows),
+            ("event_norm", EventNorm),
+            ("edi_prior", EdiPrior),
+            ("edi_instants", EdiInstants),
+        ):
+            _require(
+                getattr(self, name) in typing.get_args(kind),
+                f"loss.{name}",
+                f"must be one of {', '.join(typing.get_args(kind))}, got {getattr(self, name)!r}",
+            )
         for name in ("w_blur", "w_event", "w_edi"):
             _require(getattr(self, name) >= 0, f"loss.{name}", f"must be >= 0, got {getattr(self, name)}")
         _require(0 <= self.ssim_weight <= 1, "loss.ssim_weight", f"must be in [0, 1], got {self.ssim_weight}")
-        _require(self.ssim_window >= 1 and self.ssim_window % 2 == 1, "loss.ssim_window",
-                 f"must be an odd number >= 1, got {self.ssim_window}")
-        _require(self.contrast is None or (len(self.contrast) == 2 and min(self.contrast) > 0), "loss.contrast",
-                 f"must be two thresholds > 0 (c_pos c_neg), got {self.contrast}")
+        _require(
+            self.ssim_window >= 1 and self.ssim_window % 2 == 1,
+            "loss.ssim_window",
+            f"must be an odd number >= 1, got {self.ssim_window}",
+        )
+        _require(
+            self.contrast is None or (len(self.contrast) == 2 and min(self.contrast) > 0),
+            "loss.contrast",
+            f"must be two thresholds > 0 (c_pos c_neg), got {self.contrast}",
+        )
         _require(self.lr_contrast >= 0, "loss.lr_contrast", f"must be >= 0, got {self.lr_contrast}")
-        _require(self.edi_instants == "mid" or self.edi_prior == "edi", "loss.edi_instants",
-                 "views needs loss.edi_prior edi (mEDI gives latents at the exposure centres only): "
-                 "with edi_prior medi give --loss.edi_instants mid")
+        _require(
+            self.edi_instants == "mid" or self.edi_prior == "edi",
+            "loss.edi_instants",
+            "views needs loss.edi_prior edi (mEDI gives latents at the exposure centres only): "
+            "with edi_prior medi give --loss.edi_instants mid",
+        )
 
 
 @dataclass
@@ -297,8 +342,11 @@ class TrainConfig:
     def check(self) -> None:
         _finite(self, "train")
         _require(self.iters >= 1, "train.iters", f"must be >= 1, got {self.iters}")
-        _require(self.max_seconds is None or self.max_seconds > 0, "train.max_seconds",
-                 f"must be > 0, got {self.max_seconds}")
+        _require(
+            self.max_seconds is None or self.max_seconds > 0,
+            "train.max_seconds",
+            f"must be > 0, got {self.max_seconds}",
+        )
         _require(self.plateau_patience >= 0, "train.plateau_patience", f"must be >= 0, got {self.plateau_patience}")
         _require(self.plateau_every >= 1, "train.plateau_every", f"must be >= 1, got {self.plateau_every}")
         _require(self.plateau_tol >= 0, "train.plateau_tol", f"must be >= 0, got {self.plateau_tol}")
@@ -306,11 +354,16 @@ class TrainConfig:
             _require(getattr(self, name) >= 0, f"train.{name}", f"must be >= 0, got {getattr(self, name)}")
         _require(0 < self.lr_means_final <= 1, "train.lr_means_final", f"must be in (0, 1], got {self.lr_means_final}")
         _require(self.pose_warmup >= 0, "train.pose_warmup", f"must be >= 0, got {self.pose_warmup}")
-        _require(self.coarse_scale >= 1, "train.coarse_scale", f"must be >= 1 (1: no coarse phase), got {self.coarse_scale}")
+        _require(
+            self.coarse_scale >= 1, "train.coarse_scale", f"must be >= 1 (1: no coarse phase), got {self.coarse_scale}"
+        )
         _require(0 <= self.coarse_until <= 1, "train.coarse_until", f"must be in [0, 1], got {self.coarse_until}")
         _require(self.eval_every >= 0, "train.eval_every", f"must be >= 0 (0: never), got {self.eval_every}")
-        _require(self.checkpoint_every >= 0, "train.checkpoint_every",
-                 f"must be >= 0 (0: only at the end), got {self.checkpoint_every}")
+        _require(
+            self.checkpoint_every >= 0,
+            "train.checkpoint_every",
+            f"must be >= 0 (0: only at the end), got {self.checkpoint_every}",
+        )
 
 
 @dataclass
@@ -329,12 +382,16 @@ class Config:
         """Raise ``ConfigError`` naming the first option whose value cannot work; return self."""
         for section in (self.model, self.trajectory, self.loss, self.strategy, self.train):
             section.check()
-        _require(self.trajectory.view_spacing == 0 or self.train.coarse_until > 0, "trajectory.view_spacing",
-                 "needs train.coarse_until > 0: V is chosen from the trajectories learnt by then")
+        _require(
+            self.trajectory.view_spacing == 0 or self.train.coarse_until > 0,
+            "trajectory.view_spacing",
+            "needs train.coarse_until > 0: V is chosen from the trajectories learnt by then",
+        )
         return self
 
 
 # --------------------------------------------------------------------------- presets
+
 
 def _ebad() -> Config:
     return Config(name="ebad")
@@ -392,6 +449,7 @@ def preset(name: str) -> Config:
 
 
 # --------------------------------------------------------------------------- JSON
+
 
 def config_to_dict(cfg: Config) -> dict[str, Any]:
     return dataclasses.asdict(cfg)
@@ -481,8 +539,16 @@ def load_config(path: str | Path) -> Config:
 
 # What ``--resume`` may change: how long to go on and how to watch it, nothing that changes
 # what is being optimised.
-RESUMABLE_FIELDS = frozenset({"train.iters", "train.max_seconds", "train.progress", "train.eval_every",
-                              "train.checkpoint_every", "train.plateau_patience"})
+RESUMABLE_FIELDS = frozenset(
+    {
+        "train.iters",
+        "train.max_seconds",
+        "train.progress",
+        "train.eval_every",
+        "train.checkpoint_every",
+        "train.plateau_patience",
+    }
+)
 
 
 def config_diff(a: Config, b: Config) -> dict[str, tuple[Any, Any]]:

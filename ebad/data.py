@@ -5,6 +5,7 @@ poses (the capture's, pycolmap SfM, or a static camera), chooses V per frame, es
 contrast threshold, sums the events between virtual instants and computes the EDI latents.
 What it decided is the typed ``PrepareReport`` (written to ``metrics.json``).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -26,8 +27,21 @@ from .virtual_views import choose_num_views, event_counts, events_per_pixel
 if TYPE_CHECKING:
     from scenes import Capture, TestView
 
-__all__ = ["TrainingData", "PrepareReport", "PoseSourceUsed", "PoseTrust", "ContrastSource", "prepare", "downscale",
-           "focus_depth", "depth_range", "align_poses", "test_poses", "FOCUS_DEPTH_RANGE", "SPREAD_DEPTH_RANGE"]
+__all__ = [
+    "TrainingData",
+    "PrepareReport",
+    "PoseSourceUsed",
+    "PoseTrust",
+    "ContrastSource",
+    "prepare",
+    "downscale",
+    "focus_depth",
+    "depth_range",
+    "align_poses",
+    "test_poses",
+    "FOCUS_DEPTH_RANGE",
+    "SPREAD_DEPTH_RANGE",
+]
 
 # Intrinsics outside this horizontal/vertical field of view (degrees) are taken for a mistake
 # (focal length in the wrong unit, or of another image size): no scene can be seen through them.
@@ -84,19 +98,26 @@ class TrainingData:
     point_colors: Tensor | None = None  # [P, D]
     test_views: list[TestView] = field(default_factory=list)  # the capture's test views that carry an image
     test_c2w: dict[str, np.ndarray] = field(default_factory=dict)  # their poses in this run's frame, by name
-    events: EventStream | None = None  # the events of L_ev and of the views' latents (kept to count them again when V changes)
-    view_latents: list[Tensor | None] | None = None  # per frame [V, H, W, D] EDI latents at its virtual instants (loss.edi_instants views; None for a sharp frame), else None
+    events: EventStream | None = (
+        None  # the events of L_ev and of the views' latents (kept to count them again when V changes)
+    )
+    view_latents: list[Tensor | None] | None = (
+        None  # per frame [V, H, W, D] EDI latents at its virtual instants (loss.edi_instants views; None for a sharp frame), else None
+    )
 
     def set_views(self, V: np.ndarray) -> None:
         """New V per frame, in place: the event counts between the new virtual instants are
         counted again for the frames that have counts, and the report follows."""
         V = np.asarray(V, dtype=np.int64)
         if V.shape != self.V.shape or (V < 1).any() or ((V > 1) != (self.V > 1)).any():
-            raise ValueError(f"new V {V.tolist()} must keep each frame's sharp (1) or blurry (> 1) status "
-                             f"of {self.V.tolist()}")
+            raise ValueError(
+                f"new V {V.tolist()} must keep each frame's sharp (1) or blurry (> 1) status of {self.V.tolist()}"
+            )
         changed = np.flatnonzero(V != self.V)
-        needs_events = any(self.ev_counts[f] is not None or (self.view_latents is not None and self.view_latents[f] is not None)
-                           for f in changed)
+        needs_events = any(
+            self.ev_counts[f] is not None or (self.view_latents is not None and self.view_latents[f] is not None)
+            for f in changed
+        )
         if needs_events and self.events is None:
             raise ValueError("the event counts and latents cannot follow a new V: the data keep no events")
         counts = list(self.ev_counts)
@@ -148,15 +169,25 @@ def downscale(data: TrainingData, factor: int) -> TrainingData:
     K = data.K.clone()
     K[:2] /= factor
     return dataclasses.replace(
-        data, frames=_pool_hwd(data.frames, factor), targets=_pool_hwd(data.targets, factor),
-        latents=None if data.latents is None else _pool_hwd(data.latents, factor), K=K,
-        view_latents=None if data.view_latents is None else [None if v is None else _pool_hwd(v, factor)
-                                                             for v in data.view_latents],
-        ev_counts=[None if e is None else _pool(e, factor) for e in data.ev_counts])
+        data,
+        frames=_pool_hwd(data.frames, factor),
+        targets=_pool_hwd(data.targets, factor),
+        latents=None if data.latents is None else _pool_hwd(data.latents, factor),
+        K=K,
+        view_latents=None
+        if data.view_latents is None
+        else [None if v is None else _pool_hwd(v, factor) for v in data.view_latents],
+        ev_counts=[None if e is None else _pool(e, factor) for e in data.ev_counts],
+    )
 
 
-def _edi_at(frame: np.ndarray,  # [H, W, D] one blurry frame
-            exposure: np.ndarray, events: EventStream, c: tuple[float, float], times: list[float]) -> np.ndarray:
+def _edi_at(
+    frame: np.ndarray,  # [H, W, D] one blurry frame
+    exposure: np.ndarray,
+    events: EventStream,
+    c: tuple[float, float],
+    times: list[float],
+) -> np.ndarray:
     """EDI latents of one frame at ``times`` (seconds), in one pass: [len(times), H, W, D], in [0, 1]."""
     import edi
 
@@ -169,8 +200,13 @@ def _view_times(exposure: np.ndarray, V: int) -> list[float]:  # the V virtual i
     return (t0 + virtual_instants(V, dtype=torch.float64) * (t1 - t0)).tolist()
 
 
-def view_latents(frame: np.ndarray,  # [H, W, D] one blurry frame
-                 exposure: np.ndarray, events: EventStream, V: int, c: tuple[float, float]) -> Tensor:  # [V, H, W, D]
+def view_latents(
+    frame: np.ndarray,  # [H, W, D] one blurry frame
+    exposure: np.ndarray,
+    events: EventStream,
+    V: int,
+    c: tuple[float, float],
+) -> Tensor:  # [V, H, W, D]
     """EDI latents of one frame at its V virtual instants (``virtual_instants``), in [0, 1]."""
     return torch.from_numpy(_edi_at(frame, exposure, events, c, _view_times(exposure, V)))
 
@@ -192,12 +228,15 @@ def _check_capture(capture: Capture) -> None:
     H, W = capture.height, capture.width
     fov = np.degrees(2 * np.arctan2(np.array([W, H]) / 2.0, np.abs(np.array([K[0, 0], K[1, 1]]))))
     if not (np.all(np.isfinite(fov)) and np.all(fov > MIN_FOV_DEG) and np.all(fov < MAX_FOV_DEG)):
-        raise UserError(f"capture intrinsics: fx = {K[0, 0]:g}, fy = {K[1, 1]:g} give a field of view of "
-                        f"{fov[0]:.3g} x {fov[1]:.3g} degrees on {W} x {H} pixels, outside "
-                        f"({MIN_FOV_DEG:g}, {MAX_FOV_DEG:g}); the focal lengths are in pixels")
+        raise UserError(
+            f"capture intrinsics: fx = {K[0, 0]:g}, fy = {K[1, 1]:g} give a field of view of "
+            f"{fov[0]:.3g} x {fov[1]:.3g} degrees on {W} x {H} pixels, outside "
+            f"({MIN_FOV_DEG:g}, {MAX_FOV_DEG:g}); the focal lengths are in pixels"
+        )
     if not (0 <= K[0, 2] <= W and 0 <= K[1, 2] <= H):
-        raise UserError(f"capture intrinsics: principal point ({K[0, 2]:g}, {K[1, 2]:g}) lies outside the "
-                        f"{W} x {H} image")
+        raise UserError(
+            f"capture intrinsics: principal point ({K[0, 2]:g}, {K[1, 2]:g}) lies outside the {W} x {H} image"
+        )
 
 
 def _poses(capture: Capture, cfg: Config, idx: list[int]):
@@ -218,8 +257,10 @@ def _poses(capture: Capture, cfg: Config, idx: list[int]):
         raise SfMError(f"{exc} (for a camera that did not move, use --trajectory.pose_source static)") from exc
     keep = [i for i in idx if est.registered[i]]
     if len(keep) < 2:
-        raise SfMError(f"pycolmap registered only {len(keep)} training frame(s); cannot reconstruct "
-                       "(for a camera that did not move, use --trajectory.pose_source static)")
+        raise SfMError(
+            f"pycolmap registered only {len(keep)} training frame(s); cannot reconstruct "
+            "(for a camera that did not move, use --trajectory.pose_source static)"
+        )
     pts = torch.from_numpy(np.asarray(est.points, dtype=np.float32)) if len(est.points) else None
     cols = None
     if pts is not None:
@@ -232,18 +273,24 @@ def _poses(capture: Capture, cfg: Config, idx: list[int]):
     return np.asarray(est.c2w, dtype=np.float64)[keep], pts, cols, "colmap", keep, dict(est.test_c2w)
 
 
-def align_poses(ref_src: np.ndarray,  # [N, 4, 4] cameras in the frame the poses are in
-                ref_dst: np.ndarray,  # [N, 4, 4] the same cameras in the target frame
-                poses: np.ndarray  # [..., 4, 4]
-                ) -> np.ndarray:  # [..., 4, 4]
+def align_poses(
+    ref_src: np.ndarray,  # [N, 4, 4] cameras in the frame the poses are in
+    ref_dst: np.ndarray,  # [N, 4, 4] the same cameras in the target frame
+    poses: np.ndarray,  # [..., 4, 4]
+) -> np.ndarray:  # [..., 4, 4]
     """``poses`` moved into the target frame by the Sim(3) (Umeyama) that maps ``ref_src`` onto ``ref_dst``."""
     from scenes.colmap import align_similarity, apply_similarity
 
     return apply_similarity(poses, *align_similarity(ref_src, ref_dst))
 
 
-def test_poses(capture: Capture, pose_source: str, idx: list[int], c2w: np.ndarray,  # [F, 4, 4] the run's train poses
-               registered: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+def test_poses(
+    capture: Capture,
+    pose_source: str,
+    idx: list[int],
+    c2w: np.ndarray,  # [F, 4, 4] the run's train poses
+    registered: dict[str, np.ndarray],
+) -> dict[str, np.ndarray]:
     """The pose of every test view with an image, in the run's frame, by name: SfM's registration
     when there is one; else the capture's pose, as it is when the run uses the capture's poses, or
     moved by the Sim(3) between the capture's training poses and the run's (SfM) ones."""
@@ -260,8 +307,11 @@ def test_poses(capture: Capture, pose_source: str, idx: list[int], c2w: np.ndarr
     return out
 
 
-def depth_range(cfg: Config, c2w: np.ndarray,  # [F, 4, 4]
-                points: Tensor | None) -> tuple[float, float]:  # [P, 3]
+def depth_range(
+    cfg: Config,
+    c2w: np.ndarray,  # [F, 4, 4]
+    points: Tensor | None,
+) -> tuple[float, float]:  # [P, 3]
     """The depth range of the fallback initialisation: the config's, else the 5th-95th percentile
     of SfM point depths, else ``FOCUS_DEPTH_RANGE`` x the focus depth, else ``SPREAD_DEPTH_RANGE``
     x the camera-spread scale. (A synthetic scene's true depth range is never read.)"""
@@ -304,8 +354,10 @@ def prepare(capture: Capture, cfg: Config) -> TrainingData:
     idx = _train_indices(capture)
     c2w, points, point_colors, pose_src, idx, registered = _poses(capture, cfg, idx)
     if len(idx) < MIN_TRAIN_FRAMES:
-        raise UserError(f"the capture has {len(idx)} training frame(s) with a pose; a 3D scene needs at least "
-                        f"{MIN_TRAIN_FRAMES} (for one frame, 'ebad deblur' gives its sharp image)")
+        raise UserError(
+            f"the capture has {len(idx)} training frame(s) with a pose; a 3D scene needs at least "
+            f"{MIN_TRAIN_FRAMES} (for one frame, 'ebad deblur' gives its sharp image)"
+        )
     frames_np = np.asarray(capture.frames, dtype=np.float32)[idx]
     exposures = np.asarray(capture.exposures, dtype=np.float64)[idx]
     events = capture.events
@@ -324,14 +376,23 @@ def prepare(capture: Capture, cfg: Config) -> TrainingData:
             est = edi.estimate_c(frames_np, exposures, events, pair=True)
             c, c_source = (float(est[0]), float(est[1])), "edi.estimate_c"
 
-    V = choose_num_views(exposures, events if tc.adaptive_views else None, tc.num_views,
-                         tc.adaptive_views, tc.sharp_events_per_pixel)
+    V = choose_num_views(
+        exposures, events if tc.adaptive_views else None, tc.num_views, tc.adaptive_views, tc.sharp_events_per_pixel
+    )
     if tc.kind == "fixed":  # no motion model: one render per frame whatever the blur
         V[:] = 1
     report = PrepareReport(
-        pose_source=pose_src, pose_trust=capture.effective_pose_trust if pose_src == "capture" else (
-            "exact" if pose_src == "static" else "approximate"), train_frames=len(idx), channels=int(frames_np.shape[-1]), views=V.tolist(),
-        renders_per_pass=int(V.sum()), renders_without_skip=int(tc.num_views * len(V)), c=c, c_source=c_source,
+        pose_source=pose_src,
+        pose_trust=capture.effective_pose_trust
+        if pose_src == "capture"
+        else ("exact" if pose_src == "static" else "approximate"),
+        train_frames=len(idx),
+        channels=int(frames_np.shape[-1]),
+        views=V.tolist(),
+        renders_per_pass=int(V.sum()),
+        renders_without_skip=int(tc.num_views * len(V)),
+        c=c,
+        c_source=c_source,
         skipped="no events: L_ev and L_EDI off, EDI target = frames" if wants_events and not has_events else None,
         events_per_pixel=([round(float(v), 4) for v in events_per_pixel(events, exposures)] if has_events else None),
     )
@@ -354,15 +415,29 @@ def prepare(capture: Capture, cfg: Config) -> TrainingData:
         latents = torch.from_numpy(np.clip(np.stack(lat), 0, 1))  # mEDI's are not clipped yet
     frames_t = torch.from_numpy(frames_np)
     targets = latents if (lc.target == "edi" and latents is not None) else frames_t
-    ev = [event_counts(events, exposures[f], int(V[f])) if (use_events and lc.w_event > 0 and V[f] > 1) else None
-          for f in range(len(idx))]
+    ev = [
+        event_counts(events, exposures[f], int(V[f])) if (use_events and lc.w_event > 0 and V[f] > 1) else None
+        for f in range(len(idx))
+    ]
     d_range = depth_range(cfg, c2w, points)
     return TrainingData(
-        frames=frames_t, targets=targets, latents=latents if lc.w_edi > 0 else None,
-        exposures=exposures, names=[(capture.names[i] if capture.names else f"{i:04d}") for i in idx],
-        c2w=torch.from_numpy(c2w).float(), K=torch.from_numpy(np.asarray(capture.K, dtype=np.float32)),
-        V=V, ev_counts=ev, c=c, scale=scene_scale(c2w, d_range), depth_range=d_range, report=report,
-        points=points, point_colors=point_colors, test_views=[v for v in capture.test_views if v.image is not None],
+        frames=frames_t,
+        targets=targets,
+        latents=latents if lc.w_edi > 0 else None,
+        exposures=exposures,
+        names=[(capture.names[i] if capture.names else f"{i:04d}") for i in idx],
+        c2w=torch.from_numpy(c2w).float(),
+        K=torch.from_numpy(np.asarray(capture.K, dtype=np.float32)),
+        V=V,
+        ev_counts=ev,
+        c=c,
+        scale=scene_scale(c2w, d_range),
+        depth_range=d_range,
+        report=report,
+        points=points,
+        point_colors=point_colors,
+        test_views=[v for v in capture.test_views if v.image is not None],
         test_c2w=test_poses(capture, pose_src, idx, c2w, registered),
-        events=events if use_events and (lc.w_event > 0 or views is not None) else None, view_latents=views,
+        events=events if use_events and (lc.w_event > 0 or views is not None) else None,
+        view_latents=views,
     )

@@ -6,6 +6,7 @@ the reconstruction finds (a capture that cannot work, a run folder in the wrong 
 Capture, event and SfM errors come from ``scenes.CaptureError``, ``edi.EventError`` and
 ``scenes.colmap.SfMError``, all subclasses of ``EbadError``.
 """
+
 from __future__ import annotations
 
 from edi.errors import EbadError, EventError

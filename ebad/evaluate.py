@@ -16,6 +16,7 @@ The protocol (``evaluate``), as in BAD-Gaussians / EBAD-NeRF:
    The deblurred training frames (each rendered at its recovered mid-exposure pose) are scored
    against the sharp ground truth where it is given.
 """
+
 from __future__ import annotations
 
 import copy
@@ -35,16 +36,33 @@ from .scoring import ViewScores, score_frames, score_views, with_poses
 if TYPE_CHECKING:
     from scenes import Capture, SynthScene
 
-__all__ = ["refine_pose", "evaluate", "eval_poses", "sharp_capture", "score_frames", "score_views", "ViewScores",
-           "REFINE_TOL", "REFINE_WINDOW", "REFINE_LR"]
+__all__ = [
+    "refine_pose",
+    "evaluate",
+    "eval_poses",
+    "sharp_capture",
+    "score_frames",
+    "score_views",
+    "ViewScores",
+    "REFINE_TOL",
+    "REFINE_WINDOW",
+    "REFINE_LR",
+]
 
 REFINE_TOL = 1e-4  # refinement stops when the loss improved by less than this fraction ...
 REFINE_WINDOW = 20  # ... over this many steps
 REFINE_LR = 2e-3  # Adam step of the correction (radians; translation in units of the run's scene scale)
 
 
-def refine_pose(run: Run, c2w: np.ndarray, image: np.ndarray, iters: int = 300, lr: float = REFINE_LR,
-                tol: float = REFINE_TOL, window: int = REFINE_WINDOW) -> tuple[np.ndarray, int]:
+def refine_pose(
+    run: Run,
+    c2w: np.ndarray,
+    image: np.ndarray,
+    iters: int = 300,
+    lr: float = REFINE_LR,
+    tol: float = REFINE_TOL,
+    window: int = REFINE_WINDOW,
+) -> tuple[np.ndarray, int]:
     """Align one test camera [4, 4] to its image [H, W, D] with the Gaussians frozen.
 
     Returns the best pose seen and the steps taken (see the module docstring for the rule)."""
@@ -96,8 +114,14 @@ def eval_poses(run: Run, capture: Capture) -> tuple[dict[str, np.ndarray], dict[
     return poses, how
 
 
-def evaluate(run: Run, capture: Capture | None = None, refine: bool = False, gt_frames: np.ndarray | None = None,
-             refine_iters: int = 300, renders_to: Callable[[str, np.ndarray], None] | None = None) -> dict:
+def evaluate(
+    run: Run,
+    capture: Capture | None = None,
+    refine: bool = False,
+    gt_frames: np.ndarray | None = None,
+    refine_iters: int = 300,
+    renders_to: Callable[[str, np.ndarray], None] | None = None,
+) -> dict:
     """The protocol of the module docstring. Returns ``{"test": ViewScores, "test_refined":
     ViewScores, "deblurred": ViewScores}`` (those that apply), plus "poses" (how each test pose
     was found) and "refine_steps" (per view). ``renders_to(name, image)`` receives each test

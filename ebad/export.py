@@ -20,6 +20,7 @@
   ``timestamp tx ty tz qx qy qz qw``, camera-to-world, seconds on the capture's clock,
   Hamilton quaternion with the real part LAST (TUM's order, unlike the project's w-first).
 """
+
 from __future__ import annotations
 
 import json
@@ -34,9 +35,25 @@ from .gaussians import activate
 from .io import write_png16
 from .lie import quat_to_rotmat
 
-__all__ = ["srgb_encode", "srgb_decode", "to_display8", "write_render", "rotmat_to_quat",
-           "write_cameras_json", "read_cameras_json", "write_splat", "read_splat", "write_tum", "read_tum",
-           "exposure_samples", "write_exports", "CAMERAS_JSON", "SPLAT_FILE", "TUM_FILE", "SPLAT_BYTES"]
+__all__ = [
+    "srgb_encode",
+    "srgb_decode",
+    "to_display8",
+    "write_render",
+    "rotmat_to_quat",
+    "write_cameras_json",
+    "read_cameras_json",
+    "write_splat",
+    "read_splat",
+    "write_tum",
+    "read_tum",
+    "exposure_samples",
+    "write_exports",
+    "CAMERAS_JSON",
+    "SPLAT_FILE",
+    "TUM_FILE",
+    "SPLAT_BYTES",
+]
 
 CAMERAS_JSON = "cameras.json"
 SPLAT_FILE = "point_cloud.splat"
@@ -57,11 +74,11 @@ _TUM_SAMPLES = 9  # poses per exposure in the TUM file (the same sampling as tra
 
 # --------------------------------------------------------------------------- display images
 
+
 def srgb_encode(x: np.ndarray) -> np.ndarray:
     """Linear intensity [0, 1] -> sRGB-encoded [0, 1] (clipped first)."""
     x = np.clip(np.asarray(x, dtype=np.float64), 0.0, 1.0)
-    return np.where(x <= _SRGB_LINEAR_LIMIT, _SRGB_SLOPE * x,
-                    (1 + _SRGB_A) * np.power(x, 1 / _SRGB_GAMMA) - _SRGB_A)
+    return np.where(x <= _SRGB_LINEAR_LIMIT, _SRGB_SLOPE * x, (1 + _SRGB_A) * np.power(x, 1 / _SRGB_GAMMA) - _SRGB_A)
 
 
 def srgb_decode(y: np.ndarray) -> np.ndarray:
@@ -99,6 +116,7 @@ def write_render(path: str | Path, img: np.ndarray, bits: int = 8) -> Path:  # [
 
 # --------------------------------------------------------------------------- rotations
 
+
 def rotmat_to_quat(R: np.ndarray) -> np.ndarray:  # [..., 3, 3] -> [..., 4] (w, x, y, z), w >= 0
     """Unit quaternions (real part first, non-negative) of rotation matrices, by
     ``scipy.spatial.transform.Rotation`` (whose quaternions are (x, y, z, w))."""
@@ -124,18 +142,36 @@ def _check_poses(c2w: np.ndarray, name: str) -> np.ndarray:  # [C, 4, 4]
 
 # --------------------------------------------------------------------------- cameras.json
 
-def write_cameras_json(path: str | Path, names: list[str], c2w: np.ndarray,  # [C, 4, 4]
-                       K: np.ndarray, width: int, height: int) -> Path:  # K [3, 3] or [C, 3, 3]
+
+def write_cameras_json(
+    path: str | Path,
+    names: list[str],
+    c2w: np.ndarray,  # [C, 4, 4]
+    K: np.ndarray,
+    width: int,
+    height: int,
+) -> Path:  # K [3, 3] or [C, 3, 3]
     """The 3DGS ``cameras.json`` (see module docstring) for cameras ``c2w`` (OpenCV axes)."""
     c2w = _check_poses(c2w, "c2w")
     C = c2w.shape[0]
     K = np.broadcast_to(np.asarray(K, dtype=np.float64), (C, 3, 3))
     if len(names) != C:
         raise ValueError(f"names has {len(names)} entries for {C} cameras")
-    cams = [{"id": i, "img_name": str(names[i]), "width": int(width), "height": int(height),
-             "position": c2w[i, :3, 3].tolist(), "rotation": c2w[i, :3, :3].tolist(),
-             "fx": float(K[i, 0, 0]), "fy": float(K[i, 1, 1]), "cx": float(K[i, 0, 2]), "cy": float(K[i, 1, 2])}
-            for i in range(C)]
+    cams = [
+        {
+            "id": i,
+            "img_name": str(names[i]),
+            "width": int(width),
+            "height": int(height),
+            "position": c2w[i, :3, 3].tolist(),
+            "rotation": c2w[i, :3, :3].tolist(),
+            "fx": float(K[i, 0, 0]),
+            "fy": float(K[i, 1, 1]),
+            "cx": float(K[i, 0, 2]),
+            "cy": float(K[i, 1, 2]),
+        }
+        for i in range(C)
+    ]
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(cams, indent=1) + "\n")
@@ -165,14 +201,20 @@ def read_cameras_json(path: str | Path) -> dict:
         w, h = int(cam["width"]), int(cam["height"])
         names.append(str(cam["img_name"]))
         c2w.append(T)
-        K.append([[float(cam["fx"]), 0.0, float(cam.get("cx", w / 2))],
-                  [0.0, float(cam["fy"]), float(cam.get("cy", h / 2))], [0.0, 0.0, 1.0]])
+        K.append(
+            [
+                [float(cam["fx"]), 0.0, float(cam.get("cx", w / 2))],
+                [0.0, float(cam["fy"]), float(cam.get("cy", h / 2))],
+                [0.0, 0.0, 1.0],
+            ]
+        )
         W.append(w)
         H.append(h)
     return {"names": names, "c2w": np.stack(c2w), "K": np.asarray(K), "width": np.asarray(W), "height": np.asarray(H)}
 
 
 # --------------------------------------------------------------------------- .splat
+
 
 def write_splat(path: str | Path, params: dict[str, torch.Tensor]) -> Path:
     """The antimatter15 ``.splat`` file of a model's parameters (see module docstring)."""
@@ -206,12 +248,17 @@ def read_splat(path: str | Path) -> dict[str, np.ndarray]:
         raise UserError(f"{path}: size {len(blob)} is not a multiple of {SPLAT_BYTES} bytes (not a .splat file)")
     rec = np.frombuffer(blob, _SPLAT_DTYPE)
     q = (rec["rot"].astype(np.float64) - _QUAT_BYTE_SCALE) / _QUAT_BYTE_SCALE
-    return {"means": rec["position"].astype(np.float64), "scales": rec["scale"].astype(np.float64),
-            "colors": srgb_decode(rec["rgba"][:, :3] / 255.0), "opacities": rec["rgba"][:, 3] / 255.0,
-            "quats": q / np.maximum(np.linalg.norm(q, axis=1, keepdims=True), 1e-12)}
+    return {
+        "means": rec["position"].astype(np.float64),
+        "scales": rec["scale"].astype(np.float64),
+        "colors": srgb_decode(rec["rgba"][:, :3] / 255.0),
+        "opacities": rec["rgba"][:, 3] / 255.0,
+        "quats": q / np.maximum(np.linalg.norm(q, axis=1, keepdims=True), 1e-12),
+    }
 
 
 # --------------------------------------------------------------------------- TUM trajectories
+
 
 def write_tum(path: str | Path, times: np.ndarray, c2w: np.ndarray) -> Path:  # [M], [M, 4, 4]
     """TUM trajectory file (see module docstring), poses in the order given."""
@@ -222,8 +269,9 @@ def write_tum(path: str | Path, times: np.ndarray, c2w: np.ndarray) -> Path:  # 
     q = rotmat_to_quat(c2w[:, :3, :3])  # (w, x, y, z)
     t = c2w[:, :3, 3]
     lines = ["# timestamp tx ty tz qx qy qz qw  (camera-to-world, OpenCV camera axes, seconds)"]
-    lines += [" ".join(f"{v:.9f}" for v in (times[i], *t[i], q[i, 1], q[i, 2], q[i, 3], q[i, 0]))
-              for i in range(len(times))]
+    lines += [
+        " ".join(f"{v:.9f}" for v in (times[i], *t[i], q[i, 1], q[i, 2], q[i, 3], q[i, 0])) for i in range(len(times))
+    ]
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text("\n".join(lines) + "\n")
@@ -254,8 +302,11 @@ def read_tum(path: str | Path) -> tuple[np.ndarray, np.ndarray]:  # -> [M], [M, 
     return a[:, 0], c2w
 
 
-def exposure_samples(exposures: np.ndarray, poses: np.ndarray,  # [F, 2], [F, S, 4, 4]
-                     u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # [S] -> [F*S], [F*S, 4, 4]
+def exposure_samples(
+    exposures: np.ndarray,
+    poses: np.ndarray,  # [F, 2], [F, S, 4, 4]
+    u: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:  # [S] -> [F*S], [F*S, 4, 4]
     """Timestamps ``t_start + u (t_end - t_start)`` and poses of every sample, sorted by time."""
     ex = np.asarray(exposures, dtype=np.float64)
     t = ex[:, :1] + np.asarray(u, np.float64)[None] * (ex[:, 1:] - ex[:, :1])  # [F, S]
@@ -265,6 +316,7 @@ def exposure_samples(exposures: np.ndarray, poses: np.ndarray,  # [F, 2], [F, S,
 
 # --------------------------------------------------------------------------- run folder
 
+
 def write_exports(run, out: str | Path) -> list[Path]:
     """``cameras.json`` (training cameras at mid-exposure), ``point_cloud.splat`` and the TUM
     trajectories of a ``Run`` into the run folder ``out``."""
@@ -272,6 +324,8 @@ def write_exports(run, out: str | Path) -> list[Path]:
     mid = run.trajectories.mid_poses().numpy()
     poses, u = run.exposure_poses(_TUM_SAMPLES)
     times, flat = exposure_samples(run.exposures, poses, u)
-    return [write_cameras_json(out / CAMERAS_JSON, run.names, mid, run.K, run.width, run.height),
-            write_splat(out / SPLAT_FILE, run.params),
-            write_tum(out / TUM_FILE, times, flat)]
+    return [
+        write_cameras_json(out / CAMERAS_JSON, run.names, mid, run.K, run.width, run.height),
+        write_splat(out / SPLAT_FILE, run.params),
+        write_tum(out / TUM_FILE, times, flat),
+    ]

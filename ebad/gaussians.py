@@ -10,6 +10,7 @@ densification strategy can replace them together with their Adam state:
 - ``colors`` [N, D] spherical-harmonic DC coefficients: colour = 0.5 + SH_C0 * f_dc, clamped at 0
   (the 3DGS convention, so ``point_cloud.ply`` opens in splat viewers). D = 1 for grey scenes.
 """
+
 from __future__ import annotations
 
 import math
@@ -21,8 +22,18 @@ from torch import Tensor, nn
 
 from .lie import viewmat_from_c2w
 
-__all__ = ["SH_C0", "init_params", "points_from_frames", "plane_sweep_points", "knn_scale", "activate", "render",
-           "num_gaussians", "scene_scale", "normalise_quats_"]
+__all__ = [
+    "SH_C0",
+    "init_params",
+    "points_from_frames",
+    "plane_sweep_points",
+    "knn_scale",
+    "activate",
+    "render",
+    "num_gaussians",
+    "scene_scale",
+    "normalise_quats_",
+]
 
 SH_C0 = 0.28209479177387814
 
@@ -97,15 +108,14 @@ def points_from_frames(
     inv = rng.uniform(1 / far, 1 / near, n)
     z = 1 / inv
     Kinv = np.linalg.inv(K)
-    rays = (Kinv @ np.stack([px, py, np.ones(n)]))  # [3, n] camera space, z = 1
+    rays = Kinv @ np.stack([px, py, np.ones(n)])  # [3, n] camera space, z = 1
     pc = rays.T * z[:, None]
     R = c2w[f, :3, :3]
     t = c2w[f, :3, 3]
     pw = np.einsum("nij,nj->ni", R, pc) + t
     col = frames[f, np.clip(py.astype(int), 0, H - 1), np.clip(px.astype(int), 0, W - 1)]
     scales = scale_px * z / K[0, 0]
-    return (torch.from_numpy(pw).float(), torch.from_numpy(np.asarray(col)).float(),
-            torch.from_numpy(scales).float())
+    return (torch.from_numpy(pw).float(), torch.from_numpy(np.asarray(col)).float(), torch.from_numpy(scales).float())
 
 
 def scene_scale(c2w: np.ndarray, depth_range: tuple[float, float] | None = None) -> float:  # [F, 4, 4]
@@ -172,8 +182,18 @@ def render(
     D = a["colors"].shape[1]
     bg = torch.full((D,), float(background))
     viewmats = viewmat_from_c2w(c2w.float())
-    return splat_cpu.rasterize(a["means"], a["quats"], a["scales"], a["opacities"], a["colors"],
-                               viewmats, Ks, int(width), int(height), background=bg)
+    return splat_cpu.rasterize(
+        a["means"],
+        a["quats"],
+        a["scales"],
+        a["opacities"],
+        a["colors"],
+        viewmats,
+        Ks,
+        int(width),
+        int(height),
+        background=bg,
+    )
 
 
 def plane_sweep_points(
@@ -210,13 +230,13 @@ def plane_sweep_points(
     Kinv = torch.linalg.inv(K_t)
     depths = 1.0 / torch.linspace(1.0 / near, 1.0 / far, n_depths)
     ys, xs = torch.meshgrid(torch.arange(H) + 0.5, torch.arange(W) + 0.5, indexing="ij")
-    rays = (Kinv @ torch.stack([xs, ys, torch.ones_like(xs)]).reshape(3, -1))  # [3, HW], z = 1
+    rays = Kinv @ torch.stack([xs, ys, torch.ones_like(xs)]).reshape(3, -1)  # [3, HW], z = 1
     centres = c2w_t[:, :3, 3]
     all_pts, all_cols, all_w, all_z = [], [], [], []
     for f in range(F):
         dist = (centres - centres[f]).norm(dim=1)
         dist[f] = float("inf")
-        nb = torch.argsort(dist)[:min(neighbours, F - 1)]
+        nb = torch.argsort(dist)[: min(neighbours, F - 1)]
         costs = []
         for d in depths:
             pw = c2w_t[f, :3, :3] @ (rays * d) + c2w_t[f, :3, 3:]  # [3, HW]
@@ -226,8 +246,8 @@ def plane_sweep_points(
                 pc = R.T @ (pw - t)
                 uv = (K_t @ pc)[:2] / pc[2:].clamp_min(1e-6)
                 grid = torch.stack([uv[0] / W * 2 - 1, uv[1] / H * 2 - 1], -1).reshape(1, H, W, 2)
-                warped = tF.grid_sample(img[g:g + 1], grid, align_corners=False, padding_mode="border")
-                diff = (warped - img[f:f + 1]).abs().mean(1, keepdim=True)
+                warped = tF.grid_sample(img[g : g + 1], grid, align_corners=False, padding_mode="border")
+                diff = (warped - img[f : f + 1]).abs().mean(1, keepdim=True)
                 outside = ((grid.abs() > 1).any(-1) | (pc[2] <= 0).reshape(1, H, W))[:, None]
                 cost = cost + torch.where(outside, torch.full_like(diff, 0.25), diff)
             costs.append(tF.avg_pool2d(cost, patch, 1, patch // 2, count_include_pad=False))
@@ -235,7 +255,7 @@ def plane_sweep_points(
         best, arg = costs.min(0)
         conf = costs.mean(0) / best.clamp_min(1e-4)
         gy, gx = torch.gradient(img[f].mean(0))
-        contrast = (gx.abs() + gy.abs())
+        contrast = gx.abs() + gy.abs()
         z = depths[arg]  # [H, W]
         all_pts.append((c2w_t[f, :3, :3] @ (rays * z.reshape(1, -1)) + c2w_t[f, :3, 3:]).T)
         all_cols.append(img[f].reshape(D, -1).T)

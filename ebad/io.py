@@ -8,6 +8,7 @@ f_dc_2 opacity scale_0 scale_1 scale_2 rot_0 rot_1 rot_2 rot_3``, opacity as a l
 as logs, rotation (w, x, y, z). A grey model writes its single DC value into all three f_dc
 so viewers show grey, and records ``comment ebad channels 1`` so it reads back as grey.
 """
+
 from __future__ import annotations
 
 import json
@@ -25,8 +26,11 @@ __all__ = ["write_png16", "read_png16", "write_ply", "read_ply", "write_trajecto
 
 # --------------------------------------------------------------------------- PLY
 
-_PLY_FIELDS = (["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2", "opacity"]
-               + [f"scale_{i}" for i in range(3)] + [f"rot_{i}" for i in range(4)])
+_PLY_FIELDS = (
+    ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2", "opacity"]
+    + [f"scale_{i}" for i in range(3)]
+    + [f"rot_{i}" for i in range(4)]
+)
 
 
 def write_ply(path: str | Path, params: dict[str, torch.Tensor]) -> Path:
@@ -41,16 +45,19 @@ def write_ply(path: str | Path, params: dict[str, torch.Tensor]) -> Path:
         f_dc = colors
     else:
         raise ValueError(f"write_ply supports D = 1 or 3 colour channels, got {D}")
-    cols = [means, np.zeros((N, 3), np.float32), f_dc,
-            params["opacities"].detach().float().cpu().numpy()[:, None],
-            params["scales"].detach().float().cpu().numpy(),
-            params["quats"].detach().float().cpu().numpy()]
+    cols = [
+        means,
+        np.zeros((N, 3), np.float32),
+        f_dc,
+        params["opacities"].detach().float().cpu().numpy()[:, None],
+        params["scales"].detach().float().cpu().numpy(),
+        params["quats"].detach().float().cpu().numpy(),
+    ]
     data = np.concatenate(cols, axis=1).astype("<f4")
     vertex = np.empty(N, dtype=[(name, "<f4") for name in _PLY_FIELDS])
     for k, name in enumerate(_PLY_FIELDS):
         vertex[name] = data[:, k]
-    ply = PlyData([PlyElement.describe(vertex, "vertex")], text=False, byte_order="<",
-                  comments=[f"ebad channels {D}"])
+    ply = PlyData([PlyElement.describe(vertex, "vertex")], text=False, byte_order="<", comments=[f"ebad channels {D}"])
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     ply.write(str(path))
@@ -102,15 +109,22 @@ def read_ply(path: str | Path) -> dict[str, torch.Tensor]:
 
 # --------------------------------------------------------------------------- trajectories
 
-def write_trajectories(path: str | Path, names: list[str], exposures: np.ndarray,
-                       poses: np.ndarray, u: np.ndarray) -> Path:  # poses [F, S, 4, 4], u [S]
+
+def write_trajectories(
+    path: str | Path, names: list[str], exposures: np.ndarray, poses: np.ndarray, u: np.ndarray
+) -> Path:  # poses [F, S, 4, 4], u [S]
     """JSON: per frame its name, exposure and the camera-to-world pose at each sampled instant."""
     out = []
     for f, name in enumerate(names):
         t0, t1 = float(exposures[f, 0]), float(exposures[f, 1])
-        out.append({"name": name, "t_start": t0, "t_end": t1,
-                    "samples": [{"t": t0 + float(uu) * (t1 - t0), "c2w": poses[f, s].tolist()}
-                                for s, uu in enumerate(u)]})
+        out.append(
+            {
+                "name": name,
+                "t_start": t0,
+                "t_end": t1,
+                "samples": [{"t": t0 + float(uu) * (t1 - t0), "c2w": poses[f, s].tolist()} for s, uu in enumerate(u)],
+            }
+        )
     path = Path(path)
     path.write_text(json.dumps({"frames": out}, indent=1) + "\n")
     return path

@@ -8,6 +8,7 @@ elsewhere (see ``so3_log``). All have finite gradients at the
 identity; these wrappers only fix the shapes ebad uses ([..., 3] and [..., 3, 3] with any
 leading dimensions).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -19,11 +20,14 @@ from torch import Tensor
 __all__ = ["so3_exp", "so3_log", "compose_pose", "rigid_inverse", "viewmat_from_c2w", "quat_to_rotmat"]
 
 
-_GENERATORS = torch.tensor([  # [3, 9]: w -> the skew matrix [w]x, row-major
-    [0, 0, 0, 0, 0, -1, 0, 1, 0],
-    [0, 0, 1, 0, 0, 0, -1, 0, 0],
-    [0, -1, 0, 1, 0, 0, 0, 0, 0],
-], dtype=torch.float64)
+_GENERATORS = torch.tensor(
+    [  # [3, 9]: w -> the skew matrix [w]x, row-major
+        [0, 0, 0, 0, 0, -1, 0, 1, 0],
+        [0, 0, 1, 0, 0, 0, -1, 0, 0],
+        [0, -1, 0, 1, 0, 0, 0, 0, 0],
+    ],
+    dtype=torch.float64,
+)
 
 
 def so3_exp(w: Tensor) -> Tensor:  # [..., 3] -> [..., 3, 3]

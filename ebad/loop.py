@@ -7,6 +7,7 @@ three losses; ``train_step`` adds the backward, Adam and densification and retur
 (``ebad.data.prepare``), the state started before (``ebad.state.TrainState``), and
 ``ebad.run.reconstruct`` strings them together.
 """
+
 from __future__ import annotations
 
 import signal
@@ -33,8 +34,19 @@ from .strategy import RenderInfo, Strategy
 from .trajectory import virtual_instants
 from .virtual_views import path_lengths_px, random_window, views_from_blur, window_counts
 
-__all__ = ["StopReason", "FrameLosses", "frame_losses", "train_step", "train", "should_stop", "step_profile",
-           "coarse_data", "views_from_trajectories", "RASTER_FORWARD", "RASTER_BACKWARD"]
+__all__ = [
+    "StopReason",
+    "FrameLosses",
+    "frame_losses",
+    "train_step",
+    "train",
+    "should_stop",
+    "step_profile",
+    "coarse_data",
+    "views_from_trajectories",
+    "RASTER_FORWARD",
+    "RASTER_BACKWARD",
+]
 
 
 StopReason = Literal["iters", "time", "plateau", "interrupted (SIGINT)", "interrupted (SIGTERM)"]  # why train() stopped
@@ -82,26 +94,53 @@ def frame_losses(data: TrainingData, state: TrainState, f: int, cfg: Config) -> 
         else:
             counts, event_views = data.ev_counts[f], tuple(range(V))
     if state.response.learnable:
-        blur, edi, ev, mean_render = _losses_through_response(images, V, data.targets[f], edi_target, mid, counts,
-                                                              event_views, c, state.response, cfg)
+        blur, edi, ev, mean_render = _losses_through_response(
+            images, V, data.targets[f], edi_target, mid, counts, event_views, c, state.response, cfg
+        )
     else:  # the three losses in one autograd node (``losses.exposure_losses``)
-        blur, edi, ev, mean_render = exposure_losses(images, V, data.targets[f], edi_target, mid, counts, event_views,
-                                                     0.0 if c is None else c, lc.ssim_weight, lc.ssim_window,
-                                                     norm=lc.event_norm)
+        blur, edi, ev, mean_render = exposure_losses(
+            images,
+            V,
+            data.targets[f],
+            edi_target,
+            mid,
+            counts,
+            event_views,
+            0.0 if c is None else c,
+            lc.ssim_weight,
+            lc.ssim_window,
+            norm=lc.event_norm,
+        )
     total = lc.w_blur * blur
     if ev is not None:
         total = total + lc.w_event * ev
     if edi is not None:
         total = total + lc.w_edi * edi
     info = RenderInfo(means2d=meta.get("means2d"), radii=meta.get("radii"), width=data.width, height=data.height)
-    return FrameLosses(total=total, blur=blur, ev=ev, edi=edi, info=info, mean_render=mean_render,
-                       raster_timings=meta.get("timings", {}),
-                       timings={"poses": 1e3 * (t1 - t0), "losses": 1e3 * (time.perf_counter() - t2)})
+    return FrameLosses(
+        total=total,
+        blur=blur,
+        ev=ev,
+        edi=edi,
+        info=info,
+        mean_render=mean_render,
+        raster_timings=meta.get("timings", {}),
+        timings={"poses": 1e3 * (t1 - t0), "losses": 1e3 * (time.perf_counter() - t2)},
+    )
 
 
-def _losses_through_response(images: Tensor, V: int, blurry: Tensor, edi_target: Tensor | None, mid: int,
-                             counts: Tensor | None, event_views: tuple[int, ...], c, response: Response,
-                             cfg: Config) -> tuple[Tensor, Tensor | None, Tensor | None, Tensor]:
+def _losses_through_response(
+    images: Tensor,
+    V: int,
+    blurry: Tensor,
+    edi_target: Tensor | None,
+    mid: int,
+    counts: Tensor | None,
+    event_views: tuple[int, ...],
+    c,
+    response: Response,
+    cfg: Config,
+) -> tuple[Tensor, Tensor | None, Tensor | None, Tensor]:
     """``losses.exposure_losses`` with a learnt camera response, composed from torch operations:
     L_blur and L_EDI compare the response of the renders (``images`` [V', H, W, D], irradiance)
     with the recorded frame and latents, L_ev the renders themselves. -> L_blur, L_EDI, L_ev and
@@ -117,8 +156,15 @@ def _losses_through_response(images: Tensor, V: int, blurry: Tensor, edi_target:
     return blur, (edi[0] if edi else None), ev, recorded_blur.detach()[0]
 
 
-def train_step(data: TrainingData, state: TrainState, strategy: Strategy, f: int, cfg: Config,
-               elapsed: float = 0.0, phase: Phase | None = None) -> StepStats:
+def train_step(
+    data: TrainingData,
+    state: TrainState,
+    strategy: Strategy,
+    f: int,
+    cfg: Config,
+    elapsed: float = 0.0,
+    phase: Phase | None = None,
+) -> StepStats:
     """Forward, backward, Adam steps, densification of frame ``f``; advances ``state.step``.
     ``phase``: where the step stands in the run's ``Schedule`` (learning rates, whether opacity
     resets may fire); by default the config's schedule at ``state.step`` and ``elapsed`` seconds.
@@ -153,16 +199,29 @@ def train_step(data: TrainingData, state: TrainState, strategy: Strategy, f: int
     t5 = time.perf_counter()
     rt = out.raster_timings
     return StepStats(
-        step=state.step, frame=data.names[f], loss=float(out.total.detach()), blur=float(out.blur.detach()),
-        train_psnr=psnr(out.mean_render, data.targets[f]), gaussians=num_gaussians(state.params), time=elapsed,
-        ev=None if out.ev is None else float(out.ev.detach()), edi=None if out.edi is None else float(out.edi.detach()),
+        step=state.step,
+        frame=data.names[f],
+        loss=float(out.total.detach()),
+        blur=float(out.blur.detach()),
+        train_psnr=psnr(out.mean_render, data.targets[f]),
+        gaussians=num_gaussians(state.params),
+        time=elapsed,
+        ev=None if out.ev is None else float(out.ev.detach()),
+        edi=None if out.edi is None else float(out.edi.detach()),
         c=None if state.log_c is None or not state.log_c.requires_grad else torch.exp(state.log_c.detach()).tolist(),
-        refine=refine, width=data.width,
-        profile={"forward": 1e3 * (t1 - t0), "raster_forward": sum(rt.get(k, 0.0) for k in RASTER_FORWARD),
-                 "poses": out.timings["poses"], "losses": out.timings["losses"],
-                 "backward": 1e3 * (t3 - t2), "raster_backward": sum(rt.get(k, 0.0) for k in RASTER_BACKWARD),
-                 "adam": 1e3 * (t4 - t3), "densify": 1e3 * ((t2 - t1) + (t5 - t4)),
-                 "step": 1e3 * (time.perf_counter() - t0)},
+        refine=refine,
+        width=data.width,
+        profile={
+            "forward": 1e3 * (t1 - t0),
+            "raster_forward": sum(rt.get(k, 0.0) for k in RASTER_FORWARD),
+            "poses": out.timings["poses"],
+            "losses": out.timings["losses"],
+            "backward": 1e3 * (t3 - t2),
+            "raster_backward": sum(rt.get(k, 0.0) for k in RASTER_BACKWARD),
+            "adam": 1e3 * (t4 - t3),
+            "densify": 1e3 * ((t2 - t1) + (t5 - t4)),
+            "step": 1e3 * (time.perf_counter() - t0),
+        },
     )
 
 
@@ -188,7 +247,6 @@ def step_profile(history: Sequence[StepStats]) -> dict[str, float] | None:
     return mean
 
 
-
 def should_stop(history: Sequence[StepStats], elapsed: float, cfg: Config) -> Literal["time", "plateau"] | None:
     """'time' when the wall-time budget is spent, 'plateau' when the windowed loss stalled."""
     tc = cfg.train
@@ -198,10 +256,10 @@ def should_stop(history: Sequence[StepStats], elapsed: float, cfg: Config) -> Li
     if tc.plateau_patience > 0 and step > 0 and step % tc.plateau_every == 0:
         w = tc.plateau_every
         losses = [h.loss for h in history]
-        windows = [np.mean(losses[i:i + w]) for i in range(0, len(losses) - w + 1, w)]
+        windows = [np.mean(losses[i : i + w]) for i in range(0, len(losses) - w + 1, w)]
         if len(windows) > tc.plateau_patience:
-            best_before = min(windows[:-tc.plateau_patience])
-            recent = min(windows[-tc.plateau_patience:])
+            best_before = min(windows[: -tc.plateau_patience])
+            recent = min(windows[-tc.plateau_patience :])
             if recent > best_before * (1 - tc.plateau_tol):
                 return "plateau"
     return None
@@ -272,8 +330,9 @@ def views_from_trajectories(data: TrainingData, state: TrainState, cfg: Config) 
     return views_from_blur(lengths, data.V, cfg.trajectory.view_spacing, cfg.trajectory.max_views)
 
 
-def train(data: TrainingData, state: TrainState, strategy: Strategy, cfg: Config,
-          callbacks: Sequence[Callback] = ()) -> StopReason:
+def train(
+    data: TrainingData, state: TrainState, strategy: Strategy, cfg: Config, callbacks: Sequence[Callback] = ()
+) -> StopReason:
     """Steps until ``train.iters``, a stop rule or a signal; returns why it stopped:
     'iters', 'time', 'plateau' or 'interrupted (SIGINT)' / 'interrupted (SIGTERM)'.
 
@@ -286,8 +345,13 @@ def train(data: TrainingData, state: TrainState, strategy: Strategy, cfg: Config
     started = time.perf_counter() - state.elapsed
     reason: StopReason = "iters"
     coarse = coarse_data(data, cfg)
-    schedule = Schedule.from_config(cfg, data.scale, coarse=coarse is not None, choose_views=bool((data.V > 1).any()),
-                                    averaging="poses" in state.optimizers)
+    schedule = Schedule.from_config(
+        cfg,
+        data.scale,
+        coarse=coarse is not None,
+        choose_views=bool((data.V > 1).any()),
+        averaging="poses" in state.optimizers,
+    )
     views_pending = schedule.views_at is not None
     with _Interrupts() as interrupts, _torch_single_threaded():
         try:
@@ -317,4 +381,3 @@ def train(data: TrainingData, state: TrainState, strategy: Strategy, cfg: Config
             for cb in callbacks:
                 cb.on_end(state, reason)
     return reason
-

@@ -10,6 +10,7 @@ adjoints, one autograd node each way), chosen in one place, ``ebad.kernels.use_k
 ``ebad.kernels.torch_reference()`` the torch code below runs everywhere (the kernels' tests
 compare both).
 """
+
 from __future__ import annotations
 
 import typing
@@ -21,12 +22,23 @@ from kornia.metrics import ssim as _kornia_ssim
 
 from edi import LOG_EPS
 
-from .config import EventNorm  # the norm of the L_ev residual: l1, mean |r| (ebad's default), or l2, mean r^2 (the paper's)
+from .config import (
+    EventNorm,
+)  # the norm of the L_ev residual: l1, mean |r| (ebad's default), or l2, mean r^2 (the paper's)
 from .kernels import LUMA, use_kernels
 
-__all__ = ["luminance", "ssim_map", "ssim_map_kornia", "l1_ssim", "l1_ssim_each", "blur_loss", "exposure_losses",
-           "event_loss", "edi_loss", "LUMA"]
-
+__all__ = [
+    "luminance",
+    "ssim_map",
+    "ssim_map_kornia",
+    "l1_ssim",
+    "l1_ssim_each",
+    "blur_loss",
+    "exposure_losses",
+    "event_loss",
+    "edi_loss",
+    "LUMA",
+]
 
 
 def _bhwd(x: Tensor, name: str) -> Tensor:
@@ -127,19 +139,25 @@ def _l1_ssim_torch(pred: Tensor, target: Tensor, w: float, win: int) -> Tensor: 
     return (1 - w) * (pred - target).abs().mean() + w * (1 - _ssim_kornia(pred, target, win).mean())
 
 
-def blur_loss(renders: Tensor,  # [V, H, W, D]
-              blurry: Tensor,  # [H, W, D]
-              ssim_weight: float = 0.2, window: int = 7) -> Tensor:
+def blur_loss(
+    renders: Tensor,  # [V, H, W, D]
+    blurry: Tensor,  # [H, W, D]
+    ssim_weight: float = 0.2,
+    window: int = 7,
+) -> Tensor:
     """L_blur: the mean of the V virtual renders against the blurry frame."""
     if renders.ndim != 4:
         raise ValueError(f"renders must be [V, H, W, D], got {tuple(renders.shape)}")
     return l1_ssim(renders.mean(0), blurry, ssim_weight, window)
 
 
-def event_loss(renders: Tensor,  # [V, H, W, D]
-               counts: Tensor,  # [V - 1, 2, H, W] ON and OFF event counts
-               c: float | tuple[float, float] | Tensor, eps: float | None = None,
-               norm: EventNorm = "l1") -> Tensor:
+def event_loss(
+    renders: Tensor,  # [V, H, W, D]
+    counts: Tensor,  # [V - 1, 2, H, W] ON and OFF event counts
+    c: float | tuple[float, float] | Tensor,
+    eps: float | None = None,
+    norm: EventNorm = "l1",
+) -> Tensor:
     """L_ev: the mean over pixels and consecutive instants of |r| (``norm="l1"``) or r^2 (``"l2"``),
     r = log L(t_{k+1}) - log L(t_k) - (c_pos N_on,k - c_neg N_off,k).
 
@@ -152,8 +170,9 @@ def event_loss(renders: Tensor,  # [V, H, W, D]
         raise ValueError(f"norm must be one of {typing.get_args(EventNorm)}, got {norm!r}")
     V = renders.shape[0]
     if counts.shape != (V - 1, 2) + tuple(renders.shape[1:3]):
-        raise ValueError(f"counts must be [V - 1, 2, H, W] = {(V - 1, 2) + tuple(renders.shape[1:3])}, "
-                         f"got {tuple(counts.shape)}")
+        raise ValueError(
+            f"counts must be [V - 1, 2, H, W] = {(V - 1, 2) + tuple(renders.shape[1:3])}, got {tuple(counts.shape)}"
+        )
     if V < 2:
         return renders.sum() * 0.0
     eps = LOG_EPS if eps is None else eps
@@ -171,9 +190,12 @@ def event_loss(renders: Tensor,  # [V, H, W, D]
     return r.abs().mean() if norm == "l1" else r.square().mean()
 
 
-def edi_loss(renders: Tensor,  # [H, W, D] or [V, H, W, D]
-             latents: Tensor,  # the same shape
-             ssim_weight: float = 0.2, window: int = 7) -> Tensor:
+def edi_loss(
+    renders: Tensor,  # [H, W, D] or [V, H, W, D]
+    latents: Tensor,  # the same shape
+    ssim_weight: float = 0.2,
+    window: int = 7,
+) -> Tensor:
     """L_EDI: renders against the EDI latents of the frame at the same instants (the mid-exposure
     render and latent, or every virtual view's), averaged over them."""
     return l1_ssim(renders, latents, ssim_weight, window)
@@ -221,8 +243,10 @@ def exposure_losses(
     event_views = tuple(int(i) for i in event_views)
     if len(event_views) >= 2:
         if counts is None or tuple(counts.shape) != (len(event_views) - 1, 2, H, W):
-            raise ValueError(f"counts must be [E - 1, 2, H, W] = {(len(event_views) - 1, 2, H, W)}, "
-                             f"got {None if counts is None else tuple(counts.shape)}")
+            raise ValueError(
+                f"counts must be [E - 1, 2, H, W] = {(len(event_views) - 1, 2, H, W)}, "
+                f"got {None if counts is None else tuple(counts.shape)}"
+            )
         if len(set(event_views)) != len(event_views) or not all(0 <= i < Vp for i in event_views):
             raise ValueError(f"event_views must be distinct indices of the {Vp} renders, got {event_views}")
     if norm not in typing.get_args(EventNorm):
@@ -233,8 +257,9 @@ def exposure_losses(
     if use_kernels(images, blurry, latents, counts, cc):
         from .kernels import losses as fast
 
-        return fast.exposure_losses(images, V, blurry, latents, mid, counts, event_views, cc[0], cc[-1], win,
-                                    ssim_weight, eps, norm == "l2")
+        return fast.exposure_losses(
+            images, V, blurry, latents, mid, counts, event_views, cc[0], cc[-1], win, ssim_weight, eps, norm == "l2"
+        )
     blur = blur_loss(images[:V], blurry, ssim_weight, window)
     edi = None if latents is None else edi_loss(images[:V] if views else images[mid], latents, ssim_weight, window)
     ev = event_loss(images[list(event_views)], counts, cc, eps, norm) if len(event_views) >= 2 else None

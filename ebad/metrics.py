@@ -1,4 +1,5 @@
 """Image quality metrics for evaluation (numpy or torch in, floats out)."""
+
 from __future__ import annotations
 
 import numpy as np

@@ -11,6 +11,7 @@ Convention: LPIPS was trained on display-referred (sRGB) photographs in [-1, 1],
 linear images are sRGB-encoded first and a grey image is repeated into three channels (the
 network needs RGB).
 """
+
 from __future__ import annotations
 
 from functools import lru_cache
@@ -24,8 +25,11 @@ from .errors import UserError
 __all__ = ["lpips_or_none", "lpips_status", "BACKBONE_FILES"]
 
 # torchvision's ImageNet checkpoints that lpips.LPIPS(net=...) loads
-BACKBONE_FILES = {"alex": "alexnet-owt-7be5be79.pth", "vgg": "vgg16-397923af.pth",
-                  "squeeze": "squeezenet1_1-b8a52dc0.pth"}
+BACKBONE_FILES = {
+    "alex": "alexnet-owt-7be5be79.pth",
+    "vgg": "vgg16-397923af.pth",
+    "squeeze": "squeezenet1_1-b8a52dc0.pth",
+}
 INSTALL_LPIPS = "pip install lpips torchvision"
 
 
@@ -47,9 +51,11 @@ def lpips_status(net: str = "alex") -> str | None:
         return f"LPIPS absent: lpips needs torchvision for its {net} backbone ({INSTALL_LPIPS})"
     ckpt = Path(torch.hub.get_dir()) / "checkpoints" / BACKBONE_FILES[net]
     if not ckpt.is_file():
-        return (f"LPIPS absent: the {net} backbone weights are not in the local cache ({ckpt}); the lpips "
-                "package ships only its linear heads and torchvision downloads the backbone on first use, "
-                "which needs the network once")
+        return (
+            f"LPIPS absent: the {net} backbone weights are not in the local cache ({ckpt}); the lpips "
+            "package ships only its linear heads and torchvision downloads the backbone on first use, "
+            "which needs the network once"
+        )
     return None
 
 

@@ -10,6 +10,7 @@ sees: test views, deblurred frames); L_ev works on the log of the irradiance its
   gamma learnt with the scene, starting at the identity (b = 0, g = 1, gamma = 1). Monotone in E
   by construction; ``min(., 1)`` saturates bright parts as a sensor does.
 """
+
 from __future__ import annotations
 
 import torch
@@ -40,8 +41,11 @@ class Response(nn.Module):
     def values(self) -> dict[str, float]:
         """The curve's black level, gain and exponent."""
         b, g, k = self.raw.detach().tolist()
-        return {"black": MAX_BLACK * float(torch.sigmoid(torch.tensor(b))), "gain": float(torch.exp(torch.tensor(g))),
-                "gamma": float(torch.exp(torch.tensor(k)))}
+        return {
+            "black": MAX_BLACK * float(torch.sigmoid(torch.tensor(b))),
+            "gain": float(torch.exp(torch.tensor(g))),
+            "gamma": float(torch.exp(torch.tensor(k))),
+        }
 
     def forward(self, irradiance: Tensor) -> Tensor:  # [..., D] -> [..., D]
         if self.kind == "linear":

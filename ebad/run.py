@@ -5,6 +5,7 @@
 ``ebad.callbacks``) and returns a ``Run``, which renders novel views. ``warm_up`` compiles
 numba's kernels before a timed comparison.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -114,8 +115,9 @@ class Run:
         return int(self.params["colors"].shape[1])
 
     @torch.no_grad()
-    def render(self, c2w, K=None, width: int | None = None, height: int | None = None,
-               batch: int = 8) -> np.ndarray:  # [4, 4] -> [H, W, D]; [C, 4, 4] -> [C, H, W, D]
+    def render(
+        self, c2w, K=None, width: int | None = None, height: int | None = None, batch: int = 8
+    ) -> np.ndarray:  # [4, 4] -> [H, W, D]; [C, 4, 4] -> [C, H, W, D]
         """Render novel views (numpy float32 in [0, 1]); K, width, height default to the capture's."""
         c2w_t = torch.as_tensor(np.asarray(c2w), dtype=torch.float32)
         single = c2w_t.ndim == 2
@@ -129,8 +131,16 @@ class Run:
         H = int(self.height if height is None else height)
         if W <= 0 or H <= 0:
             raise ValueError(f"width and height must be positive, got {W} x {H}")
-        res = render_images(self.params, c2w_t, self.K if K is None else K, W, H, self.config.model.background, batch,
-                            response=self.response)
+        res = render_images(
+            self.params,
+            c2w_t,
+            self.K if K is None else K,
+            W,
+            H,
+            self.config.model.background,
+            batch,
+            response=self.response,
+        )
         return res[0] if single else res
 
     @torch.no_grad()
@@ -155,9 +165,15 @@ def _resolve(config: Config | str | None) -> Config:
     return config.check()
 
 
-def reconstruct(capture: Capture, config: Config | str | None = None, out_dir: str | Path | None = None,
-                resume: bool = False, gt_views: Sequence[TestView] | None = None,
-                on_step: Callable[[int, StepStats], None] | None = None, callbacks: Sequence[Callback] = ()) -> Run:
+def reconstruct(
+    capture: Capture,
+    config: Config | str | None = None,
+    out_dir: str | Path | None = None,
+    resume: bool = False,
+    gt_views: Sequence[TestView] | None = None,
+    on_step: Callable[[int, StepStats], None] | None = None,
+    callbacks: Sequence[Callback] = (),
+) -> Run:
     """Recover Gaussians and per-exposure trajectories from ``capture``.
 
     Args:
@@ -207,17 +223,39 @@ def reconstruct(capture: Capture, config: Config | str | None = None, out_dir: s
     if mean is not None:  # the checkpoint keeps the last step's knots and the sum, to resume from
         with torch.no_grad():
             state.trajectories.knots.copy_(mean)
-    run = Run(params=state.params, trajectories=state.trajectories, config=cfg, K=data.K.double().numpy(),
-              width=data.width, height=data.height, names=data.names, exposures=data.exposures, V=data.V,
-              pose_source=data.report.pose_source, test_c2w=data.test_c2w, response=state.response,
-              history=state.history, step=state.step)
+    run = Run(
+        params=state.params,
+        trajectories=state.trajectories,
+        config=cfg,
+        K=data.K.double().numpy(),
+        width=data.width,
+        height=data.height,
+        names=data.names,
+        exposures=data.exposures,
+        V=data.V,
+        pose_source=data.report.pose_source,
+        test_c2w=data.test_c2w,
+        response=state.response,
+        history=state.history,
+        step=state.step,
+    )
     data.report.anchored_mid_poses = state.trajectories.anchored
     run.metrics = RunMetrics(
-        preset=cfg.name, steps=state.step, stop_reason=stop_reason, complete=not stop_reason.startswith("interrupted"),
-        train_seconds=state.elapsed, prepare_seconds=prep_s, gaussians=run.num_gaussians,
-        final_loss=state.history[-1].loss if state.history else None, test=evaluator.final(state),
-        test_initial=init_eval, prepare=data.report, anchored_mid_poses=state.trajectories.anchored,
-        c_final=None if state.log_c is None else torch.exp(state.log_c.detach()).tolist(), resumed_from=resumed_from,
-        response=state.response.values() if state.response.learnable else None, averaged_steps=state.knots_count,
+        preset=cfg.name,
+        steps=state.step,
+        stop_reason=stop_reason,
+        complete=not stop_reason.startswith("interrupted"),
+        train_seconds=state.elapsed,
+        prepare_seconds=prep_s,
+        gaussians=run.num_gaussians,
+        final_loss=state.history[-1].loss if state.history else None,
+        test=evaluator.final(state),
+        test_initial=init_eval,
+        prepare=data.report,
+        anchored_mid_poses=state.trajectories.anchored,
+        c_final=None if state.log_c is None else torch.exp(state.log_c.detach()).tolist(),
+        resumed_from=resumed_from,
+        response=state.response.values() if state.response.learnable else None,
+        averaged_steps=state.knots_count,
     )
     return run

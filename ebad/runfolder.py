@@ -21,6 +21,7 @@ half-written file under a final name; ``metrics.json`` is written after every ot
 folder without it (or with ``"complete": false``) is an unfinished run, which ``load_run``
 refuses with the command that resumes it.
 """
+
 from __future__ import annotations
 
 import json
@@ -107,13 +108,17 @@ class RunLock:
             except FileExistsError:
                 holder = self._holder()
                 if holder is not None and holder[1] == socket.gethostname() and not _alive(holder[0]):
-                    self.say(f"ebad: taking over the lock of {self.path.parent} left by process {holder[0]}, "
-                             "which no longer runs")
+                    self.say(
+                        f"ebad: taking over the lock of {self.path.parent} left by process {holder[0]}, "
+                        "which no longer runs"
+                    )
                     self.path.unlink(missing_ok=True)
                     continue
                 who = f"process {holder[0]} on {holder[1]}" if holder else "another process"
-                raise UserError(f"{self.path.parent} is in use by {who} (lock file {self.path}); wait for it to "
-                                "finish or choose another --out")
+                raise UserError(
+                    f"{self.path.parent} is in use by {who} (lock file {self.path}); wait for it to "
+                    "finish or choose another --out"
+                )
             with os.fdopen(fd, "w") as fh:
                 fh.write(me)
             self.held = True
@@ -153,13 +158,24 @@ def write_run(run: Run, out: str | Path, gt_trajectories: np.ndarray | None = No
     write_text_atomic(out / "history.json", json.dumps(json_safe([h.to_dict() for h in run.history])) + "\n")
     with atomic_path(out / "point_cloud.ply") as tmp:
         write_ply(tmp, run.params)
-    model = {"K": run.K.tolist(), "width": run.width, "height": run.height, "names": run.names,
-             "exposures": run.exposures.tolist(), "views": run.V.tolist(), "kind": run.trajectories.kind,
-             "anchored": run.trajectories.anchored, "scale": run.trajectories.scale,
-             "c2w_mid": run.trajectories.c2w_mid.tolist(), "knots": run.trajectories.knots.detach().tolist(),
-             "moving": run.trajectories.moving.tolist(), "channels": run.channels, "pose_source": run.pose_source,
-             "test_c2w": {k: np.asarray(v).tolist() for k, v in run.test_c2w.items()},
-             "response": {"kind": run.response.kind, "raw": run.response.raw.detach().tolist()}}
+    model = {
+        "K": run.K.tolist(),
+        "width": run.width,
+        "height": run.height,
+        "names": run.names,
+        "exposures": run.exposures.tolist(),
+        "views": run.V.tolist(),
+        "kind": run.trajectories.kind,
+        "anchored": run.trajectories.anchored,
+        "scale": run.trajectories.scale,
+        "c2w_mid": run.trajectories.c2w_mid.tolist(),
+        "knots": run.trajectories.knots.detach().tolist(),
+        "moving": run.trajectories.moving.tolist(),
+        "channels": run.channels,
+        "pose_source": run.pose_source,
+        "test_c2w": {k: np.asarray(v).tolist() for k, v in run.test_c2w.items()},
+        "response": {"kind": run.response.kind, "raw": run.response.raw.detach().tolist()},
+    }
     write_text_atomic(out / "model.json", json.dumps(model) + "\n")
     poses, u = run.exposure_poses()
     with atomic_path(out / "trajectories.json") as tmp:
@@ -181,8 +197,11 @@ def load_run(path: str | Path) -> Run:
         raise UserError(f"{path} is not a run folder (run 'ebad reconstruct CAPTURE --out {path}' first)")
     metrics_path = path / "metrics.json"
     if not metrics_path.exists() or not json.loads(metrics_path.read_text()).get("complete", False):
-        hint = (f"resume it with 'ebad reconstruct CAPTURE --out {path} --resume'"
-                if (path / "checkpoints" / "last.pt").exists() else f"run 'ebad reconstruct CAPTURE --out {path}'")
+        hint = (
+            f"resume it with 'ebad reconstruct CAPTURE --out {path} --resume'"
+            if (path / "checkpoints" / "last.pt").exists()
+            else f"run 'ebad reconstruct CAPTURE --out {path}'"
+        )
         raise UserError(f"{path} holds an unfinished run: {hint}")
     for name in ("config.json", "model.json", "point_cloud.ply"):
         if not (path / name).exists():
@@ -191,9 +210,14 @@ def load_run(path: str | Path) -> Run:
     model = json.loads((path / "model.json").read_text())
     params = {k: nn.Parameter(v) for k, v in read_ply(path / "point_cloud.ply").items()}
     if params["colors"].shape[1] != model["channels"]:
-        params["colors"] = nn.Parameter(params["colors"][:, :model["channels"]].contiguous())
-    traj = ExposureTrajectories(torch.tensor(model["c2w_mid"]), model["kind"], torch.tensor(model["moving"]),
-                                scale=model["scale"], anchored=model["anchored"])
+        params["colors"] = nn.Parameter(params["colors"][:, : model["channels"]].contiguous())
+    traj = ExposureTrajectories(
+        torch.tensor(model["c2w_mid"]),
+        model["kind"],
+        torch.tensor(model["moving"]),
+        scale=model["scale"],
+        anchored=model["anchored"],
+    )
     with torch.no_grad():
         traj.knots.data = torch.tensor(model["knots"]).reshape(traj.knots.shape)
     response = Response(model["response"]["kind"])
@@ -203,8 +227,19 @@ def load_run(path: str | Path) -> Run:
         metrics = RunMetrics.from_dict(json.loads(metrics_path.read_text()))
     except (TypeError, KeyError, ValueError) as exc:
         raise UserError(f"{metrics_path}: not the metrics of a run of this version ({exc})") from exc
-    return Run(params=params, trajectories=traj, config=cfg, K=np.array(model["K"]), width=model["width"],
-               height=model["height"], names=model["names"], exposures=np.array(model["exposures"]),
-               V=np.array(model["views"]), pose_source=model["pose_source"],
-               test_c2w={k: np.array(v) for k, v in model["test_c2w"].items()}, response=response, metrics=metrics,
-               step=metrics.steps)
+    return Run(
+        params=params,
+        trajectories=traj,
+        config=cfg,
+        K=np.array(model["K"]),
+        width=model["width"],
+        height=model["height"],
+        names=model["names"],
+        exposures=np.array(model["exposures"]),
+        V=np.array(model["views"]),
+        pose_source=model["pose_source"],
+        test_c2w={k: np.array(v) for k, v in model["test_c2w"].items()},
+        response=response,
+        metrics=metrics,
+        step=metrics.steps,
+    )

@@ -18,6 +18,7 @@ run is a function of that number, read from one ``Schedule``:
 
 ``Schedule.at(step, elapsed)`` gives the ``Phase`` of one step: all of the above, decided.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -56,20 +57,24 @@ class Schedule:
     lr_poses_final: float
 
     @classmethod
-    def from_config(cls, cfg: Config, scale: float, coarse: bool = True, choose_views: bool = True,
-                    averaging: bool = True) -> "Schedule":
+    def from_config(
+        cls, cfg: Config, scale: float, coarse: bool = True, choose_views: bool = True, averaging: bool = True
+    ) -> "Schedule":
         """The schedule of ``cfg`` for a scene of ``scale``. ``coarse``: a coarse problem exists
         (frames large enough, ``ebad.loop.coarse_data``); ``choose_views``: some frame is blurry;
         ``averaging``: the knots are optimised."""
         tc, tj = cfg.train, cfg.trajectory
         return cls(
-            iters=tc.iters, max_seconds=tc.max_seconds,
+            iters=tc.iters,
+            max_seconds=tc.max_seconds,
             coarse_until=tc.coarse_until if coarse else 0.0,
             views_at=tc.coarse_until if choose_views and tj.view_spacing > 0 else None,
             reset_until=cfg.strategy.reset_until,
             average_from=tj.average_from if averaging and tj.average_from < 1 else None,
-            lr_means=tc.lr_means * scale, lr_means_final=tc.lr_means_final,
-            lr_poses=tj.lr, lr_poses_final=tj.lr_final,
+            lr_means=tc.lr_means * scale,
+            lr_means_final=tc.lr_means_final,
+            lr_poses=tj.lr,
+            lr_poses_final=tj.lr_final,
         )
 
     def fraction(self, step: int, elapsed: float) -> float:
@@ -84,9 +89,11 @@ class Schedule:
         ``averaging``, of the step that ended there)."""
         frac = self.fraction(step, elapsed)
         return Phase(
-            fraction=frac, coarse=frac < self.coarse_until,
+            fraction=frac,
+            coarse=frac < self.coarse_until,
             views_due=self.views_at is not None and frac >= self.views_at,
             resets=frac < self.reset_until,
             averaging=self.average_from is not None and frac >= self.average_from,
-            lr_means=self.lr_means * self.lr_means_final ** frac, lr_poses=self.lr_poses * self.lr_poses_final ** frac,
+            lr_means=self.lr_means * self.lr_means_final**frac,
+            lr_poses=self.lr_poses * self.lr_poses_final**frac,
         )

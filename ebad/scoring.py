@@ -5,6 +5,7 @@
 ``score_frames`` give PSNR / SSIM (``ebad.metrics``) as ``ViewScores``; ``with_poses`` and
 ``evaluate_views`` pick the views that carry an image and a pose and score them.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -21,8 +22,15 @@ from .metrics import psnr, ssim
 if TYPE_CHECKING:
     from scenes import TestView
 
-__all__ = ["ViewScores", "render_images", "score_views", "score_frames", "with_poses", "scorable_views",
-           "evaluate_views"]
+__all__ = [
+    "ViewScores",
+    "render_images",
+    "score_views",
+    "score_frames",
+    "with_poses",
+    "scorable_views",
+    "evaluate_views",
+]
 
 
 @dataclass
@@ -35,8 +43,16 @@ class ViewScores:
     per_view: dict[str, dict[str, float]] = field(default_factory=dict)
 
 
-def render_images(params: dict[str, Tensor], c2w, K, width: int, height: int, background: float = 0.0,
-                  batch: int = 8, response: Callable[[Tensor], Tensor] | None = None) -> np.ndarray:
+def render_images(
+    params: dict[str, Tensor],
+    c2w,
+    K,
+    width: int,
+    height: int,
+    background: float = 0.0,
+    batch: int = 8,
+    response: Callable[[Tensor], Tensor] | None = None,
+) -> np.ndarray:
     """Render ``C`` views [C, 4, 4] in batches, without gradients, through the camera ``response``
     when given, clamped to [0, 1] -> [C, H, W, D] numpy float32."""
     c2w_t = torch.as_tensor(np.asarray(c2w), dtype=torch.float32)
@@ -44,17 +60,23 @@ def render_images(params: dict[str, Tensor], c2w, K, width: int, height: int, ba
     out = []
     with torch.no_grad():
         for i in range(0, c2w_t.shape[0], batch):
-            img, _, _ = render(params, c2w_t[i:i + batch], K_t, width, height, background)
+            img, _, _ = render(params, c2w_t[i : i + batch], K_t, width, height, background)
             out.append((img if response is None else response(img)).clamp(0, 1))
     return torch.cat(out).numpy()
 
 
-def score_views(images: np.ndarray,  # [C, H, W, D]
-                views: Sequence[TestView]) -> ViewScores:
+def score_views(
+    images: np.ndarray,  # [C, H, W, D]
+    views: Sequence[TestView],
+) -> ViewScores:
     """PSNR / SSIM of rendered images against the views' images (each view's ``image``, by ``name``)."""
     per = {v.name: {"psnr": psnr(images[i], v.image), "ssim": ssim(images[i], v.image)} for i, v in enumerate(views)}
-    return ViewScores(psnr=float(np.mean([p["psnr"] for p in per.values()])),
-                      ssim=float(np.mean([p["ssim"] for p in per.values()])), n=len(views), per_view=per)
+    return ViewScores(
+        psnr=float(np.mean([p["psnr"] for p in per.values()])),
+        ssim=float(np.mean([p["ssim"] for p in per.values()])),
+        n=len(views),
+        per_view=per,
+    )
 
 
 def score_frames(images: np.ndarray, truth: np.ndarray) -> ViewScores:  # [F, H, W, D] x2

@@ -7,6 +7,7 @@ starts a run from ``TrainingData``; ``save(path)`` writes a checkpoint atomicall
 ``TrainState.load(path, data, cfg)`` restores it so that the next step is the step the saved
 run would have taken (tested: save, load, one step equals one step without the round trip).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -32,10 +33,19 @@ from .trajectory import ExposureTrajectories
 if TYPE_CHECKING:
     from scenes import Capture
 
-__all__ = ["StepStats", "TrainState", "init_gaussians", "make_optimizers", "max_gaussians", "capture_fingerprint",
-           "read_checkpoint",
-           "fingerprint_diff",
-           "AUTO_CAP_PER_PIXEL", "AUTO_CAP_RANGE", "CHECKPOINT_FORMAT"]
+__all__ = [
+    "StepStats",
+    "TrainState",
+    "init_gaussians",
+    "make_optimizers",
+    "max_gaussians",
+    "capture_fingerprint",
+    "read_checkpoint",
+    "fingerprint_diff",
+    "AUTO_CAP_PER_PIXEL",
+    "AUTO_CAP_RANGE",
+    "CHECKPOINT_FORMAT",
+]
 
 # ModelConfig.max_gaussians = 0: the cap is this many Gaussians per pixel, clamped to the range
 # (the small scenes need room to grow; at DAVIS size 2 x 346 x 260 = 180k would be too slow).
@@ -93,8 +103,14 @@ def init_gaussians(data: TrainingData, cfg: Config) -> dict[str, nn.Parameter]:
     src = data.latents if data.latents is not None else data.targets
     args = (src.numpy(), data.c2w.double().numpy(), data.K.double().numpy(), mc.init_points, data.depth_range)
     if mc.init == "stereo":
-        pts, cols, scales = plane_sweep_points(*args, n_depths=mc.stereo_depths, neighbours=mc.stereo_neighbours,
-                                               patch=mc.stereo_patch, scale_px=mc.init_scale_px, seed=cfg.train.seed)
+        pts, cols, scales = plane_sweep_points(
+            *args,
+            n_depths=mc.stereo_depths,
+            neighbours=mc.stereo_neighbours,
+            patch=mc.stereo_patch,
+            scale_px=mc.init_scale_px,
+            seed=cfg.train.seed,
+        )
     else:
         pts, cols, scales = points_from_frames(*args, scale_px=mc.init_scale_px, seed=cfg.train.seed)
     return init_params(pts, cols, scales, opacity=mc.init_opacity)
@@ -109,14 +125,24 @@ def _adam(params: list[Tensor], **kw) -> torch.optim.Adam:
         return torch.optim.Adam(params, **kw)
 
 
-def make_optimizers(params: dict[str, nn.Parameter], traj: ExposureTrajectories, cfg: Config,
-                    scale: float, log_c: nn.Parameter | None = None,
-                    response: Response | None = None) -> dict[str, torch.optim.Optimizer]:
+def make_optimizers(
+    params: dict[str, nn.Parameter],
+    traj: ExposureTrajectories,
+    cfg: Config,
+    scale: float,
+    log_c: nn.Parameter | None = None,
+    response: Response | None = None,
+) -> dict[str, torch.optim.Optimizer]:
     """One Adam per Gaussian parameter (so densification can edit its moments), one for poses,
     and one each for the contrast threshold and the response curve when they are learnt."""
     tc = cfg.train
-    lrs = {"means": tc.lr_means * scale, "scales": tc.lr_scales, "quats": tc.lr_quats,
-           "opacities": tc.lr_opacities, "colors": tc.lr_colors}
+    lrs = {
+        "means": tc.lr_means * scale,
+        "scales": tc.lr_scales,
+        "quats": tc.lr_quats,
+        "opacities": tc.lr_opacities,
+        "colors": tc.lr_colors,
+    }
     opts = {k: _adam([params[k]], lr=lrs[k], eps=1e-15) for k in lrs}
     if traj.knots.numel() > 0 and bool(traj.moving.any()):
         opts["poses"] = _adam([traj.knots], lr=cfg.trajectory.lr)
@@ -133,8 +159,9 @@ def anchored(data: TrainingData, cfg: Config) -> bool:
     return am == "yes" or (am == "auto" and data.report.pose_source == "capture" and data.report.pose_trust == "exact")
 
 
-def _trajectories(data: TrainingData, cfg: Config, generator: torch.Generator | None,
-                  init_noise: float) -> ExposureTrajectories:
+def _trajectories(
+    data: TrainingData, cfg: Config, generator: torch.Generator | None, init_noise: float
+) -> ExposureTrajectories:
     """Anchored (trusted poses): only blurry frames move, around their given mid pose. Free: every
     frame's pose is optimised, the whole trajectory of a blurry frame and one correction of a sharp
     one (``fixed`` becomes ``offset``), as BAD-Gaussians and gsplat's pose_opt do."""
@@ -145,8 +172,9 @@ def _trajectories(data: TrainingData, cfg: Config, generator: torch.Generator | 
         kind = "offset"
     if kind == "fixed" or data.report.pose_source == "static":
         moving = torch.from_numpy(data.V > 1)
-    return ExposureTrajectories(data.c2w, kind, moving, scale=data.scale, init_noise=init_noise,
-                                generator=generator, anchored=anchor)
+    return ExposureTrajectories(
+        data.c2w, kind, moving, scale=data.scale, init_noise=init_noise, generator=generator, anchored=anchor
+    )
 
 
 def _log_c(data: TrainingData, cfg: Config) -> nn.Parameter | None:
@@ -187,11 +215,17 @@ class TrainState:
         traj = _trajectories(data, cfg, generator, cfg.trajectory.init_noise)
         log_c = _log_c(data, cfg)
         response = Response(cfg.model.response)
-        return cls(params=params, optimizers=make_optimizers(params, traj, cfg, data.scale, log_c, response),
-                   trajectories=traj, log_c=log_c, response=response,
-                   strategy_state=strategy_state or StrategyState(torch.zeros(num_gaussians(params)),
-                                                                  torch.zeros(num_gaussians(params))),
-                   order_rng=np.random.default_rng(seed), generator=generator)
+        return cls(
+            params=params,
+            optimizers=make_optimizers(params, traj, cfg, data.scale, log_c, response),
+            trajectories=traj,
+            log_c=log_c,
+            response=response,
+            strategy_state=strategy_state
+            or StrategyState(torch.zeros(num_gaussians(params)), torch.zeros(num_gaussians(params))),
+            order_rng=np.random.default_rng(seed),
+            generator=generator,
+        )
 
     def accumulate_knots(self) -> None:
         """Add the knots of this step to their running sum (``trajectory.average_from``)."""
@@ -236,12 +270,14 @@ class TrainState:
             except RuntimeError as exc:  # torch's zip writer reports a failed write (a full disk) this way
                 if "write" not in str(exc).lower():
                     raise
-                raise OSError(errno.EIO, f"could not write the checkpoint ({exc}); nothing was replaced",
-                              str(path)) from exc
+                raise OSError(
+                    errno.EIO, f"could not write the checkpoint ({exc}); nothing was replaced", str(path)
+                ) from exc
 
     @classmethod
-    def load(cls, path: str | Path, data: TrainingData, cfg: Config,
-             fingerprint: dict[str, Any] | None = None) -> "TrainState":
+    def load(
+        cls, path: str | Path, data: TrainingData, cfg: Config, fingerprint: dict[str, Any] | None = None
+    ) -> "TrainState":
         """The state ``save`` wrote, for the same training data and config.
 
         Raises ``UserError`` naming the file when it is not a readable checkpoint, and naming
@@ -264,11 +300,22 @@ class TrainState:
         order_rng = np.random.default_rng()
         order_rng.bit_generator.state = doc["order_rng"]
         generator.set_state(doc["generator"])  # an older checkpoint's "torch_rng" (the global RNG: unused) is ignored
-        return cls(params=params, optimizers=optimizers, trajectories=traj, log_c=log_c, response=response,
-                   strategy_state=StrategyState.from_dict(doc["strategy_state"]), order_rng=order_rng,
-                   generator=generator, step=int(doc["step"]), order=[int(i) for i in doc["order"]],
-                   history=[StepStats.from_dict(h) for h in doc["history"]], elapsed=float(doc["elapsed"]),
-                   knots_sum=doc.get("knots_sum"), knots_count=int(doc.get("knots_count", 0)))
+        return cls(
+            params=params,
+            optimizers=optimizers,
+            trajectories=traj,
+            log_c=log_c,
+            response=response,
+            strategy_state=StrategyState.from_dict(doc["strategy_state"]),
+            order_rng=order_rng,
+            generator=generator,
+            step=int(doc["step"]),
+            order=[int(i) for i in doc["order"]],
+            history=[StepStats.from_dict(h) for h in doc["history"]],
+            elapsed=float(doc["elapsed"]),
+            knots_sum=doc.get("knots_sum"),
+            knots_count=int(doc.get("knots_count", 0)),
+        )
 
 
 def read_checkpoint(path: str | Path, fingerprint: dict[str, Any] | None = None) -> dict[str, Any]:
@@ -279,15 +326,18 @@ def read_checkpoint(path: str | Path, fingerprint: dict[str, Any] | None = None)
     try:
         doc = torch.load(path, weights_only=True)
     except Exception as exc:  # torch raises many types for a damaged file; all mean the same here
-        raise UserError(f"{path}: not a readable checkpoint ({type(exc).__name__}: {exc}); "
-                        "delete it to start the run over") from exc
+        raise UserError(
+            f"{path}: not a readable checkpoint ({type(exc).__name__}: {exc}); delete it to start the run over"
+        ) from exc
     if not isinstance(doc, dict) or doc.get("format") != CHECKPOINT_FORMAT:
         raise UserError(f"{path}: not an {CHECKPOINT_FORMAT} checkpoint; delete it to start the run over")
     if fingerprint is not None and doc.get("fingerprint") is not None:
         diff = fingerprint_diff(doc["fingerprint"], fingerprint)
         if diff:
-            raise UserError(f"{path} was made from another capture ({diff}); resume with the capture it "
-                            "was made from, or choose another --out")
+            raise UserError(
+                f"{path} was made from another capture ({diff}); resume with the capture it "
+                "was made from, or choose another --out"
+            )
     return doc
 
 

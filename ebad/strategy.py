@@ -14,6 +14,7 @@ the run's schedule allows it (``RenderInfo.resets``: before ``strategy.reset_unt
 The parameter surgery functions (``duplicate``, ``split``, ``remove``, ``reset_opacity``)
 keep each Adam optimizer's moments aligned with its parameter.
 """
+
 from __future__ import annotations
 
 import math
@@ -27,9 +28,22 @@ from torch import Tensor, nn
 from .config import StrategyConfig
 from .lie import quat_to_rotmat
 
-__all__ = ["Strategy", "StrategyState", "RenderInfo", "RefineReport", "DefaultStrategy", "NoStrategy",
-           "STRATEGIES", "make_strategy", "duplicate", "split", "remove", "reset_opacity", "screen_grads",
-           "PARAM_NAMES"]
+__all__ = [
+    "Strategy",
+    "StrategyState",
+    "RenderInfo",
+    "RefineReport",
+    "DefaultStrategy",
+    "NoStrategy",
+    "STRATEGIES",
+    "make_strategy",
+    "duplicate",
+    "split",
+    "remove",
+    "reset_opacity",
+    "screen_grads",
+    "PARAM_NAMES",
+]
 
 Params = dict[str, nn.Parameter]
 Optims = dict[str, torch.optim.Optimizer]
@@ -80,11 +94,13 @@ class Strategy(Protocol):
 
     def initialize_state(self, n: int) -> StrategyState: ...
 
-    def step_pre_backward(self, params: Params, optimizers: Optims, state: StrategyState, step: int,
-                          info: RenderInfo) -> None: ...
+    def step_pre_backward(
+        self, params: Params, optimizers: Optims, state: StrategyState, step: int, info: RenderInfo
+    ) -> None: ...
 
-    def step_post_backward(self, params: Params, optimizers: Optims, state: StrategyState, step: int,
-                           info: RenderInfo) -> RefineReport: ...
+    def step_post_backward(
+        self, params: Params, optimizers: Optims, state: StrategyState, step: int, info: RenderInfo
+    ) -> RefineReport: ...
 
 
 def _check_params(params: Params, optimizers: Optims) -> None:
@@ -102,8 +118,13 @@ def _check_params(params: Params, optimizers: Optims) -> None:
             raise ValueError(f"strategy: optimizers['{k}'] must hold exactly params['{k}']")
 
 
-def _surgery(params: Params, optimizers: Optims, param_fn: Callable[[str, Tensor], Tensor],
-             state_fn: Callable[[str, Tensor], Tensor], names=None) -> None:
+def _surgery(
+    params: Params,
+    optimizers: Optims,
+    param_fn: Callable[[str, Tensor], Tensor],
+    state_fn: Callable[[str, Tensor], Tensor],
+    names=None,
+) -> None:
     """Replace params[name] by param_fn(name, p) and each Adam moment by state_fn(name, moment)."""
     for name in list(params) if names is None else names:
         old = params[name]
@@ -122,12 +143,14 @@ def _surgery(params: Params, optimizers: Optims, param_fn: Callable[[str, Tensor
 def duplicate(params: Params, optimizers: Optims, mask: Tensor) -> None:  # mask [N] bool
     """Append a copy of every selected Gaussian (fresh zero Adam moments for the copies)."""
     idx = torch.nonzero(mask).squeeze(1)
-    _surgery(params, optimizers, lambda n, p: torch.cat([p, p[idx]]),
-             lambda k, v: torch.cat([v, torch.zeros_like(v[idx])]))
+    _surgery(
+        params, optimizers, lambda n, p: torch.cat([p, p[idx]]), lambda k, v: torch.cat([v, torch.zeros_like(v[idx])])
+    )
 
 
-def split(params: Params, optimizers: Optims, mask: Tensor, generator: torch.Generator | None = None,
-          shrink: float = 1.6) -> None:  # mask [N] bool; shrink: StrategyConfig.split_shrink
+def split(
+    params: Params, optimizers: Optims, mask: Tensor, generator: torch.Generator | None = None, shrink: float = 1.6
+) -> None:  # mask [N] bool; shrink: StrategyConfig.split_shrink
     """Replace every selected Gaussian by two, sampled from it, each ``shrink`` times smaller."""
     idx = torch.nonzero(mask).squeeze(1)
     keep = ~mask
@@ -147,8 +170,12 @@ def split(params: Params, optimizers: Optims, mask: Tensor, generator: torch.Gen
             extra = p[idx].repeat(2, *([1] * (p.ndim - 1)))
         return torch.cat([p[keep], extra])
 
-    _surgery(params, optimizers, pfn,
-             lambda k, v: torch.cat([v[keep], torch.zeros_like(v[idx]).repeat(2, *([1] * (v.ndim - 1)))]))
+    _surgery(
+        params,
+        optimizers,
+        pfn,
+        lambda k, v: torch.cat([v[keep], torch.zeros_like(v[idx]).repeat(2, *([1] * (v.ndim - 1)))]),
+    )
 
 
 def remove(params: Params, optimizers: Optims, mask: Tensor) -> None:  # mask [N] bool
@@ -160,8 +187,7 @@ def remove(params: Params, optimizers: Optims, mask: Tensor) -> None:  # mask [N
 def reset_opacity(params: Params, optimizers: Optims, value: float) -> None:
     """Clamp every opacity to at most ``value`` and zero the opacity moments."""
     cap = math.log(value / (1 - value))
-    _surgery(params, optimizers, lambda n, p: p.clamp_max(cap), lambda k, v: torch.zeros_like(v),
-             names=["opacities"])
+    _surgery(params, optimizers, lambda n, p: p.clamp_max(cap), lambda k, v: torch.zeros_like(v), names=["opacities"])
 
 
 def screen_grads(info: RenderInfo) -> tuple[Tensor, Tensor] | None:
@@ -214,8 +240,9 @@ class DefaultStrategy:
     def initialize_state(self, n: int) -> StrategyState:
         return StrategyState(grad2d=torch.zeros(n), count=torch.zeros(n))
 
-    def step_pre_backward(self, params: Params, optimizers: Optims, state: StrategyState, step: int,
-                          info: RenderInfo) -> None:
+    def step_pre_backward(
+        self, params: Params, optimizers: Optims, state: StrategyState, step: int, info: RenderInfo
+    ) -> None:
         m2d = info.means2d
         if m2d is not None and m2d.requires_grad:
             m2d.retain_grad()
@@ -225,9 +252,14 @@ class DefaultStrategy:
         ``screen_grads`` summed over the cameras, in one numba pass on CPU float32 statistics
         (much cheaper than the dozen torch operations it replaces, ``screen_grads``, its reference)."""
         m2d = info.means2d
-        fast = (m2d is not None and m2d.grad is not None and m2d.device.type == "cpu"
-                and state.grad2d.dtype == torch.float32 == state.count.dtype and state.grad2d.is_contiguous()
-                and state.count.is_contiguous())
+        fast = (
+            m2d is not None
+            and m2d.grad is not None
+            and m2d.device.type == "cpu"
+            and state.grad2d.dtype == torch.float32 == state.count.dtype
+            and state.grad2d.is_contiguous()
+            and state.count.is_contiguous()
+        )
         if not fast:
             out = screen_grads(info)
             if out is None:
@@ -237,11 +269,18 @@ class DefaultStrategy:
             state.count += visible.sum(0).float()
             return
         radii = info.radii.numpy()
-        _add_screen_grads(m2d.grad.detach().numpy(), radii if radii.ndim == 3 else radii[..., None], info.width / 2.0,
-                          info.height / 2.0, state.grad2d.numpy(), state.count.numpy())
+        _add_screen_grads(
+            m2d.grad.detach().numpy(),
+            radii if radii.ndim == 3 else radii[..., None],
+            info.width / 2.0,
+            info.height / 2.0,
+            state.grad2d.numpy(),
+            state.count.numpy(),
+        )
 
-    def step_post_backward(self, params: Params, optimizers: Optims, state: StrategyState, step: int,
-                           info: RenderInfo) -> RefineReport:
+    def step_post_backward(
+        self, params: Params, optimizers: Optims, state: StrategyState, step: int, info: RenderInfo
+    ) -> RefineReport:
         cfg = self.cfg
         report = RefineReport()
         if step >= cfg.refine_stop:
@@ -318,7 +357,8 @@ class NoStrategy:
 STRATEGIES: dict[str, Callable[..., Strategy]] = {"default": DefaultStrategy, "none": NoStrategy}
 
 
-def make_strategy(cfg: StrategyConfig, scene_scale: float, max_gaussians: int,
-                  generator: torch.Generator | None = None) -> Strategy:
+def make_strategy(
+    cfg: StrategyConfig, scene_scale: float, max_gaussians: int, generator: torch.Generator | None = None
+) -> Strategy:
     """The registered strategy ``cfg.kind`` (a ``Literal`` checked by the config)."""
     return STRATEGIES[cfg.kind](cfg=cfg, scene_scale=scene_scale, max_gaussians=max_gaussians, generator=generator)

@@ -15,6 +15,7 @@ command line's ``main`` and ``ebad.reconstruct`` call ``configure()`` before any
 torch's own thread count is the loop's business (``ebad.loop.train`` runs torch on one thread
 and restores the count after).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -37,5 +38,6 @@ class ThreadSetup:
 def configure() -> ThreadSetup:
     """Set up the process's threads (see the module docstring); safe to call more than once."""
     policy_set = _omp.set_wait_policy("PASSIVE")
-    return ThreadSetup(policy_set=policy_set, threads_sleep=_omp.openmp_threads_sleep(),
-                       numba_layer=_omp.choose_threading_layer())
+    return ThreadSetup(
+        policy_set=policy_set, threads_sleep=_omp.openmp_threads_sleep(), numba_layer=_omp.choose_threading_layer()
+    )

@@ -19,6 +19,7 @@ the path: on the CPU the same poses in closed form with their derivatives (``eba
 one autograd node instead of a few dozen small ones, chosen by ``ebad.kernels.use_kernels``); the
 torch functions here are their reference.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -31,8 +32,17 @@ from .kernels import poses as closed_form
 from .kernels import use_kernels
 from .lie import compose_pose, rigid_inverse, so3_exp, so3_log
 
-__all__ = ["TrajectoryModel", "TRAJECTORIES", "linear_poses", "cubic_poses", "offset_poses", "fixed_poses",
-           "trajectory_poses", "ExposureTrajectories", "virtual_instants"]
+__all__ = [
+    "TrajectoryModel",
+    "TRAJECTORIES",
+    "linear_poses",
+    "cubic_poses",
+    "offset_poses",
+    "fixed_poses",
+    "trajectory_poses",
+    "ExposureTrajectories",
+    "virtual_instants",
+]
 
 
 def virtual_instants(V: int, dtype=torch.float32, device=None) -> Tensor:  # -> [V]
@@ -68,12 +78,15 @@ def linear_poses(
 def bspline_weights(u: Tensor) -> Tensor:  # [V] -> [V, 4]
     """Uniform cubic B-spline basis on one segment (weights sum to 1)."""
     u2, u3 = u * u, u * u * u
-    return torch.stack([
-        (1 - u) ** 3 / 6,
-        (3 * u3 - 6 * u2 + 4) / 6,
-        (-3 * u3 + 3 * u2 + 3 * u + 1) / 6,
-        u3 / 6,
-    ], -1)
+    return torch.stack(
+        [
+            (1 - u) ** 3 / 6,
+            (3 * u3 - 6 * u2 + 4) / 6,
+            (-3 * u3 + 3 * u2 + 3 * u + 1) / 6,
+            u3 / 6,
+        ],
+        -1,
+    )
 
 
 def cubic_poses(
@@ -170,9 +183,16 @@ class ExposureTrajectories(nn.Module):
             exposure is learnt and the scene cannot drift away from the trusted cameras.
     """
 
-    def __init__(self, c2w_mid: Tensor, kind: str = "linear", moving: Tensor | None = None,
-                 scale: float = 1.0, init_noise: float = 0.0, generator: torch.Generator | None = None,
-                 anchored: bool = False):
+    def __init__(
+        self,
+        c2w_mid: Tensor,
+        kind: str = "linear",
+        moving: Tensor | None = None,
+        scale: float = 1.0,
+        init_noise: float = 0.0,
+        generator: torch.Generator | None = None,
+        anchored: bool = False,
+    ):
         super().__init__()
         if kind not in TRAJECTORIES:
             raise ValueError(f"unknown trajectory kind '{kind}'; choose one of {sorted(TRAJECTORIES)}")

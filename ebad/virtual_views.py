@@ -10,6 +10,7 @@ per step, a random pair of the V rendered instants (``random_window``), whose ev
 sum of the consecutive counts it spans (``window_counts``): the paper's random t_s restricted to
 the virtual instants, at no extra render and no pass over the events.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -18,8 +19,15 @@ from torch import Tensor
 
 from edi import EventStream, seconds_to_us
 
-__all__ = ["events_per_pixel", "choose_num_views", "path_lengths_px", "views_from_blur", "event_counts",
-           "random_window", "window_counts"]
+__all__ = [
+    "events_per_pixel",
+    "choose_num_views",
+    "path_lengths_px",
+    "views_from_blur",
+    "event_counts",
+    "random_window",
+    "window_counts",
+]
 
 
 def events_per_pixel(events: EventStream, exposures: np.ndarray) -> np.ndarray:  # [F, 2] -> [F]
@@ -141,8 +149,11 @@ def random_window(V: int, generator: torch.Generator | None = None) -> tuple[int
     return i, i + 1 + pair
 
 
-def window_counts(counts: Tensor,  # [V - 1, 2, H, W] counts between consecutive instants (event_counts)
-                  i: int, j: int) -> Tensor:  # [1, 2, H, W]
+def window_counts(
+    counts: Tensor,  # [V - 1, 2, H, W] counts between consecutive instants (event_counts)
+    i: int,
+    j: int,
+) -> Tensor:  # [1, 2, H, W]
     """ON and OFF counts between virtual instants i < j: the consecutive counts of the windows they span."""
     if not 0 <= i < j <= counts.shape[0]:
         raise ValueError(f"window ({i}, {j}) must satisfy 0 <= i < j <= V - 1 = {counts.shape[0]}")

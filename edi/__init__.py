@@ -18,6 +18,7 @@ Public API::
     medi(frames, exposures, events, c=None) -> [F, H, W(, D)]
     moving_texture(...) -> SyntheticSequence        # seeded synthetic ground truth
 """
+
 from .contrast import ContrastReport, estimate_c, estimate_contrast
 from .deblur import DeblurReport, deblur, deblur_with_report
 from .errors import CorruptFileError, EbadError, EventError, InputError

@@ -14,6 +14,7 @@ sum over the inter-event intervals). The running integral is kept as a log-sum-e
 ``edi_pass_binned`` is the naive time-binned version (E sampled at bin centres) used as a
 check that the exact sum is the limit of fine binning, and as the benchmark baseline.
 """
+
 from __future__ import annotations
 
 import numba
@@ -89,8 +90,17 @@ def edi_pass(
     """Fast path: returns (logmean [H*W], Ef [F, H*W]) in float64; see the module docstring."""
     assert t1_us > t0_us
     return _edi_pass_numba(
-        t, x, y, p, int(width), int(width) * int(height), float(t0_us), float(t1_us),
-        np.ascontiguousarray(inst_us, dtype=np.float64), float(c_pos), float(c_neg),
+        t,
+        x,
+        y,
+        p,
+        int(width),
+        int(width) * int(height),
+        float(t0_us),
+        float(t1_us),
+        np.ascontiguousarray(inst_us, dtype=np.float64),
+        float(c_pos),
+        float(c_neg),
     )
 
 
@@ -227,8 +237,17 @@ def hidden_crossings(
     above). One pass over the stream up to the first event at or after t1_us of every pixel that
     fired before it."""
     assert 0.0 <= frac <= 1.0
-    ct, cpx, cp = _hidden_crossings_numba(t, x, y, np.asarray(p, np.int8), int(width), int(width) * int(height),
-                                          np.int64(t0_us), np.int64(t1_us), float(frac))
+    ct, cpx, cp = _hidden_crossings_numba(
+        t,
+        x,
+        y,
+        np.asarray(p, np.int8),
+        int(width),
+        int(width) * int(height),
+        np.int64(t0_us),
+        np.int64(t1_us),
+        float(frac),
+    )
     order = np.lexsort((cpx, ct))
     return ct[order], cpx[order], cp[order]
 

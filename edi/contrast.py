@@ -42,6 +42,7 @@ less than ``FLOW_MIN_EXPLAINED`` of the events' own changes is reported the same
 (``ContrastReport.reliable`` is False, ``explained`` says how much): the events do not follow
 the frame's blur, and where the search stops then means nothing.
 """
+
 from __future__ import annotations
 
 import logging
@@ -58,8 +59,7 @@ from scipy.optimize import minimize_scalar
 from ._kernels import hidden_crossings
 from .errors import InputError
 from .events import EventStream, events_in_window, seconds_to_us
-from .model import (LOG_EPS, SATURATION, Contrast, ImageArray, check_frames, check_gamma, edi_log_ratio,
-                    linearize)
+from .model import LOG_EPS, SATURATION, Contrast, ImageArray, check_frames, check_gamma, edi_log_ratio, linearize
 
 __all__ = ["estimate_c", "estimate_contrast", "ContrastReport", "minimize_log", "Method", "SingleEnergy"]
 
@@ -104,9 +104,11 @@ TURN_CROSSING = TURN_B / TURN_A
 #: what a single-frame estimate at the low end of the bracket means (appended to the report's message):
 #: measured on the real ni_joint frames keyboard, toy and text_cambridge (benchmarks/calibration.py),
 #: whose events moved the scene by 1.4 to 1.6 px while the frame's blur spans 24 to 40 px
-LOW_END_HINT = ("; at the low end the events account for the frame's blur at no c (the energy grows from the "
-                "smallest c: what the events add to the latent does not move with the frame's blur): check that the "
-                "events cover the whole exposure and that the exposure times are right")
+LOW_END_HINT = (
+    "; at the low end the events account for the frame's blur at no c (the energy grows from the "
+    "smallest c: what the events add to the latent does not move with the frame's blur): check that the "
+    "events cover the whole exposure and that the exposure times are right"
+)
 
 #: the share of the events' own changes the flow energy's fit must explain at the estimate (1 - the
 #: energy) for a single-frame estimate to be trusted. Measured (``python -m benchmarks.calibration``,
@@ -117,8 +119,10 @@ LOW_END_HINT = ("; at the low end the events account for the frame's blur at no 
 #: (tests/edi/test_contrast.py); the bound sits between the two groups
 FLOW_MIN_EXPLAINED = 0.4
 #: what an estimate whose events explain too little of their changes means (the report's message)
-UNEXPLAINED_HINT = ("the events do not follow the frame's blur (events missing part of the exposure, wrong exposure "
-                    "times, or events of another frame), so no c is determined")
+UNEXPLAINED_HINT = (
+    "the events do not follow the frame's blur (events missing part of the exposure, wrong exposure "
+    "times, or events of another frame), so no c is determined"
+)
 
 #: the single-frame energy (module docstring)
 SingleEnergy = Literal["flow", "paper"]
@@ -158,8 +162,13 @@ class ContrastReport:
         return not self.at_bound and (self.explained is None or self.explained >= FLOW_MIN_EXPLAINED)
 
 
-def minimize_log(f: Callable[[float], float], lo: float, hi: float, xatol: float = 1e-3,
-                 evals: list[tuple[float, float]] | None = None) -> tuple[float, float]:
+def minimize_log(
+    f: Callable[[float], float],
+    lo: float,
+    hi: float,
+    xatol: float = 1e-3,
+    evals: list[tuple[float, float]] | None = None,
+) -> tuple[float, float]:
     """Minimise f on [lo, hi] over log x (``minimize_scalar``, bounded); returns (x, f(x)).
 
     ``xatol`` is the absolute tolerance on log x (1e-3: 0.1% of x). Each evaluation is
@@ -204,8 +213,17 @@ def _with_hidden_crossings(events: EventStream, exposure: tuple[float, float]) -
     t_s, t_e = exposure
     i0, i1 = events_in_window(events, t_s, t_e)
     win = events[i0:i1]
-    vt, vpx, vp = hidden_crossings(events.t, events.x, events.y, events.p, events.width, events.height,
-                                   seconds_to_us(t_s), seconds_to_us(t_e), TURN_CROSSING)
+    vt, vpx, vp = hidden_crossings(
+        events.t,
+        events.x,
+        events.y,
+        events.p,
+        events.width,
+        events.height,
+        seconds_to_us(t_s),
+        seconds_to_us(t_e),
+        TURN_CROSSING,
+    )
     if len(vt) == 0:
         return win
     t = np.concatenate([win.t, vt])
@@ -216,8 +234,13 @@ def _with_hidden_crossings(events: EventStream, exposure: tuple[float, float]) -
     return EventStream(t[order], x, y, p, events.width, events.height)
 
 
-def _flow_setup(b: np.ndarray, exposure: tuple[float, float], events: EventStream, patch: int = FLOW_PATCH,
-                k: int = FLOW_SUBINTERVALS) -> Callable[[float], Callable[[float], float]]:
+def _flow_setup(
+    b: np.ndarray,
+    exposure: tuple[float, float],
+    events: EventStream,
+    patch: int = FLOW_PATCH,
+    k: int = FLOW_SUBINTERVALS,
+) -> Callable[[float], Callable[[float], float]]:
     """ratio -> energy(c) of one blurry frame b [H, W, D]: brightness-constancy residual (module
     docstring); what does not depend on the ratio c_pos / c_neg is computed once.
 
@@ -327,8 +350,9 @@ def _flow_setup(b: np.ndarray, exposure: tuple[float, float], events: EventStrea
             S = [[gl + gm for gl, gm in zip(g_lb[h], grad(r[0], h))] for h in (0, 1)]
 
             def cross(i: int, j: int) -> np.ndarray:  # tiles of sum_k g_0i g_1j
-                return tile(c * c * QQ[i][j] + c * (S[0][i] * sum_Q[1][j] + S[1][j] * sum_Q[0][i])
-                            + k * S[0][i] * S[1][j])
+                return tile(
+                    c * c * QQ[i][j] + c * (S[0][i] * sum_Q[1][j] + S[1][j] * sum_Q[0][i]) + k * S[0][i] * S[1][j]
+                )
 
             # per patch: min_w sum (d + g . w)^2, explained part b^T A^-1 b with A = sum g g^T and
             # b = sum g d; each product of gradients is one of the half 0 with the half 1
@@ -336,8 +360,9 @@ def _flow_setup(b: np.ndarray, exposure: tuple[float, float], events: EventStrea
             b_h = [[tile(c * c * QD[h][i] + c * S[h][i] * sum_D) for i in (0, 1)] for h in (0, 1)]
             dd = c * c * DD
             T = [S[0][i] + S[1][i] for i in (0, 1)]
-            eps = FLOW_RIDGE * 0.25 * sum(tile(c * c * UU[i] + 2 * c * T[i] * sum_U[i] + k * T[i] * T[i])
-                                          for i in (0, 1))
+            eps = (
+                FLOW_RIDGE * 0.25 * sum(tile(c * c * UU[i] + 2 * c * T[i] * sum_U[i] + k * T[i] * T[i]) for i in (0, 1))
+            )
             # A's eigenvalues lambda counted as lambda / (lambda^2 + eps^2), none below 0
             half_tr, half_df = 0.5 * (axx + ayy), 0.5 * (axx - ayy)
             rad = np.hypot(half_df, axy)
@@ -368,8 +393,9 @@ def _ncc(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> float:
     return float((a * b).sum() / den) if den > 0 else 0.0
 
 
-def _paper_energy(b: np.ndarray, exposure: tuple[float, float], events: EventStream, ratio: float,
-                  weight: float) -> Callable[[float], float]:
+def _paper_energy(
+    b: np.ndarray, exposure: tuple[float, float], events: EventStream, ratio: float, weight: float
+) -> Callable[[float], float]:
     """energy(c) of the EDI paper (Pan et al. 2019, eq. 9): TV(L) - weight * xcorr(Sobel L, Sobel int E).
 
     TV is the mean anisotropic total variation of the mid-exposure latent divided by the
@@ -381,8 +407,9 @@ def _paper_energy(b: np.ndarray, exposure: tuple[float, float], events: EventStr
     win = events[i0:i1]
     cp, cn = _pair(1.0, ratio)
     inc = np.where(win.p > 0, cp, -cn) * (t_e - win.times_s())  # each event's share of int E(t) dt
-    e_int = np.bincount(win.y.astype(np.int64) * events.width + win.x, weights=inc,
-                        minlength=events.width * events.height).reshape(events.height, events.width)
+    e_int = np.bincount(
+        win.y.astype(np.int64) * events.width + win.x, weights=inc, minlength=events.width * events.height
+    ).reshape(events.height, events.width)
     sob_int = _sobel_mag(e_int)
     mid = np.array([0.5 * (t_s + t_e)])
 
@@ -467,8 +494,11 @@ def _mean_residual(events: EventStream, exposures: np.ndarray) -> np.ndarray:
         kk = k[ok]
         u0 = (np.clip(lo, t_prev[kk], t[kk]) - t_prev[kk]) / span[kk]  # the part of the interval inside
         u1 = (np.clip(hi, t_prev[kk], t[kk]) - t_prev[kk]) / span[kk]
-        v = np.where(ramp[kk], 0.5 * (u1 * u1 - u0 * u0),
-                     np.where(turn[kk], TURN_A / 3 * (u1**3 - u0**3) - TURN_B / 2 * (u1 * u1 - u0 * u0), 0.0))
+        v = np.where(
+            ramp[kk],
+            0.5 * (u1 * u1 - u0 * u0),
+            np.where(turn[kk], TURN_A / 3 * (u1**3 - u0**3) - TURN_B / 2 * (u1 * u1 - u0 * u0), 0.0),
+        )
         v = v * length[kk]
         out[f, 0, ok] += np.where(pos[kk], v, 0.0)
         out[f, 1, ok] += np.where(pos[kk], 0.0, v)
@@ -525,8 +555,11 @@ def _consistency_pairs(fr: np.ndarray, ex: np.ndarray, events: EventStream) -> t
         between = events[k0:k1]
         z = []
         for row, pol in enumerate((1, -1)):
-            k = (between.count_image(pol) * (1.0 if ex[second, 0] >= ex[first, 0] else -1.0)
-                 + _exposure_tails(events, ex[second], pol) - _exposure_tails(events, ex[first], pol))
+            k = (
+                between.count_image(pol) * (1.0 if ex[second, 0] >= ex[first, 0] else -1.0)
+                + _exposure_tails(events, ex[second], pol)
+                - _exposure_tails(events, ex[first], pol)
+            )
             z.append(sign * ndimage.correlate(k, _NEIGHBOURS, mode="constant"))
         ok = valid[i] & valid[i + 1]
         fired = ok & ((n_pos != 0) | (n_neg != 0))
@@ -537,8 +570,9 @@ def _consistency_pairs(fr: np.ndarray, ex: np.ndarray, events: EventStream) -> t
     return pairs, 1.0 - float(valid.mean())
 
 
-def _consistency_update(fr: np.ndarray, ex: np.ndarray, events: EventStream, pairs: list[_Pair], c: Contrast,
-                        pair: bool) -> tuple[Contrast, float]:
+def _consistency_update(
+    fr: np.ndarray, ex: np.ndarray, events: EventStream, pairs: list[_Pair], c: Contrast, pair: bool
+) -> tuple[Contrast, float]:
     """One step of the consistency estimator: latents with ``c`` -> the pair the relation gives.
 
     Per pixel D = log(L_{i+1} + eps) - log(L_i + eps) = c_pos N+ - c_neg N- + e, where e holds
@@ -577,14 +611,23 @@ def _consistency_update(fr: np.ndarray, ex: np.ndarray, events: EventStream, pai
     den = m[0, 1] - m[0, 2] - (m[1, 1] - m[1, 2])  # sum z N
     num = m[0, 0] - m[1, 0]  # sum z D
     if not (den > 0 and num > 0):
-        raise InputError("estimate_c: the events between consecutive frame centres do not follow the frames' "
-                         "changes; cannot use 'consistency'")
+        raise InputError(
+            "estimate_c: the events between consecutive frame centres do not follow the frames' "
+            "changes; cannot use 'consistency'"
+        )
     cm = float(num / den)
     return Contrast(cm, cm), energy
 
 
-def _consistency(fr: np.ndarray, ex: np.ndarray, events: EventStream, pairs: list[_Pair], bracket: tuple[float, float],
-                 pair: bool, xatol: float) -> tuple[Contrast, float, int, list[tuple[float, float]]]:
+def _consistency(
+    fr: np.ndarray,
+    ex: np.ndarray,
+    events: EventStream,
+    pairs: list[_Pair],
+    bracket: tuple[float, float],
+    pair: bool,
+    xatol: float,
+) -> tuple[Contrast, float, int, list[tuple[float, float]]]:
     """The self-consistent pair: c = update(c) (``_consistency_update``).
 
     One c: the root of log(update(c) / c) in the bracket (``scipy.optimize.brentq`` on log c;
@@ -627,8 +670,7 @@ def _consistency(fr: np.ndarray, ex: np.ndarray, events: EventStream, pairs: lis
     new, e = step(c, rooted)
     if rooted:
         for _ in range(CONSISTENCY_ITERS):
-            done = (abs(new.pos - c.pos) <= CONSISTENCY_RTOL * c.pos
-                    and abs(new.neg - c.neg) <= CONSISTENCY_RTOL * c.neg)
+            done = abs(new.pos - c.pos) <= CONSISTENCY_RTOL * c.pos and abs(new.neg - c.neg) <= CONSISTENCY_RTOL * c.neg
             c = new
             if done:
                 break
@@ -636,7 +678,6 @@ def _consistency(fr: np.ndarray, ex: np.ndarray, events: EventStream, pairs: lis
     if not pair:
         c = Contrast(c.mean, c.mean)
     return c, e, len(history), history
-
 
 
 @dataclass
@@ -652,9 +693,15 @@ class _Fit:
     energy_name: EnergyName
 
 
-def _check_estimate_inputs(frames: ImageArray, exposures: npt.ArrayLike, events: EventStream, method: str,
-                           energy: str, bracket: tuple[float, float],
-                           gamma: float) -> tuple[np.ndarray, np.ndarray, tuple[float, float], float]:
+def _check_estimate_inputs(
+    frames: ImageArray,
+    exposures: npt.ArrayLike,
+    events: EventStream,
+    method: str,
+    energy: str,
+    bracket: tuple[float, float],
+    gamma: float,
+) -> tuple[np.ndarray, np.ndarray, tuple[float, float], float]:
     """The inputs checked: frames [F, H, W, D] linearised with ``gamma``, exposures [F, 2], the
     bracket (lo, hi) and gamma; InputError (TypeError for ``events``) naming what is wrong."""
     if not isinstance(events, EventStream):
@@ -678,9 +725,15 @@ def _check_estimate_inputs(frames: ImageArray, exposures: npt.ArrayLike, events:
     return fr, ex, (lo, hi), gamma
 
 
-def _fit_consistency(fr: np.ndarray, ex: np.ndarray, events: EventStream, method: Method,
-                     bracket: tuple[float, float], pair: bool,
-                     xatol: float) -> tuple[_Fit | None, str, list[tuple[float, float]]]:
+def _fit_consistency(
+    fr: np.ndarray,
+    ex: np.ndarray,
+    events: EventStream,
+    method: Method,
+    bracket: tuple[float, float],
+    pair: bool,
+    xatol: float,
+) -> tuple[_Fit | None, str, list[tuple[float, float]]]:
     """The consistency estimator where ``method`` asks for it and there are two frames or more.
 
     Returns its fit, or None when the single-frame energy is to be used instead; the reason of
@@ -709,15 +762,18 @@ def _fit_consistency(fr: np.ndarray, ex: np.ndarray, events: EventStream, method
         return None, fallback, []
     if method == "auto" and blurry and not lo * BOUND_FACTOR <= est.mean <= hi / BOUND_FACTOR:
         # no self-consistent c in the bracket: one frame instead
-        fallback = (f"consistency: no self-consistent c in the bracket (stopped at {est.mean:.4g}); "
-                    "used the single-frame energy of the most blurred frame")
+        fallback = (
+            f"consistency: no self-consistent c in the bracket (stopped at {est.mean:.4g}); "
+            "used the single-frame energy of the most blurred frame"
+        )
         log.info("estimate_c: %s", fallback)
         return None, fallback, evals
     return _Fit(est, e, n_steps * (len(pairs) + 1), evals, sat, "consistency", "consistency"), "", []
 
 
-def _single_energy(b: np.ndarray, exposure: tuple[float, float], events: EventStream, energy: SingleEnergy,
-                   paper_weight: float) -> Callable[[float], Callable[[float], float]]:
+def _single_energy(
+    b: np.ndarray, exposure: tuple[float, float], events: EventStream, energy: SingleEnergy, paper_weight: float
+) -> Callable[[float], Callable[[float], float]]:
     """ratio c_pos / c_neg -> energy(c) of one blurry frame b [H, W, D] (``_flow_setup`` or ``_paper_energy``)."""
     if energy == "flow":
         return _flow_setup(b, exposure, events)
@@ -729,9 +785,17 @@ def _at_fixed_c(build: Callable[[float], Callable[[float], float]], c: float) ->
     return lambda ratio: build(ratio)(c)
 
 
-def _fit_single(fr: np.ndarray, ex: np.ndarray, events: EventStream, energy: SingleEnergy,
-                bracket: tuple[float, float], pair: bool, xatol: float, paper_weight: float,
-                evals: list[tuple[float, float]]) -> _Fit:
+def _fit_single(
+    fr: np.ndarray,
+    ex: np.ndarray,
+    events: EventStream,
+    energy: SingleEnergy,
+    bracket: tuple[float, float],
+    pair: bool,
+    xatol: float,
+    paper_weight: float,
+    evals: list[tuple[float, float]],
+) -> _Fit:
     """The single-frame estimator on the most blurred frame: c by ``minimize_log``; with ``pair``,
     twice the ratio c_pos / c_neg at fixed c, then c at that ratio. The search on c at ratio 1
     appends to ``evals``."""
@@ -739,8 +803,9 @@ def _fit_single(fr: np.ndarray, ex: np.ndarray, events: EventStream, energy: Sin
     i = int(np.argmax(ex[:, 1] - ex[:, 0]))  # the most blurred frame
     j0, j1 = events_in_window(events, ex[i, 0], ex[i, 1])
     if ex[i, 1] <= ex[i, 0] or j1 == j0:
-        raise InputError("estimate_c: no blurry frame with events in its exposure and fewer than two frames "
-                         "to compare: give c")
+        raise InputError(
+            "estimate_c: no blurry frame with events in its exposure and fewer than two frames to compare: give c"
+        )
     sat = 1.0 - float((fr[i] < SATURATION).all(axis=-1).mean())
     exposure = (float(ex[i, 0]), float(ex[i, 1]))
     build = _single_energy(fr[i], exposure, events, energy, paper_weight)
@@ -773,21 +838,26 @@ def _bound_check(est: Contrast, bracket: tuple[float, float], pair: bool) -> tup
     return at_bound, what
 
 
-def _unreliable_message(fit: _Fit, bracket: tuple[float, float], at_bound: bool, what: str,
-                        explained: float | None) -> str:
+def _unreliable_message(
+    fit: _Fit, bracket: tuple[float, float], at_bound: bool, what: str, explained: float | None
+) -> str:
     """What to do about an estimate at a bracket end or whose events explain too little ("" when
     neither); logged as a warning."""
     unexplained = explained is not None and explained < FLOW_MIN_EXPLAINED
     if not (at_bound or unexplained):
         return ""
     mean_c = fit.est.mean
-    give = ("give c (ebad deblur --c C or --c C_POS,C_NEG) or more frames (two or more use the consistency "
-            "estimator)")
-    message = "estimate_c: " + (f"{what} ({fit.method} estimator, {fit.energy_name} energy): the energy has no "
-                                "interior minimum; " if at_bound else "")
+    give = "give c (ebad deblur --c C or --c C_POS,C_NEG) or more frames (two or more use the consistency estimator)"
+    message = "estimate_c: " + (
+        f"{what} ({fit.method} estimator, {fit.energy_name} energy): the energy has no interior minimum; "
+        if at_bound
+        else ""
+    )
     if unexplained:
-        message += (f"at c = {mean_c:.4g} the frame's motion explains {explained:.0%} of its events' changes "
-                    f"(flow energy; at least {FLOW_MIN_EXPLAINED:.0%} where an estimate holds): {UNEXPLAINED_HINT}; ")
+        message += (
+            f"at c = {mean_c:.4g} the frame's motion explains {explained:.0%} of its events' changes "
+            f"(flow energy; at least {FLOW_MIN_EXPLAINED:.0%} where an estimate holds): {UNEXPLAINED_HINT}; "
+        )
     message += f"this estimate is unreliable; {give}"
     if at_bound and fit.energy_name == "flow" and mean_c < bracket[0] * BOUND_FACTOR:
         message += LOW_END_HINT
@@ -804,8 +874,20 @@ def _report(fit: _Fit, bracket: tuple[float, float], pair: bool, gamma: float, f
     message = _unreliable_message(fit, bracket, at_bound, what, explained)
     if fallback:
         message = (fallback + "; " + message) if message else fallback
-    return ContrastReport(fit.est, fit.method, fit.energy_name, bracket, float(fit.energy), int(fit.n_pass), fit.evals,
-                          float(fit.saturated), gamma, at_bound, message, explained)
+    return ContrastReport(
+        fit.est,
+        fit.method,
+        fit.energy_name,
+        bracket,
+        float(fit.energy),
+        int(fit.n_pass),
+        fit.evals,
+        float(fit.saturated),
+        gamma,
+        at_bound,
+        message,
+        explained,
+    )
 
 
 def estimate_contrast(
@@ -888,5 +970,16 @@ def estimate_c(
     (the arguments are its own). With ``pair`` False both are the one c fitted (``.mean``
     gives it as a float); an estimate that is not reliable is logged as a warning, and
     ``estimate_contrast`` says why."""
-    return estimate_contrast(frames, exposures, events, method=method, energy=energy, bracket=bracket, pair=pair,
-                             polarity=polarity, xatol=xatol, paper_weight=paper_weight, gamma=gamma).c
+    return estimate_contrast(
+        frames,
+        exposures,
+        events,
+        method=method,
+        energy=energy,
+        bracket=bracket,
+        pair=pair,
+        polarity=polarity,
+        xatol=xatol,
+        paper_weight=paper_weight,
+        gamma=gamma,
+    ).c

@@ -10,6 +10,7 @@ inter-event intervals of every pixel, and one pass over the events serves all in
 With eps = 0 this is the EDI paper's L = B T / integral exp(c E); eps keeps a black
 pixel black (0, not NaN) and bounds the gain on dark pixels.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -21,8 +22,23 @@ import numpy.typing as npt
 from .contrast import ContrastReport, estimate_contrast
 from .errors import InputError
 from .events import EventStream, events_in_window
-from .model import (LOG_EPS, SATURATION, Contrast, ContrastLike, EdiImpl, ImageArray, apply_gamma, check_exposure,
-                    check_gamma, check_image, check_times, edi_log_ratio, latent_from_ratio, linearize, parse_c)
+from .model import (
+    LOG_EPS,
+    SATURATION,
+    Contrast,
+    ContrastLike,
+    EdiImpl,
+    ImageArray,
+    apply_gamma,
+    check_exposure,
+    check_gamma,
+    check_image,
+    check_times,
+    edi_log_ratio,
+    latent_from_ratio,
+    linearize,
+    parse_c,
+)
 
 if TYPE_CHECKING:
     import torch
@@ -45,15 +61,33 @@ class DeblurReport:
 
 
 @overload
-def deblur(blur: np.ndarray, exposure: npt.ArrayLike, events: EventStream, times: Times = None,
-           c: ContrastLike | None = None, *, impl: EdiImpl = "fast", n_bins: int | None = None,
-           saturation: float = SATURATION, gamma: float = 1.0) -> np.ndarray: ...
+def deblur(
+    blur: np.ndarray,
+    exposure: npt.ArrayLike,
+    events: EventStream,
+    times: Times = None,
+    c: ContrastLike | None = None,
+    *,
+    impl: EdiImpl = "fast",
+    n_bins: int | None = None,
+    saturation: float = SATURATION,
+    gamma: float = 1.0,
+) -> np.ndarray: ...
 
 
 @overload
-def deblur(blur: torch.Tensor, exposure: npt.ArrayLike, events: EventStream, times: Times = None,
-           c: ContrastLike | None = None, *, impl: EdiImpl = "fast", n_bins: int | None = None,
-           saturation: float = SATURATION, gamma: float = 1.0) -> torch.Tensor: ...
+def deblur(
+    blur: torch.Tensor,
+    exposure: npt.ArrayLike,
+    events: EventStream,
+    times: Times = None,
+    c: ContrastLike | None = None,
+    *,
+    impl: EdiImpl = "fast",
+    n_bins: int | None = None,
+    saturation: float = SATURATION,
+    gamma: float = 1.0,
+) -> torch.Tensor: ...
 
 
 def deblur(
@@ -97,20 +131,39 @@ def deblur(
 
     Convention: L(f) = (B + eps) / ((1/T) integral exp(E(t) - E(f)) dt) - eps, eps = LOG_EPS.
     """
-    return deblur_with_report(blur, exposure, events, times, c, impl=impl, n_bins=n_bins, saturation=saturation,
-                              gamma=gamma)[0]
+    return deblur_with_report(
+        blur, exposure, events, times, c, impl=impl, n_bins=n_bins, saturation=saturation, gamma=gamma
+    )[0]
 
 
 @overload
-def deblur_with_report(blur: np.ndarray, exposure: npt.ArrayLike, events: EventStream, times: Times = None,
-                       c: ContrastLike | None = None, *, impl: EdiImpl = "fast", n_bins: int | None = None,
-                       saturation: float = SATURATION, gamma: float = 1.0) -> tuple[np.ndarray, DeblurReport]: ...
+def deblur_with_report(
+    blur: np.ndarray,
+    exposure: npt.ArrayLike,
+    events: EventStream,
+    times: Times = None,
+    c: ContrastLike | None = None,
+    *,
+    impl: EdiImpl = "fast",
+    n_bins: int | None = None,
+    saturation: float = SATURATION,
+    gamma: float = 1.0,
+) -> tuple[np.ndarray, DeblurReport]: ...
 
 
 @overload
-def deblur_with_report(blur: torch.Tensor, exposure: npt.ArrayLike, events: EventStream, times: Times = None,
-                       c: ContrastLike | None = None, *, impl: EdiImpl = "fast", n_bins: int | None = None,
-                       saturation: float = SATURATION, gamma: float = 1.0) -> tuple[torch.Tensor, DeblurReport]: ...
+def deblur_with_report(
+    blur: torch.Tensor,
+    exposure: npt.ArrayLike,
+    events: EventStream,
+    times: Times = None,
+    c: ContrastLike | None = None,
+    *,
+    impl: EdiImpl = "fast",
+    n_bins: int | None = None,
+    saturation: float = SATURATION,
+    gamma: float = 1.0,
+) -> tuple[torch.Tensor, DeblurReport]: ...
 
 
 def deblur_with_report(

@@ -13,6 +13,7 @@ It lives in ``edi`` because ``edi`` is the package every other one may import (D
 The subclasses also derive from ``ValueError`` where they did before, so code that caught
 ``ValueError`` from the Python API keeps working.
 """
+
 from __future__ import annotations
 
 __all__ = ["EbadError", "EventError", "InputError"]

@@ -5,6 +5,7 @@ are pixel indices (column, row), ``p`` is stored as int8 in {-1, +1}. Raw epoch
 timestamps (AEDAT4 gives ~1.6e15 us) are reduced by ``t0`` in integer arithmetic
 before anything becomes a float.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -77,8 +78,16 @@ class EventStream:
     t0: int = 0
     _checked: bool = field(default=False, repr=False)
 
-    def __init__(self, t: npt.ArrayLike, x: npt.ArrayLike, y: npt.ArrayLike, p: npt.ArrayLike,  # [M] each
-                 width: int, height: int, t0: int = 0) -> None:
+    def __init__(
+        self,
+        t: npt.ArrayLike,
+        x: npt.ArrayLike,
+        y: npt.ArrayLike,
+        p: npt.ArrayLike,  # [M] each
+        width: int,
+        height: int,
+        t0: int = 0,
+    ) -> None:
         if int(width) <= 0 or int(height) <= 0:
             raise EventError(f"sensor size must be positive, got width={width}, height={height}")
         t_a, x_a, y_a, p_a = (_to_numpy(a, n) for a, n in ((t, "t"), (x, "x"), (y, "y"), (p, "p")))
@@ -102,14 +111,18 @@ class EventStream:
             dec = np.diff(t_i) < 0
             if dec.any():
                 i = _first_bad(dec) + 1
-                raise EventError(f"events field 't' is not sorted: index {i} ({t_i[i]}) comes before index {i-1} ({t_i[i-1]})")
+                raise EventError(
+                    f"events field 't' is not sorted: index {i} ({t_i[i]}) comes before index {i - 1} ({t_i[i - 1]})"
+                )
         x_i = _as_int_coords(x_a, "x")
         y_i = _as_int_coords(y_a, "y")
         for arr, name, lim in ((x_i, "x", int(width)), (y_i, "y", int(height))):
             bad = (arr < 0) | (arr >= lim)
             if bad.any():
                 i = _first_bad(bad)
-                raise EventError(f"events field '{name}' is outside the sensor at index {i}: {arr[i]} not in [0, {lim})")
+                raise EventError(
+                    f"events field '{name}' is outside the sensor at index {i}: {arr[i]} not in [0, {lim})"
+                )
         if p_a.dtype == bool:
             p_a = p_a.astype(np.int8)
         p_f = np.asarray(p_a, dtype=np.float64)
@@ -180,8 +193,7 @@ class EventStream:
             from .errors import InputError
 
             raise InputError(f"polarity must be None, +1 or -1, got {polarity!r}")
-        flat = np.bincount(self.y.astype(np.int64) * self.width + self.x, weights=w,
-                           minlength=self.width * self.height)
+        flat = np.bincount(self.y.astype(np.int64) * self.width + self.x, weights=w, minlength=self.width * self.height)
         return flat.astype(np.int64).reshape(self.height, self.width)
 
     def times_s(self) -> np.ndarray:

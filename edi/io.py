@@ -18,6 +18,7 @@ relative by subtracting the first event's time in int64 (kept as ``EventStream.t
 A file that cannot be parsed (truncated, not the format its extension says) raises
 ``EventError`` naming the file and what is wrong.
 """
+
 from __future__ import annotations
 
 import logging
@@ -83,14 +84,19 @@ def infer_time_unit(t: np.ndarray) -> tuple[str, str]:
             sec = t_min * UNITS_US[unit] * 1e-6
             if EPOCH_RANGE_S[0] <= sec <= EPOCH_RANGE_S[1]:
                 year = 1970 + sec / 31_557_600
-                return unit, (f"integer timestamps from {t_min:.4g}: {unit} since 1970 date them to {year:.0f} "
-                              f"(span {span * UNITS_US[unit] * 1e-6:.4g} s)")
+                return unit, (
+                    f"integer timestamps from {t_min:.4g}: {unit} since 1970 date them to {year:.0f} "
+                    f"(span {span * UNITS_US[unit] * 1e-6:.4g} s)"
+                )
         raise EventError(
             f"cannot tell the time unit: timestamps from {t_min:.4g} are no date between 1990 and 2100 in s, ms, "
             f"us or ns since 1970; give t_unit (ebad deblur --t-unit)"
         )
     if span >= SPAN_NS_MIN:
-        return "ns", f"relative integer timestamps spanning {span:.4g} (>= {SPAN_NS_MIN:.0e}: {span * 1e-9:.4g} s in ns)"
+        return (
+            "ns",
+            f"relative integer timestamps spanning {span:.4g} (>= {SPAN_NS_MIN:.0e}: {span * 1e-9:.4g} s in ns)",
+        )
     if span < SPAN_US_MAX:
         return "us", f"relative integer timestamps spanning {span:.4g} (< {SPAN_US_MAX:.0e}: {span * 1e-6:.4g} s in us)"
     raise EventError(
@@ -134,7 +140,9 @@ def _pick(keys: set[str], field: str, path: str) -> str:
     for a in _ALIASES[field]:
         if a in keys:
             return a
-    raise EventError(f"{path}: no events field '{field}' (looked for {', '.join(_ALIASES[field])}; found {sorted(keys)})")
+    raise EventError(
+        f"{path}: no events field '{field}' (looked for {', '.join(_ALIASES[field])}; found {sorted(keys)})"
+    )
 
 
 def _load_arrays(path: Path) -> dict[str, np.ndarray]:
@@ -201,18 +209,36 @@ def _parse_arrays(path: Path, ext: str) -> dict[str, np.ndarray]:
 
 
 @overload
-def read_events(path: str | Path, t_unit: str | None = None, width: int | None = None, height: int | None = None, *,
-                return_unit: Literal[False] = False) -> EventStream: ...
+def read_events(
+    path: str | Path,
+    t_unit: str | None = None,
+    width: int | None = None,
+    height: int | None = None,
+    *,
+    return_unit: Literal[False] = False,
+) -> EventStream: ...
 
 
 @overload
-def read_events(path: str | Path, t_unit: str | None = None, width: int | None = None, height: int | None = None, *,
-                return_unit: Literal[True]) -> tuple[EventStream, str, str]: ...
+def read_events(
+    path: str | Path,
+    t_unit: str | None = None,
+    width: int | None = None,
+    height: int | None = None,
+    *,
+    return_unit: Literal[True],
+) -> tuple[EventStream, str, str]: ...
 
 
 @overload
-def read_events(path: str | Path, t_unit: str | None = None, width: int | None = None, height: int | None = None, *,
-                return_unit: bool) -> EventStream | tuple[EventStream, str, str]: ...
+def read_events(
+    path: str | Path,
+    t_unit: str | None = None,
+    width: int | None = None,
+    height: int | None = None,
+    *,
+    return_unit: bool,
+) -> EventStream | tuple[EventStream, str, str]: ...
 
 
 def read_events(
@@ -363,8 +389,10 @@ def read_aedat4(path: str | Path) -> AedatRecording:
                 frames.append(_frame_pixels(fr["pixels"], fr.get("format", "L")))
                 exps.append((int(fr["exposure_begin_t"]), int(fr["exposure_end_t"])))
     except (OSError, RuntimeError) as exc:  # the decoder's "failed to fill whole buffer" on a truncated file
-        raise CorruptFileError(f"{path}: truncated or corrupt AEDAT4 file after {len(ev_chunks)} event and "
-                         f"{len(frames)} frame packets ({type(exc).__name__}: {exc})") from exc
+        raise CorruptFileError(
+            f"{path}: truncated or corrupt AEDAT4 file after {len(ev_chunks)} event and "
+            f"{len(frames)} frame packets ({type(exc).__name__}: {exc})"
+        ) from exc
     evs = np.concatenate(ev_chunks) if ev_chunks else None
     t_raw = evs["t"].astype(np.int64) if evs is not None else np.zeros(0, np.int64)
     candidates = [int(t_raw[0])] if len(t_raw) else []
@@ -374,7 +402,9 @@ def read_aedat4(path: str | Path) -> AedatRecording:
     if evs is not None:
         order = np.argsort(t_raw, kind="stable")  # packets may interleave slightly
         pol = evs[evs.dtype.names[3]]
-        events = EventStream(t_raw[order], evs["x"][order], evs["y"][order], pol[order].astype(np.int8), size[0], size[1], t0=t0)
+        events = EventStream(
+            t_raw[order], evs["x"][order], evs["y"][order], pol[order].astype(np.int8), size[0], size[1], t0=t0
+        )
     else:
         events = EventStream.empty(size[0], size[1])
     if frames:
@@ -406,7 +436,9 @@ def _read_aedat4_dv(path: Path) -> AedatRecording:  # pragma: no cover - needs d
     a = np.concatenate(evs) if evs else None
     t_raw = a["timestamp"].astype(np.int64) if a is not None else np.zeros(0, np.int64)
     t0 = min([int(t_raw[0])] if len(t_raw) else [] + [e[0] for e in exps] or [0])
-    events = EventStream(t_raw, a["x"], a["y"], a["polarity"], w, h, t0=t0) if a is not None else EventStream.empty(w, h)
+    events = (
+        EventStream(t_raw, a["x"], a["y"], a["polarity"], w, h, t0=t0) if a is not None else EventStream.empty(w, h)
+    )
     ex = (np.asarray(exps, np.int64) - t0) * 1e-6 if exps else np.zeros((0, 2))
     fr_arr = np.stack(frames) if frames else np.zeros((0, h, w, 1), np.float32)
     return AedatRecording(events, fr_arr, ex, t0)

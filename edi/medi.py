@@ -13,6 +13,7 @@ events from their neighbours); every pixel's system is solved with its own weigh
 vectorised Thomas algorithm (``solve_tridiagonal``). Large lam trusts the events, small lam
 the frames; lam = 1 by default.
 """
+
 from __future__ import annotations
 
 from typing import TYPE_CHECKING, overload
@@ -22,8 +23,16 @@ import numpy.typing as npt
 
 from .contrast import estimate_c
 from .errors import InputError
-from .model import (LOG_EPS, SATURATION, ContrastLike, ImageArray, check_frames, edi_log_ratio, latent_from_ratio,
-                    parse_c)
+from .model import (
+    LOG_EPS,
+    SATURATION,
+    ContrastLike,
+    ImageArray,
+    check_frames,
+    edi_log_ratio,
+    latent_from_ratio,
+    parse_c,
+)
 from .events import EventStream, events_in_window
 
 if TYPE_CHECKING:
@@ -62,13 +71,27 @@ def solve_tridiagonal(
 
 
 @overload
-def medi(frames: np.ndarray, exposures: npt.ArrayLike, events: EventStream, c: ContrastLike | None = None, *,
-         lam: float = 1.0, saturation: float = SATURATION) -> np.ndarray: ...
+def medi(
+    frames: np.ndarray,
+    exposures: npt.ArrayLike,
+    events: EventStream,
+    c: ContrastLike | None = None,
+    *,
+    lam: float = 1.0,
+    saturation: float = SATURATION,
+) -> np.ndarray: ...
 
 
 @overload
-def medi(frames: torch.Tensor, exposures: npt.ArrayLike, events: EventStream, c: ContrastLike | None = None, *,
-         lam: float = 1.0, saturation: float = SATURATION) -> torch.Tensor: ...
+def medi(
+    frames: torch.Tensor,
+    exposures: npt.ArrayLike,
+    events: EventStream,
+    c: ContrastLike | None = None,
+    *,
+    lam: float = 1.0,
+    saturation: float = SATURATION,
+) -> torch.Tensor: ...
 
 
 def medi(

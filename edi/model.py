@@ -13,6 +13,7 @@ and the blurry frame is the mean over the exposure, B = (1/T) integral I(t) dt. 
 ``edi_log_ratio`` computes r_f (one pass over the exposure's events), ``latent_from_ratio``
 the latent. ``deblur``, ``estimate_c`` and ``medi`` are built on these two.
 """
+
 from __future__ import annotations
 
 import math
@@ -168,8 +169,7 @@ def check_image(img: Any, name: str, events: EventStream | None) -> tuple[np.nda
         arr = arr[..., None]
     if events is not None and (arr.shape[0], arr.shape[1]) != (events.height, events.width):
         raise InputError(
-            f"{name} is {arr.shape[0]}x{arr.shape[1]} (HxW) but the events' sensor is "
-            f"{events.height}x{events.width}"
+            f"{name} is {arr.shape[0]}x{arr.shape[1]} (HxW) but the events' sensor is {events.height}x{events.width}"
         )
     return arr, is_torch
 
@@ -248,8 +248,19 @@ def edi_log_ratio(
         return np.zeros((len(times), H, W)), 0
     order = np.argsort(times, kind="stable")
     inst = np.clip(np.asarray(times, np.float64)[order] * 1e6, t0_us, t1_us)
-    args = (events.t[i0:i1], events.x[i0:i1], events.y[i0:i1], events.p[i0:i1], W, H,
-            float(t0_us), float(t1_us), inst, float(c[0]), float(c[1]))
+    args = (
+        events.t[i0:i1],
+        events.x[i0:i1],
+        events.y[i0:i1],
+        events.p[i0:i1],
+        W,
+        H,
+        float(t0_us),
+        float(t1_us),
+        inst,
+        float(c[0]),
+        float(c[1]),
+    )
     if impl == "binned":
         logmean, Ef = edi_pass_binned(*args, n_bins=int(n_bins))
     else:
@@ -289,8 +300,10 @@ def check_gamma(gamma: Any, name: str = "gamma") -> float:
     return g
 
 
-def linearize(recorded: np.ndarray,  # [..., D] recorded values in [0, 1]
-              gamma: float) -> np.ndarray:
+def linearize(
+    recorded: np.ndarray,  # [..., D] recorded values in [0, 1]
+    gamma: float,
+) -> np.ndarray:
     """Irradiance (relative, in [0, 1]) from values recorded through ``recorded = irradiance ** gamma``.
 
     Convention: blur averages irradiance and events see its log, so EDI and the contrast
@@ -298,7 +311,9 @@ def linearize(recorded: np.ndarray,  # [..., D] recorded values in [0, 1]
     return recorded if gamma == 1.0 else np.power(recorded, 1.0 / gamma)
 
 
-def apply_gamma(irradiance: np.ndarray,  # [..., D] relative irradiance in [0, 1]
-                gamma: float) -> np.ndarray:
+def apply_gamma(
+    irradiance: np.ndarray,  # [..., D] relative irradiance in [0, 1]
+    gamma: float,
+) -> np.ndarray:
     """Recorded values ``irradiance ** gamma`` (the inverse of ``linearize``)."""
     return irradiance if gamma == 1.0 else np.power(irradiance, gamma)

@@ -7,6 +7,7 @@ The blurry frame is the mean of the sharp images over the exposure (the same gri
 the EDI model holds up to the quantisation of the events. Used by the tests and the
 benchmark; small and fast (numpy only).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -124,7 +125,9 @@ def moving_texture(
     if ts:
         t = np.concatenate(ts)
         order = np.argsort(t, kind="stable")
-        ev = EventStream(t[order], np.concatenate(xs)[order], np.concatenate(ys)[order], np.concatenate(ps)[order], width, height)
+        ev = EventStream(
+            t[order], np.concatenate(xs)[order], np.concatenate(ys)[order], np.concatenate(ps)[order], width, height
+        )
     else:
         ev = EventStream.empty(width, height)
     exposures = np.array([[lead + i * period, lead + i * period + exposure] for i in range(num_frames)])

@@ -13,6 +13,7 @@ Public API::
     write_scene(scene, out_dir)
     scenes.colmap.estimate_poses(capture) -> PoseEstimate   # pycolmap SfM, K fixed, test views registered too
 """
+
 from .capture import Capture, TestView
 from .errors import CaptureError
 from .format import read_ground_truth, save
@@ -23,7 +24,28 @@ from .simulate import simulate_events
 from .synth import SCENES, SENSORS, SIZES, Sensor, SynthScene, make_scene, write_scene
 from . import colmap  # noqa: E402  (pycolmap itself is imported when estimate_poses runs)
 
-__all__ = ["Capture", "TestView", "CaptureError", "load", "save", "read_image", "write_image", "read_ground_truth",
-           "detect_layout", "simulate_events", "make_scene", "write_scene", "SynthScene", "Sensor", "SENSORS", "SCENES",
-           "SIZES", "render", "RayScene", "Quad",
-           "Sphere", "project_points", "colmap"]
+__all__ = [
+    "Capture",
+    "TestView",
+    "CaptureError",
+    "load",
+    "save",
+    "read_image",
+    "write_image",
+    "read_ground_truth",
+    "detect_layout",
+    "simulate_events",
+    "make_scene",
+    "write_scene",
+    "SynthScene",
+    "Sensor",
+    "SENSORS",
+    "SCENES",
+    "SIZES",
+    "render",
+    "RayScene",
+    "Quad",
+    "Sphere",
+    "project_points",
+    "colmap",
+]

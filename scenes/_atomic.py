@@ -8,6 +8,7 @@ share a temporary. ``write_text_atomic`` and ``write_bytes_atomic`` are the comm
 
 Standard library only: ``ebad`` imports it without loading anything heavy.
 """
+
 from __future__ import annotations
 
 import os

@@ -1,4 +1,5 @@
 """The in-memory capture: what every reader returns and the reconstruction eats."""
+
 from __future__ import annotations
 
 import math
@@ -11,8 +12,17 @@ from edi import EventStream
 
 from .errors import CaptureError
 
-__all__ = ["Capture", "TestView", "check_rigid", "nearest_rigid", "guess_K", "POSE_TRUST", "ROTATION_REPAIR_TOL",
-           "EXACT_RIGID_TOL", "DAVIS_DEFAULT_HFOV_DEG"]
+__all__ = [
+    "Capture",
+    "TestView",
+    "check_rigid",
+    "nearest_rigid",
+    "guess_K",
+    "POSE_TRUST",
+    "ROTATION_REPAIR_TOL",
+    "EXACT_RIGID_TOL",
+    "DAVIS_DEFAULT_HFOV_DEG",
+]
 
 RIGID_TOL = 1e-5  # max |R^T R - I| and |det R - 1| accepted for a camera pose
 # How far a capture's poses can be trusted, as the capture states it (real captures state it
@@ -42,13 +52,18 @@ def check_rigid(m: np.ndarray, file: str | None, field_name: str) -> np.ndarray:
     ortho = np.abs(r.T @ r - np.eye(3)).max()
     det = float(np.linalg.det(r))
     if ortho > RIGID_TOL or abs(det - 1.0) > RIGID_TOL:
-        raise CaptureError(file, field_name,
-                           f"is not a rigid transform (max |R^T R - I| = {ortho:.2e}, det R = {det:.6f})")
+        raise CaptureError(
+            file, field_name, f"is not a rigid transform (max |R^T R - I| = {ortho:.2e}, det R = {det:.6f})"
+        )
     return a
 
 
-def nearest_rigid(m: Any,  # [4, 4]
-                  file: str | None, field_name: str, tol: float = ROTATION_REPAIR_TOL) -> np.ndarray:
+def nearest_rigid(
+    m: Any,  # [4, 4]
+    file: str | None,
+    field_name: str,
+    tol: float = ROTATION_REPAIR_TOL,
+) -> np.ndarray:
     """A camera pose read from a file as a float64 [4, 4] rigid transform.
 
     A pose already orthonormal to ``EXACT_RIGID_TOL`` is returned unchanged (so save -> load
@@ -73,11 +88,17 @@ def nearest_rigid(m: Any,  # [4, 4]
     u, sv, vt = np.linalg.svd(a[:3, :3])
     det = float(np.linalg.det(a[:3, :3]))
     if det <= 0:
-        raise CaptureError(file, field_name, f"is not a rigid transform: the rotation is a reflection (det R = {det:.6f})")
+        raise CaptureError(
+            file, field_name, f"is not a rigid transform: the rotation is a reflection (det R = {det:.6f})"
+        )
     dev = float(np.abs(sv - 1.0).max())
     if dev > tol:
-        raise CaptureError(file, field_name, f"is not a rigid transform: the rotation block scales by "
-                                             f"{sv.min():.6f}..{sv.max():.6f} (repaired only within {tol:g} of 1)")
+        raise CaptureError(
+            file,
+            field_name,
+            f"is not a rigid transform: the rotation block scales by "
+            f"{sv.min():.6f}..{sv.max():.6f} (repaired only within {tol:g} of 1)",
+        )
     if dev > EXACT_RIGID_TOL or np.abs(a[3] - np.array([0.0, 0.0, 0.0, 1.0])).max() > EXACT_RIGID_TOL:
         a[:3, :3] = u @ vt
         a[3] = (0.0, 0.0, 0.0, 1.0)
@@ -174,8 +195,9 @@ class Capture:
         """frames: a float32 [F, H, W, D] array, D in (1, 3), F >= 1, finite, in [0, 1]."""
         f = self.frames
         if not isinstance(f, np.ndarray) or f.ndim != 4 or f.shape[3] not in (1, 3):
-            raise CaptureError(source, "frames", f"must be a [F, H, W, D] array with D in (1, 3), got "
-                                                 f"{getattr(f, 'shape', type(f))}")
+            raise CaptureError(
+                source, "frames", f"must be a [F, H, W, D] array with D in (1, 3), got {getattr(f, 'shape', type(f))}"
+            )
         if f.shape[0] == 0:
             raise CaptureError(source, "frames", "a capture needs at least one frame")
         if f.dtype != np.float32:
@@ -201,8 +223,9 @@ class Capture:
         if not isinstance(ev, EventStream):
             raise CaptureError(source, "events", f"must be an edi.EventStream, got {type(ev).__name__}")
         if (ev.width, ev.height) != (self.width, self.height):
-            raise CaptureError(source, "events", f"sensor {ev.width}x{ev.height} differs from the frames' "
-                                                 f"{self.width}x{self.height}")
+            raise CaptureError(
+                source, "events", f"sensor {ev.width}x{ev.height} differs from the frames' {self.width}x{self.height}"
+            )
 
     def _check_camera(self, source: str | None) -> None:
         """K: a finite pinhole [[fx, 0, cx], [0, fy, cy], [0, 0, 1]], fx, fy > 0; distortion: 5 finite numbers or None."""
@@ -214,7 +237,9 @@ class Capture:
         if self.distortion is not None:
             d = np.asarray(self.distortion, dtype=np.float64)
             if d.shape != (5,) or not np.isfinite(d).all():
-                raise CaptureError(source, "distortion", f"must be 5 finite numbers k1 k2 p1 p2 k3, got shape {d.shape}")
+                raise CaptureError(
+                    source, "distortion", f"must be 5 finite numbers k1 k2 p1 p2 k3, got shape {d.shape}"
+                )
 
     def _check_poses(self, source: str | None) -> None:
         """c2w: None or [F, 4, 4] rigid; pose_trust: unset or one of ``POSE_TRUST``, and not trusted without poses."""
@@ -226,7 +251,9 @@ class Capture:
             for i in range(n):
                 check_rigid(c[i], source, f"frames[{i}].c2w")
         if self.pose_trust is not None and self.pose_trust not in POSE_TRUST:
-            raise CaptureError(source, "pose_trust", f"must be one of {list(POSE_TRUST)} or unset, got {self.pose_trust!r}")
+            raise CaptureError(
+                source, "pose_trust", f"must be one of {list(POSE_TRUST)} or unset, got {self.pose_trust!r}"
+            )
         if self.pose_trust in ("exact", "approximate") and self.c2w is None:
             raise CaptureError(source, "pose_trust", f"is {self.pose_trust!r} but the frames carry no c2w")
 
@@ -252,8 +279,10 @@ def _check_test_view(tv: TestView, j: int, image_shape: tuple[int, ...], source:
     if tv.image is not None:
         im = tv.image
         if not isinstance(im, np.ndarray) or im.shape != image_shape or im.dtype != np.float32:
-            raise CaptureError(source, f"test_views[{j}].image",
-                               f"must be float32 {image_shape}, got {getattr(im, 'dtype', None)} "
-                               f"{getattr(im, 'shape', None)}")
+            raise CaptureError(
+                source,
+                f"test_views[{j}].image",
+                f"must be float32 {image_shape}, got {getattr(im, 'dtype', None)} {getattr(im, 'shape', None)}",
+            )
         if not np.isfinite(im).all() or im.min() < 0 or im.max() > 1:
             raise CaptureError(source, f"test_views[{j}].image", "must be finite and in [0, 1]")

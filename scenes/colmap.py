@@ -13,6 +13,7 @@ registration threshold): ``PoseEstimate.test_c2w`` holds their poses in the SfM 
 No truth is read: the contrast threshold for EDI is estimated from the capture
 (``edi.estimate_c``), never taken from ``Capture.meta``.
 """
+
 from __future__ import annotations
 
 import math
@@ -34,8 +35,16 @@ from .capture import Capture, TestView
 from .poses import interpolate_poses
 from .errors import CaptureError
 
-__all__ = ["ColmapConfig", "PoseEstimate", "SfMError", "estimate_poses", "align_similarity", "apply_similarity",
-           "rotation_errors_deg", "pose_errors"]
+__all__ = [
+    "ColmapConfig",
+    "PoseEstimate",
+    "SfMError",
+    "estimate_poses",
+    "align_similarity",
+    "apply_similarity",
+    "rotation_errors_deg",
+    "pose_errors",
+]
 
 AXIS_LENGTH = 1.0  # align_similarity: camera axis tips at this x the RMS spread of the centres
 
@@ -136,8 +145,9 @@ def _interp_missing(c2w: np.ndarray, registered: np.ndarray, t: np.ndarray) -> n
     if len(tk) >= 2:
         known = c2w[idx[uniq]]
         miss = ~registered
-        out[miss], _ = interpolate_poses(t[miss], tk, known[:, :3, 3], Rotation.from_matrix(known[:, :3, :3]).as_quat(),
-                                         clamp_s=np.inf)  # beyond the ends: the end pose
+        out[miss], _ = interpolate_poses(
+            t[miss], tk, known[:, :3, 3], Rotation.from_matrix(known[:, :3, :3]).as_quat(), clamp_s=np.inf
+        )  # beyond the ends: the end pose
     else:
         out[~registered] = c2w[idx[0]]
     return out
@@ -152,19 +162,25 @@ def _failure_hint(cfg: ColmapConfig, capture: Capture, report: dict) -> str:
         tips.append("EDI deblurring needs events inside the exposures: none of the frames had any")
     else:
         c = report.get("c_estimated")
-        tips.append(f"a better contrast threshold for EDI (estimated c = {c if c is not None else 'per frame'}; "
-                    f"`ebad deblur` on one frame shows whether the latents are sharp)")
-    tips.append(f"more frames with more overlap ({capture.num_frames} in the capture, "
-                f"{report.get('frames_used', '?')} used)")
+        tips.append(
+            f"a better contrast threshold for EDI (estimated c = {c if c is not None else 'per frame'}; "
+            f"`ebad deblur` on one frame shows whether the latents are sharp)"
+        )
+    tips.append(
+        f"more frames with more overlap ({capture.num_frames} in the capture, {report.get('frames_used', '?')} used)"
+    )
     tips.append("correct known intrinsics (K is kept fixed; a wrong K breaks registration)")
     if capture.width < 2 * cfg.upsample_below:
-        tips.append(f"lower matching thresholds (init_min_num_inliers {cfg.init_min_num_inliers}, "
-                    f"abs_pose_min_num_inliers {cfg.abs_pose_min_num_inliers}) for small frames")
+        tips.append(
+            f"lower matching thresholds (init_min_num_inliers {cfg.init_min_num_inliers}, "
+            f"abs_pose_min_num_inliers {cfg.abs_pose_min_num_inliers}) for small frames"
+        )
     return "; try: " + "; ".join(tips)
 
 
-def estimate_poses(capture: Capture, config: ColmapConfig | None = None, frames: list[int] | None = None,
-                   workdir: str | None = None) -> PoseEstimate:
+def estimate_poses(
+    capture: Capture, config: ColmapConfig | None = None, frames: list[int] | None = None, workdir: str | None = None
+) -> PoseEstimate:
     """SfM with pycolmap on the CPU: EDI-deblur, SIFT, matching, incremental mapping with K fixed.
 
     Test views with an image (those without a pose, or all: ``config.test_views``) are matched
@@ -214,16 +230,24 @@ def estimate_poses(capture: Capture, config: ColmapConfig | None = None, frames:
             db.unlink()
         reader = pycolmap.ImageReaderOptions()
         reader.camera_model = "PINHOLE"
-        reader.camera_params = ",".join(f"{v:.10g}" for v in (K[0, 0] * scale, K[1, 1] * scale, K[0, 2] * scale,
-                                                               K[1, 2] * scale))
+        reader.camera_params = ",".join(
+            f"{v:.10g}" for v in (K[0, 0] * scale, K[1, 1] * scale, K[0, 2] * scale, K[1, 2] * scale)
+        )
         if hasattr(pycolmap, "set_random_seed"):  # RANSAC in matching and mapping; bit-exact only with 1 thread
             pycolmap.set_random_seed(cfg.seed)
         ext = pycolmap.FeatureExtractionOptions()
         ext.num_threads = cfg.num_threads
         ext.use_gpu = False
         ext.sift.max_num_features = cfg.max_num_features
-        pycolmap.extract_features(db, img_dir, image_names=names + test_names, camera_mode=pycolmap.CameraMode.SINGLE,
-                                  reader_options=reader, extraction_options=ext, device=pycolmap.Device.cpu)
+        pycolmap.extract_features(
+            db,
+            img_dir,
+            image_names=names + test_names,
+            camera_mode=pycolmap.CameraMode.SINGLE,
+            reader_options=reader,
+            extraction_options=ext,
+            device=pycolmap.Device.cpu,
+        )
         t_feat = time.perf_counter()
         mopt = pycolmap.FeatureMatchingOptions()
         mopt.num_threads = cfg.num_threads
@@ -265,27 +289,49 @@ def estimate_poses(capture: Capture, config: ColmapConfig | None = None, frames:
             shutil.rmtree(root, ignore_errors=True)
     need = max(min(cfg.min_registered, len(idx)), int(math.ceil(cfg.min_registered_fraction * len(idx))))
     if not recs:
-        raise SfMError(f"SfM registered no frames (0 of {len(idx)}; need {need}): too few matched features"
-                       + _failure_hint(cfg, capture, report))
+        raise SfMError(
+            f"SfM registered no frames (0 of {len(idx)}; need {need}): too few matched features"
+            + _failure_hint(cfg, capture, report)
+        )
     name_to_i = {n: i for i, n in enumerate(names)}
     rec = max(recs.values(), key=lambda r: sum(1 for im in r.images.values() if im.has_pose and im.name in name_to_i))
     c2w, registered, test_c2w = _registered_poses(rec, name_to_i, dict(zip(test_names, tests)))
     n_reg = int(registered.sum())
     if n_reg < need:
-        raise SfMError(f"SfM registered only {n_reg} of {len(idx)} frames (need {need}) in its largest model "
-                       f"({len(recs)} model(s))" + _failure_hint(cfg, capture, report))
+        raise SfMError(
+            f"SfM registered only {n_reg} of {len(idx)} frames (need {need}) in its largest model "
+            f"({len(recs)} model(s))" + _failure_hint(cfg, capture, report)
+        )
     t_mid = capture.exposures[idx].mean(axis=1)
     c2w = _interp_missing(c2w, registered, t_mid)
     points, colors = _sparse_points(rec, capture.channels)
     test_unreg = [tv.name for tv in tests if tv.name not in test_c2w]
-    report.update({"registered": n_reg, "unregistered": np.flatnonzero(~registered).tolist(),
-                   "test_registered": len(test_c2w), "test_unregistered": test_unreg,
-                   "points": len(points), "models": len(recs), "matcher": matcher, "upsampled": scale,
-                   "mean_reprojection_error_px": float(rec.compute_mean_reprojection_error()) / scale,
-                   "time_features_s": t_feat - t_start, "time_matching_s": t_match - t_feat,
-                   "time_mapping_s": t_map - t_match, "time_total_s": time.perf_counter() - t_start})
-    return PoseEstimate(c2w=c2w, points=points, colors=colors.astype(np.float32), registered=registered, report=report,
-                        test_c2w=test_c2w, test_unregistered=test_unreg)
+    report.update(
+        {
+            "registered": n_reg,
+            "unregistered": np.flatnonzero(~registered).tolist(),
+            "test_registered": len(test_c2w),
+            "test_unregistered": test_unreg,
+            "points": len(points),
+            "models": len(recs),
+            "matcher": matcher,
+            "upsampled": scale,
+            "mean_reprojection_error_px": float(rec.compute_mean_reprojection_error()) / scale,
+            "time_features_s": t_feat - t_start,
+            "time_matching_s": t_match - t_feat,
+            "time_mapping_s": t_map - t_match,
+            "time_total_s": time.perf_counter() - t_start,
+        }
+    )
+    return PoseEstimate(
+        c2w=c2w,
+        points=points,
+        colors=colors.astype(np.float32),
+        registered=registered,
+        report=report,
+        test_c2w=test_c2w,
+        test_unregistered=test_unreg,
+    )
 
 
 def _sfm_inputs(capture: Capture, cfg: ColmapConfig, frames: list[int] | None) -> tuple[np.ndarray, list[TestView]]:
@@ -301,13 +347,17 @@ def _sfm_inputs(capture: Capture, cfg: ColmapConfig, frames: list[int] | None) -
         raise CaptureError(None, "config.matcher", f"must be auto, sequential or exhaustive, got {cfg.matcher!r}")
     if cfg.test_views not in ("unposed", "all", "none"):
         raise CaptureError(None, "config.test_views", f"must be unposed, all or none, got {cfg.test_views!r}")
-    tests = [tv for tv in capture.test_views if tv.image is not None and
-             (cfg.test_views == "all" or (cfg.test_views == "unposed" and tv.c2w is None))]
+    tests = [
+        tv
+        for tv in capture.test_views
+        if tv.image is not None and (cfg.test_views == "all" or (cfg.test_views == "unposed" and tv.c2w is None))
+    ]
     return idx, tests
 
 
-def _registered_poses(rec: Any, name_to_i: dict[str, int],
-                      name_to_test: dict[str, TestView]) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+def _registered_poses(
+    rec: Any, name_to_i: dict[str, int], name_to_test: dict[str, TestView]
+) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
     """From a pycolmap Reconstruction: c2w [F, 4, 4] of the frames (identity where not registered),
     registered [F] bool, and the c2w [4, 4] of each registered test view by its name."""
     c2w = np.tile(np.eye(4), (len(name_to_i), 1, 1))
@@ -365,9 +415,10 @@ def _is_pose_stack(a: np.ndarray) -> bool:
     return a.ndim == 3 and a.shape[1:] == (4, 4)
 
 
-def align_similarity(src: np.ndarray,  # [N, 4, 4] c2w (or [N, 3] points)
-                     dst: np.ndarray  # [N, 4, 4] c2w (or [N, 3] points), the same cameras in another frame
-                     ) -> tuple[float, np.ndarray, np.ndarray]:
+def align_similarity(
+    src: np.ndarray,  # [N, 4, 4] c2w (or [N, 3] points)
+    dst: np.ndarray,  # [N, 4, 4] c2w (or [N, 3] points), the same cameras in another frame
+) -> tuple[float, np.ndarray, np.ndarray]:
     """The similarity (s, R [3, 3], t [3]) taking the frame of ``src`` to the frame of ``dst``:
     ``dst ~ s R src + t`` for camera centres, ``R_dst ~ R R_src`` for orientations.
 
@@ -387,8 +438,9 @@ def align_similarity(src: np.ndarray,  # [N, 4, 4] c2w (or [N, 3] points)
     poses = _is_pose_stack(src) and _is_pose_stack(dst)
     points = src.ndim == 2 and src.shape[1:] == (3,)
     if src.shape != dst.shape or not (poses or points) or len(src) < (2 if poses else 3):
-        raise ValueError(f"src, dst: need matching [N >= 2, 4, 4] poses or [N >= 3, 3] points, got {src.shape} "
-                         f"and {dst.shape}")
+        raise ValueError(
+            f"src, dst: need matching [N >= 2, 4, 4] poses or [N >= 3, 3] points, got {src.shape} and {dst.shape}"
+        )
     if not (np.isfinite(src).all() and np.isfinite(dst).all()):
         raise ValueError("src, dst: must be finite")
     if points:
@@ -405,10 +457,12 @@ def align_similarity(src: np.ndarray,  # [N, 4, 4] c2w (or [N, 3] points)
     return _umeyama(augmented(src), augmented(dst))
 
 
-def apply_similarity(c2w: np.ndarray,  # [..., 4, 4]
-                     s: float, R: np.ndarray,  # [3, 3]
-                     t: np.ndarray  # [3]
-                     ) -> np.ndarray:
+def apply_similarity(
+    c2w: np.ndarray,  # [..., 4, 4]
+    s: float,
+    R: np.ndarray,  # [3, 3]
+    t: np.ndarray,  # [3]
+) -> np.ndarray:
     """Poses [..., 4, 4] moved by the similarity x -> s R x + t: orientation R R_c, centre
     s R p + t (still rigid: the scale acts on the world, not on the camera)."""
     c = np.asarray(c2w, np.float64)
@@ -428,9 +482,10 @@ def rotation_errors_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:  # [N, >=3,
     return np.degrees(np.arccos(np.clip((np.trace(rel, axis1=1, axis2=2) - 1) / 2, -1, 1)))
 
 
-def pose_errors(est_c2w: np.ndarray,  # [N, 4, 4]
-                gt_c2w: np.ndarray  # [N, 4, 4]
-                ) -> dict:
+def pose_errors(
+    est_c2w: np.ndarray,  # [N, 4, 4]
+    gt_c2w: np.ndarray,  # [N, 4, 4]
+) -> dict:
     """Pose errors after a similarity alignment (``align_similarity``) of ``est`` onto ``gt``:
     ATE (RMSE and max of camera-centre distances, gt units) and rotation errors (degrees)."""
     est_c2w, gt_c2w = np.asarray(est_c2w, np.float64), np.asarray(gt_c2w, np.float64)
@@ -442,6 +497,12 @@ def pose_errors(est_c2w: np.ndarray,  # [N, 4, 4]
     err = np.linalg.norm(aligned[:, :3, 3] - pd, axis=1)
     ang = rotation_errors_deg(gt_c2w, aligned)
     extent = float(np.linalg.norm(pd.max(0) - pd.min(0)))
-    return {"ate_rmse": float(np.sqrt((err**2).mean())), "ate_max": float(err.max()),
-            "rot_mean_deg": float(ang.mean()), "rot_max_deg": float(ang.max()), "scale": s,
-            "trajectory_extent": extent, "n": int(len(err))}
+    return {
+        "ate_rmse": float(np.sqrt((err**2).mean())),
+        "ate_max": float(err.max()),
+        "rot_mean_deg": float(ang.mean()),
+        "rot_max_deg": float(ang.max()),
+        "scale": s,
+        "trajectory_extent": extent,
+        "n": int(len(err)),
+    }

@@ -41,6 +41,7 @@ virtual views placed on bin edges is exact. Nothing is known between exposures (
 there). ``meta['events_binned']`` records B, the bin length and this rule;
 ``meta['exposure_known'] = False``.
 """
+
 from __future__ import annotations
 
 import math
@@ -60,18 +61,32 @@ from .jsonio import read_json_object
 from .poses import interpolate_poses, opengl_to_opencv, read_poses_bounds
 from .truth import GroundTruth
 
-__all__ = ["load_ebad_nerf", "load_e2nerf", "read_event_bins", "events_from_bins", "nominal_exposures",
-           "detect_e2nerf", "ground_truth_blur", "BIN_S", "LLFF_HOLD", "EVENTS_FILE"]
+__all__ = [
+    "load_ebad_nerf",
+    "load_e2nerf",
+    "read_event_bins",
+    "events_from_bins",
+    "nominal_exposures",
+    "detect_e2nerf",
+    "ground_truth_blur",
+    "BIN_S",
+    "LLFF_HOLD",
+    "EVENTS_FILE",
+]
 
 BIN_S = 0.01  # nominal length of one event bin, seconds (the layouts record none)
 LLFF_HOLD = 8  # every 8th view is held out when images_gt_novel/ exists (EBAD-NeRF's llffhold)
 EVENTS_FILE = "events.pt"
 POSES_FILES = ("poses_bounds.npy", "pose_bounds.npy")
-TRANSFORMS = {"train": ("transforms_train.json", "transform_train.json"),
-              "test": ("transforms_test.json", "transform_test.json")}
+TRANSFORMS = {
+    "train": ("transforms_train.json", "transform_train.json"),
+    "test": ("transforms_test.json", "transform_test.json"),
+}
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
-BINNED_RULE = ("bin b of a frame covers [t_start + b T/B, t_start + (b+1) T/B) of its nominal exposure T; a "
-               "signed count n becomes |n| events of polarity sign(n) at the bin centre")
+BINNED_RULE = (
+    "bin b of a frame covers [t_start + b T/B, t_start + (b+1) T/B) of its nominal exposure T; a "
+    "signed count n becomes |n| events of polarity sign(n) at the bin centre"
+)
 
 
 def _first(root: Path, names: tuple[str, ...]) -> Path | None:
@@ -79,7 +94,7 @@ def _first(root: Path, names: tuple[str, ...]) -> Path | None:
 
 
 def detect_e2nerf(root: str | os.PathLike) -> Literal["ebad-nerf", "e2nerf"] | None:
-    """"ebad-nerf" (LLFF poses), "e2nerf" (transforms json) or None."""
+    """ "ebad-nerf" (LLFF poses), "e2nerf" (transforms json) or None."""
     root = Path(root)
     if not (root / EVENTS_FILE).is_file():
         return None
@@ -98,8 +113,12 @@ def _images(folder: Path) -> list[Path]:
 
 def _same_shape(img: np.ndarray, ref: np.ndarray, path: Path) -> np.ndarray:
     if img.shape != ref.shape:
-        raise CaptureError(str(path), "images", f"is {img.shape[1]}x{img.shape[0]}x{img.shape[2]}, the first image "
-                                                f"{ref.shape[1]}x{ref.shape[0]}x{ref.shape[2]}")
+        raise CaptureError(
+            str(path),
+            "images",
+            f"is {img.shape[1]}x{img.shape[0]}x{img.shape[2]}, the first image "
+            f"{ref.shape[1]}x{ref.shape[0]}x{ref.shape[2]}",
+        )
     return img
 
 
@@ -120,15 +139,18 @@ def read_event_bins(path: Path) -> np.ndarray:  # -> [V, B, P] int32 (P = H*W, o
     try:
         obj = torch.load(path, map_location="cpu", weights_only=True)
     except (OSError, EOFError, RuntimeError, pickle.UnpicklingError, ValueError) as exc:
-        raise CaptureError(str(path), "events", f"unreadable ({type(exc).__name__}: {str(exc).splitlines()[0]})") from None
+        raise CaptureError(
+            str(path), "events", f"unreadable ({type(exc).__name__}: {str(exc).splitlines()[0]})"
+        ) from None
     if not isinstance(obj, torch.Tensor):
         raise CaptureError(str(path), "events", f"must hold one tensor [views, bins, H*W], got {type(obj).__name__}")
     a = obj.detach().numpy()
     if a.ndim == 4:
         a = a.reshape(a.shape[0], a.shape[1], -1)
     if a.ndim != 3 or a.shape[0] == 0 or a.shape[1] == 0:
-        raise CaptureError(str(path), "events", f"expected shape [views, bins, H*W] or [views, bins, H, W], "
-                                                f"got {tuple(obj.shape)}")
+        raise CaptureError(
+            str(path), "events", f"expected shape [views, bins, H*W] or [views, bins, H, W], got {tuple(obj.shape)}"
+        )
     if a.dtype.kind == "f":
         if not np.isfinite(a).all():
             raise CaptureError(str(path), "events", "has non-finite counts")
@@ -146,9 +168,12 @@ def nominal_exposures(n_frames: int, n_bins: int, bin_s: float = BIN_S) -> np.nd
     return np.stack([start, start + T], 1)
 
 
-def events_from_bins(counts: np.ndarray,  # [F, B, H*W] signed counts
-                     exposures: np.ndarray,  # [F, 2] seconds
-                     width: int, height: int) -> EventStream:
+def events_from_bins(
+    counts: np.ndarray,  # [F, B, H*W] signed counts
+    exposures: np.ndarray,  # [F, 2] seconds
+    width: int,
+    height: int,
+) -> EventStream:
     """Events at bin centres standing for binned counts (the rule in the module docstring)."""
     f, b, p = counts.shape
     if p != width * height:
@@ -168,10 +193,11 @@ def events_from_bins(counts: np.ndarray,  # [F, B, H*W] signed counts
 
 
 def _binned_meta(b: int, exposures: np.ndarray) -> dict[str, Any]:
-    return {"events_binned": {"bins": int(b), "bin_s": float((exposures[0, 1] - exposures[0, 0]) / b),
-                              "rule": BINNED_RULE},
-            "exposure_known": False,
-            "exposure_rule": "nominal: frame k spans [2 k T, 2 k T + T], T = bins x bin_s; no events between exposures"}
+    return {
+        "events_binned": {"bins": int(b), "bin_s": float((exposures[0, 1] - exposures[0, 0]) / b), "rule": BINNED_RULE},
+        "exposure_known": False,
+        "exposure_rule": "nominal: frame k spans [2 k T, 2 k T + T], T = bins x bin_s; no events between exposures",
+    }
 
 
 def _match_events(counts: np.ndarray, n_all: int, keep: np.ndarray, ev_path: Path) -> np.ndarray:
@@ -179,8 +205,11 @@ def _match_events(counts: np.ndarray, n_all: int, keep: np.ndarray, ev_path: Pat
         return counts[keep]
     if counts.shape[0] == len(keep):
         return counts
-    raise CaptureError(str(ev_path), "events", f"{counts.shape[0]} views of counts for {n_all} images "
-                                               f"({len(keep)} of them for training)")
+    raise CaptureError(
+        str(ev_path),
+        "events",
+        f"{counts.shape[0]} views of counts for {n_all} images ({len(keep)} of them for training)",
+    )
 
 
 def load_ebad_nerf(root: str | os.PathLike, llffhold: int = LLFF_HOLD) -> Capture:
@@ -199,8 +228,11 @@ def load_ebad_nerf(root: str | os.PathLike, llffhold: int = LLFF_HOLD) -> Captur
     novel = _images(root / "images_gt_novel")
     test_idx = np.arange(0, n, llffhold) if novel else np.zeros(0, np.int64)
     if novel and len(novel) != len(test_idx):
-        raise CaptureError(str(root / "images_gt_novel"), "images",
-                           f"{len(novel)} images, but holding out every {llffhold}th of {n} views gives {len(test_idx)}")
+        raise CaptureError(
+            str(root / "images_gt_novel"),
+            "images",
+            f"{len(novel)} images, but holding out every {llffhold}th of {n} views gives {len(test_idx)}",
+        )
     keep = np.setdiff1d(np.arange(n), test_idx)
     if len(keep) == 0:
         raise CaptureError(str(root / "images"), "images", "no training view left after holding out the novel views")
@@ -208,25 +240,49 @@ def load_ebad_nerf(root: str | os.PathLike, llffhold: int = LLFF_HOLD) -> Captur
     counts = _match_events(read_event_bins(ev_path), n, keep, ev_path)
     if counts.shape[2] != w * h:
         raise CaptureError(str(ev_path), "events", f"{counts.shape[2]} pixels per bin, the images are {w}x{h}")
-    frames = np.stack([_same_shape(first if i == 0 else read_image(files[i], f"images[{i}]"), first, files[i])
-                       for i in keep])
+    frames = np.stack(
+        [_same_shape(first if i == 0 else read_image(files[i], f"images[{i}]"), first, files[i]) for i in keep]
+    )
     slots = nominal_exposures(n, counts.shape[1])  # every view keeps its slot on the clock
     exposures = slots[keep]
     events = events_from_bins(counts, exposures, w, h)
     c2w = np.stack([nearest_rigid(c2w_all[i], str(pb_path), f"poses_bounds[{i}]") for i in range(n)])
     f = hwf[0, 2] * w / hwf[0, 1]  # focal of the stored size, scaled to the images
     if abs(hwf[0, 0] / hwf[0, 1] - h / w) > 0.02:
-        raise CaptureError(str(pb_path), "poses_bounds[0].hwf", f"aspect {hwf[0, 1]:g}x{hwf[0, 0]:g} does not match "
-                                                                  f"the images' {w}x{h}")
+        raise CaptureError(
+            str(pb_path),
+            "poses_bounds[0].hwf",
+            f"aspect {hwf[0, 1]:g}x{hwf[0, 0]:g} does not match the images' {w}x{h}",
+        )
     K = np.array([[f, 0.0, w / 2], [0.0, f, h / 2], [0.0, 0.0, 1.0]])
-    test_views = [TestView(name=novel[j].stem, t=float(slots[i].mean()), c2w=c2w[i],
-                           image=read_image(novel[j], f"images_gt_novel[{j}]"))
-                  for j, i in enumerate(test_idx)]
-    meta = {"source_layout": "ebad-nerf", "source": str(root), "bounds": bounds[keep].tolist(),
-            "pose_source": f"{pb_path.name} (LLFF; COLMAP on the blurry frames)",
-            "held_out_frames": [files[i].name for i in test_idx], **_binned_meta(counts.shape[1], exposures)}
-    return Capture(frames=frames, exposures=exposures, events=events, K=K, c2w=c2w[keep],
-                   split=["train"] * len(keep), test_views=test_views, names=[files[i].stem for i in keep], meta=meta)
+    test_views = [
+        TestView(
+            name=novel[j].stem,
+            t=float(slots[i].mean()),
+            c2w=c2w[i],
+            image=read_image(novel[j], f"images_gt_novel[{j}]"),
+        )
+        for j, i in enumerate(test_idx)
+    ]
+    meta = {
+        "source_layout": "ebad-nerf",
+        "source": str(root),
+        "bounds": bounds[keep].tolist(),
+        "pose_source": f"{pb_path.name} (LLFF; COLMAP on the blurry frames)",
+        "held_out_frames": [files[i].name for i in test_idx],
+        **_binned_meta(counts.shape[1], exposures),
+    }
+    return Capture(
+        frames=frames,
+        exposures=exposures,
+        events=events,
+        K=K,
+        c2w=c2w[keep],
+        split=["train"] * len(keep),
+        test_views=test_views,
+        names=[files[i].stem for i in keep],
+        meta=meta,
+    )
 
 
 def _transforms(path: Path) -> tuple[dict, list]:
@@ -279,8 +335,11 @@ def load_e2nerf(root: str | os.PathLike) -> Capture:
     files = _images(root / "train")
     with_path = any(isinstance(fr, dict) and "file_path" in fr for fr in frames_doc)
     if not with_path and len(files) != len(frames_doc):
-        raise CaptureError(str(root / "train"), "images", f"{len(files)} images for {len(frames_doc)} frames in "
-                                                          f"{tj.name} (and no file_path to match them)")
+        raise CaptureError(
+            str(root / "train"),
+            "images",
+            f"{len(files)} images for {len(frames_doc)} frames in {tj.name} (and no file_path to match them)",
+        )
     images: list[np.ndarray] = []
     c2w: list[np.ndarray] = []
     names: list[str] = []
@@ -306,7 +365,9 @@ def load_e2nerf(root: str | os.PathLike) -> Capture:
     ev_path = root / EVENTS_FILE
     counts = read_event_bins(ev_path)
     if counts.shape[0] != len(frames):
-        raise CaptureError(str(ev_path), "events", f"{counts.shape[0]} views of counts for {len(frames)} training frames")
+        raise CaptureError(
+            str(ev_path), "events", f"{counts.shape[0]} views of counts for {len(frames)} training frames"
+        )
     if counts.shape[2] != w * h:
         raise CaptureError(str(ev_path), "events", f"{counts.shape[2]} pixels per bin, the images are {w}x{h}")
     exposures = nominal_exposures(len(frames), counts.shape[1])
@@ -324,12 +385,28 @@ def load_e2nerf(root: str | os.PathLike) -> Capture:
                 continue
             pose = _pose_list(fr["transform_matrix"], str(tt), f"frames[{k}].transform_matrix")[0]
             # a novel view has no time on the capture's clock: t = 0 stands for "none"
-            test_views.append(TestView(name=f"test_{img.stem}", t=0.0, c2w=pose,
-                                       image=read_image(img, f"{tt.name}: frames[{k}].file_path")))
-    meta = {"source_layout": "e2nerf", "source": str(root), "pose_source": f"{tj.name} (Blender, mid-exposure)",
-            **_binned_meta(counts.shape[1], exposures)}
-    return Capture(frames=frames, exposures=exposures, events=events, K=K, c2w=np.stack(c2w),
-                   split=["train"] * len(frames), test_views=test_views, names=names, meta=meta)
+            test_views.append(
+                TestView(
+                    name=f"test_{img.stem}", t=0.0, c2w=pose, image=read_image(img, f"{tt.name}: frames[{k}].file_path")
+                )
+            )
+    meta = {
+        "source_layout": "e2nerf",
+        "source": str(root),
+        "pose_source": f"{tj.name} (Blender, mid-exposure)",
+        **_binned_meta(counts.shape[1], exposures),
+    }
+    return Capture(
+        frames=frames,
+        exposures=exposures,
+        events=events,
+        K=K,
+        c2w=np.stack(c2w),
+        split=["train"] * len(frames),
+        test_views=test_views,
+        names=names,
+        meta=meta,
+    )
 
 
 def ground_truth_blur(root: str | os.PathLike, llffhold: int = LLFF_HOLD) -> GroundTruth:
@@ -342,5 +419,7 @@ def ground_truth_blur(root: str | os.PathLike, llffhold: int = LLFF_HOLD) -> Gro
     names = [p.stem for i, p in enumerate(all_files) if i not in held]
     files = _images(root / "images_gt_blur")
     if len(files) != len(names):
-        raise CaptureError(str(root / "images_gt_blur"), "images", f"{len(files)} images for {len(names)} training frames")
+        raise CaptureError(
+            str(root / "images_gt_blur"), "images", f"{len(files)} images for {len(names)} training frames"
+        )
     return GroundTruth(root=root / "images_gt_blur", frame_files=dict(zip(names, files)))

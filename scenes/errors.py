@@ -1,4 +1,5 @@
 """The one exception every capture reader and writer raises for bad input."""
+
 from __future__ import annotations
 
 from edi.errors import EbadError

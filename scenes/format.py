@@ -6,6 +6,7 @@ readers, read back here so that save -> load is lossless): per frame ``name``; t
 Frames are written as 8-bit PNG when every value is k/255, 16-bit PNG (grey or RGB) when k/65535,
 and float32 ``.npy`` otherwise.
 """
+
 from __future__ import annotations
 
 import json
@@ -30,8 +31,19 @@ from .truth import GT_FILE, GroundTruth
 
 # nearest_rigid, ROTATION_REPAIR_TOL (scenes.capture), read_json_object (scenes.jsonio) and GroundTruth
 # (scenes.truth) are re-exported under their old import paths
-__all__ = ["FORMAT", "load_capture_folder", "save", "read_event_file", "nearest_rigid", "ROTATION_REPAIR_TOL",
-           "EXACT_RIGID_TOL", "read_json_object", "read_ground_truth", "GroundTruth", "GT_FILE"]
+__all__ = [
+    "FORMAT",
+    "load_capture_folder",
+    "save",
+    "read_event_file",
+    "nearest_rigid",
+    "ROTATION_REPAIR_TOL",
+    "EXACT_RIGID_TOL",
+    "read_json_object",
+    "read_ground_truth",
+    "GroundTruth",
+    "GT_FILE",
+]
 
 FORMAT: Final = "ebad-capture/1"
 T_UNITS = ("us", "ns", "ms", "s")
@@ -119,9 +131,19 @@ def load_capture_folder(path: str | os.PathLike) -> Capture:
     meta = dict(meta)
     if len(set(names)) != len(names):
         names = [f"{i:04d}" for i in range(len(names))]
-    cap = Capture(frames=np.stack(frames).astype(np.float32), exposures=np.array(exposures, dtype=np.float64),
-                  events=events, K=K, distortion=distortion, c2w=np.stack(c2ws) if c2ws else None,
-                  split=split, test_views=test_views, names=names, meta=meta, pose_trust=doc.get("pose_trust"))
+    cap = Capture(
+        frames=np.stack(frames).astype(np.float32),
+        exposures=np.array(exposures, dtype=np.float64),
+        events=events,
+        K=K,
+        distortion=distortion,
+        c2w=np.stack(c2ws) if c2ws else None,
+        split=split,
+        test_views=test_views,
+        names=names,
+        meta=meta,
+        pose_trust=doc.get("pose_trust"),
+    )
     return cap.validate(jf)
 
 
@@ -168,8 +190,9 @@ def _read_events_entry(doc: dict, root: Path, jf: str, width: int, height: int) 
     return read_event_file(root / ev_file, t_unit, width, height, t0_us=t0_us)
 
 
-def _read_frames(doc: dict, root: Path, jf: str, width: int,
-                 height: int) -> tuple[list[np.ndarray], list[tuple[float, float]], list[np.ndarray], list[str], list[str]]:
+def _read_frames(
+    doc: dict, root: Path, jf: str, width: int, height: int
+) -> tuple[list[np.ndarray], list[tuple[float, float]], list[np.ndarray], list[str], list[str]]:
     """The ``frames`` entries: images [H, W, D], exposures (t_start, t_end), poses [4, 4] (every
     frame has one or none does), splits and names."""
     frames_doc = _req(doc, "frames", jf, "")
@@ -204,16 +227,21 @@ def _read_frames(doc: dict, root: Path, jf: str, width: int,
     return frames, exposures, c2ws, split, names
 
 
-def _read_frame_image(root: Path, file: str, where: str, width: int, height: int,
-                      first: np.ndarray | None) -> np.ndarray:  # -> [H, W, D]
+def _read_frame_image(
+    root: Path, file: str, where: str, width: int, height: int, first: np.ndarray | None
+) -> np.ndarray:  # -> [H, W, D]
     """A frame's image, of the capture's size and of the first frame's channels."""
     img = read_image(root / file, f"{where}.file")
     if img.shape[:2] != (height, width):
-        raise CaptureError(str(root / file), f"{where}.file",
-                           f"frame is {img.shape[1]}x{img.shape[0]}, capture.json says {width}x{height}")
+        raise CaptureError(
+            str(root / file),
+            f"{where}.file",
+            f"frame is {img.shape[1]}x{img.shape[0]}, capture.json says {width}x{height}",
+        )
     if first is not None and img.shape[2] != first.shape[2]:
-        raise CaptureError(str(root / file), f"{where}.file",
-                           f"has {img.shape[2]} channels, frame 0 has {first.shape[2]}")
+        raise CaptureError(
+            str(root / file), f"{where}.file", f"has {img.shape[2]} channels, frame 0 has {first.shape[2]}"
+        )
     return img
 
 
@@ -234,8 +262,11 @@ def _read_test_views(doc: dict, root: Path, jf: str, width: int, height: int) ->
             tv_file = root / _str(tv["file"], jf, f"{where}.file")
             image = read_image(tv_file, f"{where}.file")
             if image.shape[:2] != (height, width):
-                raise CaptureError(str(tv_file), f"{where}.file",
-                                   f"image is {image.shape[1]}x{image.shape[0]}, capture.json says {width}x{height}")
+                raise CaptureError(
+                    str(tv_file),
+                    f"{where}.file",
+                    f"image is {image.shape[1]}x{image.shape[0]}, capture.json says {width}x{height}",
+                )
         test_views.append(TestView(name=name, t=t, c2w=c2w, image=image))
     return test_views
 
@@ -300,9 +331,13 @@ def _write(cap: Capture, root: Path) -> None:
             stem = f"{i:04d}_{stem}"
         used.add(stem)
         out = write_image(root / "frames" / stem, cap.frames[i])
-        fr: dict[str, Any] = {"file": out.relative_to(root).as_posix(), "name": names[i],
-                              "t_start": float(cap.exposures[i, 0]), "t_end": float(cap.exposures[i, 1]),
-                              "split": split[i]}
+        fr: dict[str, Any] = {
+            "file": out.relative_to(root).as_posix(),
+            "name": names[i],
+            "t_start": float(cap.exposures[i, 0]),
+            "t_end": float(cap.exposures[i, 1]),
+            "split": split[i],
+        }
         if cap.c2w is not None:
             fr["c2w"] = np.asarray(cap.c2w[i], dtype=np.float64).tolist()
         frames.append(fr)
@@ -318,14 +353,23 @@ def _write(cap: Capture, root: Path) -> None:
             d["file"] = out.relative_to(root).as_posix()
         tvs.append(d)
     ev = cap.events
-    np.savez(root / "events.npz", t=ev.t.astype(np.int64), x=ev.x.astype(np.int16 if max(cap.width, cap.height) < 32767 else np.int32),
-             y=ev.y.astype(np.int16 if max(cap.width, cap.height) < 32767 else np.int32), p=ev.p.astype(np.int8))
+    np.savez(
+        root / "events.npz",
+        t=ev.t.astype(np.int64),
+        x=ev.x.astype(np.int16 if max(cap.width, cap.height) < 32767 else np.int32),
+        y=ev.y.astype(np.int16 if max(cap.width, cap.height) < 32767 else np.int32),
+        p=ev.p.astype(np.int8),
+    )
     K = np.asarray(cap.K, dtype=np.float64)
     doc: dict[str, Any] = {
-        "format": FORMAT, "width": cap.width, "height": cap.height,
+        "format": FORMAT,
+        "width": cap.width,
+        "height": cap.height,
         "intrinsics": {"fx": float(K[0, 0]), "fy": float(K[1, 1]), "cx": float(K[0, 2]), "cy": float(K[1, 2])},
         "events": {"file": "events.npz", "t_unit": "us", "t0_us": int(ev.t0)},
-        "frames": frames, "test_views": tvs, "meta": _jsonable(cap.meta),
+        "frames": frames,
+        "test_views": tvs,
+        "meta": _jsonable(cap.meta),
     }
     if cap.pose_trust is not None:
         doc["pose_trust"] = cap.pose_trust
@@ -335,6 +379,7 @@ def _write(cap: Capture, root: Path) -> None:
 
 
 # --------------------------------------------------------------------------- ground truth
+
 
 def read_ground_truth(gt_dir: str | os.PathLike) -> GroundTruth:
     """Parse ``gt_dir/gt.json`` (the one parser of that file; ``scenes.write_scene`` writes it),
@@ -366,7 +411,8 @@ def read_ground_truth(gt_dir: str | os.PathLike) -> GroundTruth:
             except (TypeError, ValueError):
                 raise CaptureError(jf, f"{where}.trajectory", "t and c2w must be numeric arrays") from None
             if t.ndim != 1 or c2w.shape != (len(t), 4, 4) or not (np.isfinite(t).all() and np.isfinite(c2w).all()):
-                raise CaptureError(jf, f"{where}.trajectory", f"needs t [S] and c2w [S, 4, 4], finite; got "
-                                                             f"{t.shape} and {c2w.shape}")
+                raise CaptureError(
+                    jf, f"{where}.trajectory", f"needs t [S] and c2w [S, 4, 4], finite; got {t.shape} and {c2w.shape}"
+                )
             gt.trajectories[name] = (t, c2w)
     return gt

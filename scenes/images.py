@@ -10,6 +10,7 @@ Codecs: 16-bit PNGs (grey or colour, any filter type, interlaced or not) go thro
 maintained pure-Python codec; everything else through Pillow. Pillow alone is not enough:
 Pillow 13 opens a 16-bit RGB PNG as 8-bit "RGB" (the low byte dropped) and cannot write one.
 """
+
 from __future__ import annotations
 
 import os
@@ -78,8 +79,11 @@ def _write_png(path: Path, ints: np.ndarray) -> None:  # ints [H, W, D] uint8 | 
             Image.fromarray(ints[..., 0] if d == 1 else ints).save(tmp, format="PNG")
 
 
-def write_image(path: str | os.PathLike, img: np.ndarray,  # [H, W, D] or [H, W], float in [0, 1]
-                bits: int | None = None) -> Path:
+def write_image(
+    path: str | os.PathLike,
+    img: np.ndarray,  # [H, W, D] or [H, W], float in [0, 1]
+    bits: int | None = None,
+) -> Path:
     """Write linear [0, 1] intensity and return the path written.
 
     Args:

@@ -1,4 +1,5 @@
 """The one reader of the JSON documents of the capture layouts (capture.json, gt.json, transforms)."""
+
 from __future__ import annotations
 
 import json

@@ -7,6 +7,7 @@
   z backwards): ``c2w_cv = c2w_gl @ diag(1, -1, -1, 1)``.
 - Time interpolation: linear in position, slerp in rotation (:func:`interpolate_poses`).
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -22,11 +23,13 @@ LLFF_COLUMNS = 17  # 15 entries of the 3x5 [R | t | hwf] matrix, then near and f
 OPENGL_TO_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])  # right-multiply: flips the camera's y and z axes
 
 
-def interpolate_poses(t_query: np.ndarray,  # [F] seconds
-                      t_pose: np.ndarray,  # [P] seconds, increasing
-                      pos: np.ndarray,  # [P, 3]
-                      quat_xyzw: np.ndarray,  # [P, 4]
-                      clamp_s: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+def interpolate_poses(
+    t_query: np.ndarray,  # [F] seconds
+    t_pose: np.ndarray,  # [P] seconds, increasing
+    pos: np.ndarray,  # [P, 3]
+    quat_xyzw: np.ndarray,  # [P, 4]
+    clamp_s: float = 0.0,
+) -> tuple[np.ndarray, np.ndarray]:
     """c2w [F, 4, 4] at ``t_query`` (linear position, slerp rotation), and a [F] bool mask of the
     queries that could be served (inside the range, or within ``clamp_s`` of an end, where the end
     pose is used)."""

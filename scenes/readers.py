@@ -11,6 +11,7 @@ dropped and counted in ``meta['events_dropped_undistort']``); the returned Captu
 ``distortion=None`` and ``meta['undistorted'] = True``. Pass ``undistort=False`` to carry the
 distortion coefficients in ``Capture.distortion`` untouched instead.
 """
+
 from __future__ import annotations
 
 import math
@@ -32,8 +33,16 @@ from .poses import interpolate_poses, read_poses_bounds
 from .rosbag import load_rosbag
 from .undistort import undistort_events, undistort_frames
 
-__all__ = ["load", "load_ecd", "load_aedat4", "load_evdeblurnerf", "detect_layout", "interpolate_poses", "LAYOUTS",
-           "AEDAT_INSTALL"]
+__all__ = [
+    "load",
+    "load_ecd",
+    "load_aedat4",
+    "load_evdeblurnerf",
+    "detect_layout",
+    "interpolate_poses",
+    "LAYOUTS",
+    "AEDAT_INSTALL",
+]
 
 ECD_CLAMP_S = 0.05  # frames up to this far outside the ground-truth time range take the end pose
 #: the layouts ``load`` reads (``detect_layout`` names one)
@@ -62,25 +71,36 @@ def detect_layout(path: str | os.PathLike) -> Layout:
     e2 = detect_e2nerf(path)
     if e2 is not None:
         return e2
-    if (path / "poses_bounds.npy").is_file() and any((path / n).is_file() for n in ("events.h5", "events.npz", "events.txt")):
+    if (path / "poses_bounds.npy").is_file() and any(
+        (path / n).is_file() for n in ("events.h5", "events.npz", "events.txt")
+    ):
         return "evdeblurnerf"
     single_files: tuple[tuple[str, Layout], ...] = ((".aedat4", "aedat4"), (".bag", "rosbag1"))
     for suffix, layout in single_files:
         found = sorted(path.glob(f"*{suffix}"))
         if len(found) == 1:
             return layout
-    raise CaptureError(str(path), None, "layout not recognised: expected capture.json (ebad-capture/1), an "
-                                        ".aedat4 or .bag file, images.txt + calib.txt (Event Camera Dataset), "
-                                        "events.pt + poses_bounds.npy or transforms_train.json (EBAD-NeRF / "
-                                        "E2NeRF) or poses_bounds.npy + events.h5 (EvDeblurNeRF)")
+    raise CaptureError(
+        str(path),
+        None,
+        "layout not recognised: expected capture.json (ebad-capture/1), an "
+        ".aedat4 or .bag file, images.txt + calib.txt (Event Camera Dataset), "
+        "events.pt + poses_bounds.npy or transforms_train.json (EBAD-NeRF / "
+        "E2NeRF) or poses_bounds.npy + events.h5 (EvDeblurNeRF)",
+    )
 
 
 def _single_file(path: Path, suffix: str) -> Path:
     return path if path.is_file() else sorted(path.glob(f"*{suffix}"))[0]
 
 
-def load(path: str | os.PathLike, undistort: bool = True, K: np.ndarray | None = None,
-         exposure_us: int | None = None, llffhold: int = LLFF_HOLD) -> Capture:
+def load(
+    path: str | os.PathLike,
+    undistort: bool = True,
+    K: np.ndarray | None = None,
+    exposure_us: int | None = None,
+    llffhold: int = LLFF_HOLD,
+) -> Capture:
     """Read a capture in any supported layout (see :func:`detect_layout`).
 
     Args:
@@ -219,9 +239,17 @@ def load_ecd(root: str | os.PathLike) -> Capture:
         events = EventStream.empty(w, h)
     kt = times[keep]
     names = [Path(lines[i][1]).stem for i in np.flatnonzero(keep)]
-    return Capture(frames=np.stack(frames), exposures=np.stack([kt, kt], 1), events=events, K=K,
-                   distortion=dist if np.any(dist != 0) else None, c2w=c2w, split=["train"] * len(frames),
-                   names=names, meta=meta)
+    return Capture(
+        frames=np.stack(frames),
+        exposures=np.stack([kt, kt], 1),
+        events=events,
+        K=K,
+        distortion=dist if np.any(dist != 0) else None,
+        c2w=c2w,
+        split=["train"] * len(frames),
+        names=names,
+        meta=meta,
+    )
 
 
 # --------------------------------------------------------------------------- AEDAT4 / EvDeblurNeRF
@@ -246,7 +274,9 @@ def load_aedat4(path: str | os.PathLike, K: np.ndarray | None = None) -> Capture
     except ImportError:
         raise CaptureError(str(path), None, f"reading .aedat4 needs the 'aedat' package: {AEDAT_INSTALL}") from None
     except CorruptFileError as exc:
-        raise CaptureError(str(path), None, f"unreadable AEDAT4 recording: {str(exc).replace(f'{path}: ', '')}") from None
+        raise CaptureError(
+            str(path), None, f"unreadable AEDAT4 recording: {str(exc).replace(f'{path}: ', '')}"
+        ) from None
     except EbadError as exc:
         raise CaptureError(str(path), getattr(exc, "field", None), str(exc)) from None
     except CORRUPT_RECORDING_ERRORS as exc:
@@ -259,9 +289,15 @@ def load_aedat4(path: str | os.PathLike, K: np.ndarray | None = None) -> Capture
     if K is None:
         K = guess_K(w, h)
         meta["K_guessed"] = True
-    return Capture(frames=frames, exposures=np.asarray(rec.exposures, dtype=np.float64), events=rec.events,
-                   K=np.asarray(K, dtype=np.float64), split=["train"] * f, names=[f"{i:05d}" for i in range(f)],
-                   meta=meta)
+    return Capture(
+        frames=frames,
+        exposures=np.asarray(rec.exposures, dtype=np.float64),
+        events=rec.events,
+        K=np.asarray(K, dtype=np.float64),
+        split=["train"] * f,
+        names=[f"{i:05d}" for i in range(f)],
+        meta=meta,
+    )
 
 
 def load_evdeblurnerf(root: str | os.PathLike) -> Capture:
@@ -272,7 +308,11 @@ def load_evdeblurnerf(root: str | os.PathLike) -> Capture:
     pb_path = root / "poses_bounds.npy"
     c2w_llff, hwf, bounds = read_poses_bounds(pb_path)
     img_dir = root / "images_1"
-    files = sorted(p for p in img_dir.iterdir() if p.suffix.lower() in (".png", ".jpg", ".jpeg")) if img_dir.is_dir() else []
+    files = (
+        sorted(p for p in img_dir.iterdir() if p.suffix.lower() in (".png", ".jpg", ".jpeg"))
+        if img_dir.is_dir()
+        else []
+    )
     if len(files) != len(c2w_llff):
         raise CaptureError(str(img_dir), "images", f"{len(files)} images for {len(c2w_llff)} poses")
     ts_path = img_dir / "timestamps.npz"
@@ -300,5 +340,13 @@ def load_evdeblurnerf(root: str | os.PathLike) -> Capture:
     if exps.max() > 1e3:  # not seconds of a short capture: microseconds on the events' raw clock
         exps = (exps - events.t0) * 1e-6
         meta["timestamps_unit"] = "us (converted to seconds on the events' clock)"
-    return Capture(frames=frames, exposures=exps, events=events, K=K, c2w=c2w, split=["train"] * f,
-                   names=[p.stem for p in files], meta=meta)
+    return Capture(
+        frames=frames,
+        exposures=exps,
+        events=events,
+        K=K,
+        c2w=c2w,
+        split=["train"] * f,
+        names=[p.stem for p in files],
+        meta=meta,
+    )

@@ -9,6 +9,7 @@ A scene is a list of primitives: textured quads (a box is six) and textured sphe
 their texture with u along edge ``eu`` (image columns) and v along ``ev`` (image rows); spheres
 use longitude/latitude in the sphere's own frame.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -111,9 +112,12 @@ def _bilinear(tex: np.ndarray, uv: np.ndarray, wrap_u: bool) -> np.ndarray:
     return top * (1 - fy) + bot * fy
 
 
-def pixel_rays(c2w: np.ndarray,  # [4, 4]
-               K: np.ndarray,  # [3, 3]
-               width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+def pixel_rays(
+    c2w: np.ndarray,  # [4, 4]
+    K: np.ndarray,  # [3, 3]
+    width: int,
+    height: int,
+) -> tuple[np.ndarray, np.ndarray]:
     """Ray origins and unit directions [H*W, 3] through every pixel centre (row-major)."""
     u, v = np.meshgrid(np.arange(width) + 0.5, np.arange(height) + 0.5)
     d_cam = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)], -1).reshape(-1, 3)
@@ -123,8 +127,11 @@ def pixel_rays(c2w: np.ndarray,  # [4, 4]
     return np.ascontiguousarray(o), d
 
 
-def project_points(pts: np.ndarray,  # [P, 3] world
-                   c2w: np.ndarray, K: np.ndarray) -> np.ndarray:
+def project_points(
+    pts: np.ndarray,  # [P, 3] world
+    c2w: np.ndarray,
+    K: np.ndarray,
+) -> np.ndarray:
     """Pixel coordinates [P, 2] (top-left pixel centre at (0.5, 0.5)) and nothing else."""
     w2c = np.linalg.inv(c2w)
     pc = pts @ w2c[:3, :3].T + w2c[:3, 3]
@@ -132,18 +139,38 @@ def project_points(pts: np.ndarray,  # [P, 3] world
 
 
 @overload
-def render(scene: RayScene, c2w: np.ndarray, K: np.ndarray, width: int, height: int,
-           return_depth: Literal[False] = False, batch_rays: int = 120_000) -> np.ndarray: ...
+def render(
+    scene: RayScene,
+    c2w: np.ndarray,
+    K: np.ndarray,
+    width: int,
+    height: int,
+    return_depth: Literal[False] = False,
+    batch_rays: int = 120_000,
+) -> np.ndarray: ...
 
 
 @overload
-def render(scene: RayScene, c2w: np.ndarray, K: np.ndarray, width: int, height: int,
-           return_depth: Literal[True], batch_rays: int = 120_000) -> tuple[np.ndarray, np.ndarray]: ...
+def render(
+    scene: RayScene,
+    c2w: np.ndarray,
+    K: np.ndarray,
+    width: int,
+    height: int,
+    return_depth: Literal[True],
+    batch_rays: int = 120_000,
+) -> tuple[np.ndarray, np.ndarray]: ...
 
 
-def render(scene: RayScene, c2w: np.ndarray,  # [C, 4, 4] or [4, 4]
-           K: np.ndarray, width: int, height: int, return_depth: bool = False,  # K [3, 3]
-           batch_rays: int = 120_000) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
+def render(
+    scene: RayScene,
+    c2w: np.ndarray,  # [C, 4, 4] or [4, 4]
+    K: np.ndarray,
+    width: int,
+    height: int,
+    return_depth: bool = False,  # K [3, 3]
+    batch_rays: int = 120_000,
+) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """Ray-cast ``scene`` from each camera: images [C, H, W, D] float32 linear (and, with
     ``return_depth``, z-depth [C, H, W] float32, 0 where nothing is hit). A [4, 4] c2w gives
     [H, W, D] (and [H, W])."""
@@ -157,7 +184,7 @@ def render(scene: RayScene, c2w: np.ndarray,  # [C, 4, 4] or [4, 4]
     depth = np.zeros((len(c2ws), npx), np.float32)
     per = max(1, batch_rays // npx)
     for b0 in range(0, len(c2ws), per):
-        cams = c2ws[b0:b0 + per]
+        cams = c2ws[b0 : b0 + per]
         rays = [pixel_rays(c, K, width, height) for c in cams]
         o = np.concatenate([r[0] for r in rays])
         d = np.concatenate([r[1] for r in rays])

@@ -20,6 +20,7 @@ Exposure window: the driver stamps an image with libcaer's frame timestamp, whic
 start (``EventStream.t0``, microseconds since the epoch); ROS times are whole nanoseconds, the
 driver's are whole microseconds, and nanoseconds become microseconds by rounding to nearest.
 """
+
 from __future__ import annotations
 
 import os
@@ -35,21 +36,43 @@ from edi import EventStream
 from .capture import Capture, guess_K
 from .errors import CaptureError
 
-__all__ = ["load_rosbag", "dvs_typestore", "decode_event_array", "exposure_window_us", "ROS_INSTALL",
-           "DVS_EVENT_MSG", "DVS_EVENT_ARRAY_MSG", "TOPICS"]
+__all__ = [
+    "load_rosbag",
+    "dvs_typestore",
+    "decode_event_array",
+    "exposure_window_us",
+    "ROS_INSTALL",
+    "DVS_EVENT_MSG",
+    "DVS_EVENT_ARRAY_MSG",
+    "TOPICS",
+]
 
 ROS_INSTALL = "pip install 'ebad[ros]' (or: pip install 'rosbags>=0.9')"
-TOPICS = {"events": "/dvs/events", "image": "/dvs/image_raw", "exposure": "/dvs/exposure",
-          "camera_info": "/dvs/camera_info"}
-MSGTYPES = {"events": "dvs_msgs/msg/EventArray", "image": "sensor_msgs/msg/Image",
-            "exposure": "std_msgs/msg/Int32", "camera_info": "sensor_msgs/msg/CameraInfo"}
+TOPICS = {
+    "events": "/dvs/events",
+    "image": "/dvs/image_raw",
+    "exposure": "/dvs/exposure",
+    "camera_info": "/dvs/camera_info",
+}
+MSGTYPES = {
+    "events": "dvs_msgs/msg/EventArray",
+    "image": "sensor_msgs/msg/Image",
+    "exposure": "std_msgs/msg/Int32",
+    "camera_info": "sensor_msgs/msg/CameraInfo",
+}
 # rpg_dvs_ros/dvs_msgs/msg/*.msg
 DVS_EVENT_MSG = "uint16 x\nuint16 y\ntime ts\nbool polarity\n"
 DVS_EVENT_ARRAY_MSG = "Header header\nuint32 height\nuint32 width\nEvent[] events\n"
 EVENT_DTYPE = np.dtype([("x", "<u2"), ("y", "<u2"), ("sec", "<u4"), ("nsec", "<u4"), ("p", "u1")])  # 13 bytes, packed
 NS_PER_US = 1000
-IMAGE_ENCODINGS = {"mono8": (1, np.uint8, False), "mono16": (1, np.uint16, False), "rgb8": (3, np.uint8, False),
-                   "bgr8": (3, np.uint8, True), "rgb16": (3, np.uint16, False), "bgr16": (3, np.uint16, True)}
+IMAGE_ENCODINGS = {
+    "mono8": (1, np.uint8, False),
+    "mono16": (1, np.uint16, False),
+    "rgb8": (3, np.uint8, False),
+    "bgr8": (3, np.uint8, True),
+    "rgb16": (3, np.uint16, False),
+    "bgr16": (3, np.uint16, True),
+}
 DISTORTION_MODELS = ("plumb_bob", "rational_polynomial")
 
 
@@ -104,8 +127,12 @@ def _pick(connections: list, kind: str, path: Path) -> Any | None:
     if len(found) > 1:
         named = [c for c in found if c.topic == TOPICS[kind]]
         if len(named) != 1:
-            raise CaptureError(str(path), kind, f"several {MSGTYPES[kind]} topics "
-                                                f"({', '.join(sorted(c.topic for c in found))}) and none is {TOPICS[kind]}")
+            raise CaptureError(
+                str(path),
+                kind,
+                f"several {MSGTYPES[kind]} topics "
+                f"({', '.join(sorted(c.topic for c in found))}) and none is {TOPICS[kind]}",
+            )
         found = named
     return found[0] if found else None
 
@@ -121,14 +148,19 @@ def _ns_to_us(ns: np.ndarray) -> np.ndarray:
 def _image(msg: Any, path: Path, k: int) -> np.ndarray:  # -> [H, W, D] float32
     enc = IMAGE_ENCODINGS.get(msg.encoding)
     if enc is None:
-        raise CaptureError(str(path), f"image[{k}].encoding",
-                           f"{msg.encoding!r} is not supported (use one of {', '.join(IMAGE_ENCODINGS)})")
+        raise CaptureError(
+            str(path),
+            f"image[{k}].encoding",
+            f"{msg.encoding!r} is not supported (use one of {', '.join(IMAGE_ENCODINGS)})",
+        )
     d, dtype, bgr = enc
     itemsize = np.dtype(dtype).itemsize
     h, w, step = int(msg.height), int(msg.width), int(msg.step)
     data = np.asarray(msg.data, dtype=np.uint8)
     if step < w * d * itemsize or len(data) < h * step:
-        raise CaptureError(str(path), f"image[{k}].data", f"{len(data)} bytes for {w}x{h} {msg.encoding} with step {step}")
+        raise CaptureError(
+            str(path), f"image[{k}].data", f"{len(data)} bytes for {w}x{h} {msg.encoding} with step {step}"
+        )
     rows = data[: h * step].reshape(h, step)[:, : w * d * itemsize]
     order = ">" if msg.is_bigendian else "<"
     a = np.ascontiguousarray(rows).view(np.dtype(dtype).newbyteorder(order) if itemsize > 1 else dtype).reshape(h, w, d)
@@ -166,17 +198,24 @@ def load_rosbag(path: str | os.PathLike, K: np.ndarray | None = None, exposure_u
     rosbag1, _ = _rosbags()
     if rosbag1 is None:
         raise CaptureError(str(path), None, f"reading ROS bags needs the 'rosbags' package: {ROS_INSTALL}")
-    if exposure_us is not None and (isinstance(exposure_us, bool) or not isinstance(exposure_us, (int, np.integer))
-                                    or exposure_us < 0):
-        raise CaptureError(str(path), "exposure_us", f"must be a non-negative integer (microseconds), got {exposure_us!r}")
+    if exposure_us is not None and (
+        isinstance(exposure_us, bool) or not isinstance(exposure_us, (int, np.integer)) or exposure_us < 0
+    ):
+        raise CaptureError(
+            str(path), "exposure_us", f"must be a non-negative integer (microseconds), got {exposure_us!r}"
+        )
     bag = _read_bag(rosbag1, path)
     frames = _stack_images(bag, path)
     f, h, w, _ = frames.shape
     if bag.sensor_size is not None and bag.sensor_size != (w, h):
-        raise CaptureError(str(path), "events", f"sensor {bag.sensor_size[0]}x{bag.sensor_size[1]} differs from the "
-                                                f"images' {w}x{h}")
-    meta: dict[str, Any] = {"source_layout": "rosbag1", "source": str(path),
-                            "exposure_rule": "image stamp = mid-exposure (libcaer); window [s - e//2, s - e//2 + e)"}
+        raise CaptureError(
+            str(path), "events", f"sensor {bag.sensor_size[0]}x{bag.sensor_size[1]} differs from the images' {w}x{h}"
+        )
+    meta: dict[str, Any] = {
+        "source_layout": "rosbag1",
+        "source": str(path),
+        "exposure_rule": "image stamp = mid-exposure (libcaer); window [s - e//2, s - e//2 + e)",
+    }
     exp_us = _exposure_times_us(bag, exposure_us, f, path, meta)
     window_us = exposure_window_us(_ns_to_us(np.array(bag.stamps_ns, dtype=np.int64)), exp_us)
     events = _event_stream(bag.event_chunks, window_us, w, h, path)
@@ -188,8 +227,16 @@ def load_rosbag(path: str | os.PathLike, K: np.ndarray | None = None, exposure_u
     elif K is None:
         K = guess_K(w, h)
         meta["K_guessed"] = True
-    return Capture(frames=frames, exposures=exposures, events=events, K=np.asarray(K, dtype=np.float64),
-                   distortion=distortion, split=["train"] * f, names=[f"{i:05d}" for i in range(f)], meta=meta)
+    return Capture(
+        frames=frames,
+        exposures=exposures,
+        events=events,
+        K=np.asarray(K, dtype=np.float64),
+        distortion=distortion,
+        split=["train"] * f,
+        names=[f"{i:05d}" for i in range(f)],
+        meta=meta,
+    )
 
 
 def _read_bag(rosbag1: Any, path: Path) -> _BagMessages:
@@ -202,8 +249,12 @@ def _read_bag(rosbag1: Any, path: Path) -> _BagMessages:
             picked = {kind: _pick(conns, kind, path) for kind in MSGTYPES}
             for kind in ("events", "image"):
                 if picked[kind] is None:
-                    raise CaptureError(str(path), kind, f"no {MSGTYPES[kind]} topic (expected {TOPICS[kind]}); "
-                                                        f"topics: {', '.join(sorted({c.topic for c in conns}))}")
+                    raise CaptureError(
+                        str(path),
+                        kind,
+                        f"no {MSGTYPES[kind]} topic (expected {TOPICS[kind]}); "
+                        f"topics: {', '.join(sorted({c.topic for c in conns}))}",
+                    )
             bag = _BagMessages(picked, [], None, [], [], [], None)
             for _, _, raw in reader.messages(connections=[picked["events"]]):
                 arr, w, h = decode_event_array(raw)
@@ -236,8 +287,9 @@ def _stack_images(bag: _BagMessages, path: Path) -> np.ndarray:  # -> [F, H, W, 
     return np.stack(bag.images)
 
 
-def _exposure_times_us(bag: _BagMessages, exposure_us: int | None, f: int, path: Path,
-                       meta: dict[str, Any]) -> np.ndarray:  # -> [F] int64
+def _exposure_times_us(
+    bag: _BagMessages, exposure_us: int | None, f: int, path: Path, meta: dict[str, Any]
+) -> np.ndarray:  # -> [F] int64
     """Each frame's exposure in microseconds: the bag's exposure messages (matched in order), else
     ``exposure_us``; ``meta['exposure_source']`` says which."""
     if bag.exposures_us:
@@ -249,8 +301,12 @@ def _exposure_times_us(bag: _BagMessages, exposure_us: int | None, f: int, path:
         exp_us = np.full(f, int(exposure_us), np.int64)
         meta["exposure_source"] = "exposure_us argument"
     else:
-        raise CaptureError(str(path), "exposure", f"the bag has no {TOPICS['exposure']} topic: pass the APS exposure "
-                                                  "(exposure_us=..., on the command line --exposure-us)")
+        raise CaptureError(
+            str(path),
+            "exposure",
+            f"the bag has no {TOPICS['exposure']} topic: pass the APS exposure "
+            "(exposure_us=..., on the command line --exposure-us)",
+        )
     if np.any(exp_us < 0):
         raise CaptureError(str(path), "exposure", "negative exposure time")
     return exp_us
@@ -279,8 +335,11 @@ def _calibration(info: Any, w: int, h: int, path: Path) -> tuple[np.ndarray, np.
     K = np.array([[Kr[0, 0], 0.0, Kr[0, 2] + 0.5], [0.0, Kr[1, 1], Kr[1, 2] + 0.5], [0.0, 0.0, 1.0]])
     D = np.asarray(info.D, dtype=np.float64)
     if len(D) and info.distortion_model not in DISTORTION_MODELS:
-        raise CaptureError(str(path), "camera_info.distortion_model",
-                           f"{info.distortion_model!r} is not supported (plumb_bob k1 k2 p1 p2 k3)")
+        raise CaptureError(
+            str(path),
+            "camera_info.distortion_model",
+            f"{info.distortion_model!r} is not supported (plumb_bob k1 k2 p1 p2 k3)",
+        )
     if len(D) > 5 and np.any(D[5:] != 0):
         raise CaptureError(str(path), "camera_info.D", "only k1 k2 p1 p2 k3 are supported; k4.. are not zero")
     distortion = None

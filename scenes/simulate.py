@@ -17,6 +17,7 @@ photoreceptor's dark level), by default the project's ``edi.LOG_EPS``.
 Two implementations: ``_crossings_numba`` (fast) and ``_crossings_reference`` (plain Python),
 tested against each other.
 """
+
 from __future__ import annotations
 
 import math
@@ -139,28 +140,57 @@ def _check(images, times, c, sigma_c, refractory, noise_hz, hot_pixels, eps, lea
 
 
 @overload
-def simulate_events(images: np.ndarray, times: np.ndarray, c: float | tuple[float, float] = 0.2, sigma_c: float = 0.03,
-                    refractory: float = 0.0, noise_hz: float = 0.0, hot_pixels: int = 0, seed: int = 0,
-                    eps: float | None = None, hot_pixel_hz: float = HOT_PIXEL_HZ,
-                    return_thresholds: Literal[False] = False, reference: bool = False,
-                    leak_hz: float = 0.0) -> EventStream: ...
+def simulate_events(
+    images: np.ndarray,
+    times: np.ndarray,
+    c: float | tuple[float, float] = 0.2,
+    sigma_c: float = 0.03,
+    refractory: float = 0.0,
+    noise_hz: float = 0.0,
+    hot_pixels: int = 0,
+    seed: int = 0,
+    eps: float | None = None,
+    hot_pixel_hz: float = HOT_PIXEL_HZ,
+    return_thresholds: Literal[False] = False,
+    reference: bool = False,
+    leak_hz: float = 0.0,
+) -> EventStream: ...
 
 
 @overload
-def simulate_events(images: np.ndarray, times: np.ndarray, c: float | tuple[float, float] = 0.2, sigma_c: float = 0.03,
-                    refractory: float = 0.0, noise_hz: float = 0.0, hot_pixels: int = 0, seed: int = 0,
-                    eps: float | None = None, hot_pixel_hz: float = HOT_PIXEL_HZ, *,
-                    return_thresholds: Literal[True], reference: bool = False,
-                    leak_hz: float = 0.0) -> tuple[EventStream, np.ndarray, np.ndarray]: ...
+def simulate_events(
+    images: np.ndarray,
+    times: np.ndarray,
+    c: float | tuple[float, float] = 0.2,
+    sigma_c: float = 0.03,
+    refractory: float = 0.0,
+    noise_hz: float = 0.0,
+    hot_pixels: int = 0,
+    seed: int = 0,
+    eps: float | None = None,
+    hot_pixel_hz: float = HOT_PIXEL_HZ,
+    *,
+    return_thresholds: Literal[True],
+    reference: bool = False,
+    leak_hz: float = 0.0,
+) -> tuple[EventStream, np.ndarray, np.ndarray]: ...
 
 
-def simulate_events(images: np.ndarray,  # [S, H, W] or [S, H, W, D] linear intensity
-                    times: np.ndarray,  # [S] seconds, increasing
-                    c: float | tuple[float, float] = 0.2, sigma_c: float = 0.03, refractory: float = 0.0,
-                    noise_hz: float = 0.0, hot_pixels: int = 0, seed: int = 0, eps: float | None = None,
-                    hot_pixel_hz: float = HOT_PIXEL_HZ, return_thresholds: bool = False,
-                    reference: bool = False,
-                    leak_hz: float = 0.0) -> EventStream | tuple[EventStream, np.ndarray, np.ndarray]:
+def simulate_events(
+    images: np.ndarray,  # [S, H, W] or [S, H, W, D] linear intensity
+    times: np.ndarray,  # [S] seconds, increasing
+    c: float | tuple[float, float] = 0.2,
+    sigma_c: float = 0.03,
+    refractory: float = 0.0,
+    noise_hz: float = 0.0,
+    hot_pixels: int = 0,
+    seed: int = 0,
+    eps: float | None = None,
+    hot_pixel_hz: float = HOT_PIXEL_HZ,
+    return_thresholds: bool = False,
+    reference: bool = False,
+    leak_hz: float = 0.0,
+) -> EventStream | tuple[EventStream, np.ndarray, np.ndarray]:
     """Events fired by a DVS pixel array watching ``images`` at ``times``.
 
     Args:
@@ -188,16 +218,23 @@ def simulate_events(images: np.ndarray,  # [S, H, W] or [S, H, W, D] linear inte
             raise TypeError
     except (TypeError, ValueError, IndexError):
         raise ValueError(f"c: must be a float or a pair (c_pos, c_neg), got {c!r}") from None
-    imgs, t = _check(images, times, (cp, cn), float(sigma_c), float(refractory), float(noise_hz), hot_pixels, eps,
-                     float(leak_hz))
+    imgs, t = _check(
+        images, times, (cp, cn), float(sigma_c), float(refractory), float(noise_hz), hot_pixels, eps, float(leak_hz)
+    )
     if imgs.ndim == 4:
         imgs = imgs.mean(axis=3)
     s, h, w = imgs.shape
     rng = np.random.default_rng(seed)
-    c_pos = np.maximum(cp + sigma_c * rng.standard_normal(h * w), MIN_C_FRACTION * cp) if sigma_c > 0 \
+    c_pos = (
+        np.maximum(cp + sigma_c * rng.standard_normal(h * w), MIN_C_FRACTION * cp)
+        if sigma_c > 0
         else np.full(h * w, cp)
-    c_neg = np.maximum(cn + sigma_c * rng.standard_normal(h * w), MIN_C_FRACTION * cn) if sigma_c > 0 \
+    )
+    c_neg = (
+        np.maximum(cn + sigma_c * rng.standard_normal(h * w), MIN_C_FRACTION * cn)
+        if sigma_c > 0
         else np.full(h * w, cn)
+    )
     logi = np.log(imgs.reshape(s, h * w).astype(np.float64) + eps)
     kern = _crossings_reference if reference else _crossings_numba
     te, pix, pol = kern(np.ascontiguousarray(logi), t, c_pos, c_neg, float(refractory))
@@ -226,8 +263,9 @@ def simulate_events(images: np.ndarray,  # [S, H, W] or [S, H, W, D] linear inte
     pol = np.concatenate(parts_p)
     t_us = seconds_to_us(te)
     order = np.argsort(t_us, kind="stable")
-    ev = EventStream(t_us[order], (pix[order] % w).astype(np.int32), (pix[order] // w).astype(np.int32),
-                     pol[order], w, h)
+    ev = EventStream(
+        t_us[order], (pix[order] % w).astype(np.int32), (pix[order] // w).astype(np.int32), pol[order], w, h
+    )
     if return_thresholds:
         return ev, c_pos.reshape(h, w), c_neg.reshape(h, w)
     return ev

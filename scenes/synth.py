@@ -37,6 +37,7 @@ Nothing of the truth reaches the capture: ``Capture.meta`` holds labels only (sc
 colour, sensor preset name, pose source); thresholds, response, noise, depths, true poses and
 the seed are on the ``SynthScene`` (``truth``, ``gt_*``) and in ``gt/`` on disk.
 """
+
 from __future__ import annotations
 
 import json
@@ -60,8 +61,20 @@ from .images import quantize, write_image
 from .render import Quad, RayScene, Sphere, render
 from .simulate import simulate_events
 
-__all__ = ["SynthScene", "Sensor", "SENSORS", "make_scene", "write_scene", "aps_response", "aps_record", "sensor_events",
-           "SCENES", "SIZES", "look_at", "TRUTH_KEYS"]
+__all__ = [
+    "SynthScene",
+    "Sensor",
+    "SENSORS",
+    "make_scene",
+    "write_scene",
+    "aps_response",
+    "aps_record",
+    "sensor_events",
+    "SCENES",
+    "SIZES",
+    "look_at",
+    "TRUTH_KEYS",
+]
 
 SIZES = {"tiny": (64, 48), "small": (160, 120), "davis": (346, 260)}
 HFOV_DEG = 60.0  # horizontal field of view of the synthetic camera
@@ -81,9 +94,29 @@ TREMOR_TRANS = 0.004  # RMS tremor translation per axis at tremor = 1, x orbit r
 REC709_LUMA = (0.2126, 0.7152, 0.0722)  # luminance of linear R, G, B (ITU-R BT.709)
 CHANNEL_MEAN = (1 / 3, 1 / 3, 1 / 3)
 # Capture.meta keys a synthetic scene must never write (the no-leak tests check them)
-TRUTH_KEYS = ("c", "c_pos", "c_neg", "sigma_c", "noise_hz", "leak_hz", "refractory", "hot_pixels", "log_eps",
-              "response", "black_level", "gamma", "gain", "read_noise", "depth_range", "seed", "n_blur",
-              "sharp_frames", "tremor", "shake", "truth")
+TRUTH_KEYS = (
+    "c",
+    "c_pos",
+    "c_neg",
+    "sigma_c",
+    "noise_hz",
+    "leak_hz",
+    "refractory",
+    "hot_pixels",
+    "log_eps",
+    "response",
+    "black_level",
+    "gamma",
+    "gain",
+    "read_noise",
+    "depth_range",
+    "seed",
+    "n_blur",
+    "sharp_frames",
+    "tremor",
+    "shake",
+    "truth",
+)
 
 
 @dataclass(frozen=True)
@@ -121,8 +154,16 @@ class Sensor:
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise CaptureError(None, f"sensor.{name}", f"must be a positive finite number, got {v!r}")
-        for name in ("read_noise", "sigma_c", "refractory", "noise_hz", "leak_hz", "tremor", "pose_rot_deg",
-                     "pose_trans"):
+        for name in (
+            "read_noise",
+            "sigma_c",
+            "refractory",
+            "noise_hz",
+            "leak_hz",
+            "tremor",
+            "pose_rot_deg",
+            "pose_trans",
+        ):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise CaptureError(None, f"sensor.{name}", f"must be a finite number >= 0, got {v!r}")
@@ -145,26 +186,46 @@ SENSORS: dict[str, Sensor] = {
     # constant-velocity shake, exact poses
     "ideal": Sensor(),
     # a DAVIS-like camera in a hand
-    "realistic": Sensor(black_level=0.04, gamma=0.75, gain=1.25, read_noise=0.008, record_test_views=True,
-                        c_pos=0.24, c_neg=0.18, sigma_c=0.03, refractory=5e-4, noise_hz=1.0, leak_hz=0.1,
-                        hot_pixel_fraction=5e-4, log_eps=0.02, luminance=REC709_LUMA, tremor=1.0,
-                        poses="noisy"),
+    "realistic": Sensor(
+        black_level=0.04,
+        gamma=0.75,
+        gain=1.25,
+        read_noise=0.008,
+        record_test_views=True,
+        c_pos=0.24,
+        c_neg=0.18,
+        sigma_c=0.03,
+        refractory=5e-4,
+        noise_hz=1.0,
+        leak_hz=0.1,
+        hot_pixel_fraction=5e-4,
+        log_eps=0.02,
+        luminance=REC709_LUMA,
+        tremor=1.0,
+        poses="noisy",
+    ),
 }
 POSE_TRUST_OF = {"exact": "exact", "noisy": "approximate", "none": "none"}  # Sensor.poses -> Capture.pose_trust
 
 
-def aps_response(irradiance: np.ndarray,  # [..., D] linear irradiance >= 0
-                 sensor: Sensor) -> np.ndarray:
+def aps_response(
+    irradiance: np.ndarray,  # [..., D] linear irradiance >= 0
+    sensor: Sensor,
+) -> np.ndarray:
     """The APS response, irradiance -> recorded value in [0, 1], noise-free and unquantised:
     ``black_level + (1 - black_level) * min(gain * E, 1) ** gamma``. Monotone (non-decreasing),
     saturating at 1 for E >= 1 / gain; the identity for the ideal sensor."""
     e = np.minimum(sensor.gain * np.asarray(irradiance, np.float64), 1.0)
-    return np.clip(sensor.black_level + (1.0 - sensor.black_level) * np.power(np.maximum(e, 0.0), sensor.gamma),
-                   0.0, 1.0)
+    return np.clip(
+        sensor.black_level + (1.0 - sensor.black_level) * np.power(np.maximum(e, 0.0), sensor.gamma), 0.0, 1.0
+    )
 
 
-def aps_record(irradiance: np.ndarray,  # [..., D] linear irradiance >= 0
-               sensor: Sensor, rng: np.random.Generator) -> np.ndarray:
+def aps_record(
+    irradiance: np.ndarray,  # [..., D] linear irradiance >= 0
+    sensor: Sensor,
+    rng: np.random.Generator,
+) -> np.ndarray:
     """What the APS records: ``aps_response`` plus Gaussian read noise, quantised to
     ``sensor.bits`` (float32 in [0, 1], k / (2**bits - 1))."""
     v = aps_response(irradiance, sensor)
@@ -205,7 +266,7 @@ def _texture(name: str, rgb: bool, px: float, crop: tuple[float, float, float, f
     a = _photo(name)
     if crop is not None:
         h, w = a.shape[:2]
-        a = a[int(crop[0] * h):int(crop[1] * h), int(crop[2] * w):int(crop[3] * w)]
+        a = a[int(crop[0] * h) : int(crop[1] * h), int(crop[2] * w) : int(crop[3] * w)]
     h, w = a.shape[:2]
     s = min(1.0, max(8.0, px) / max(h, w))
     if s < 1.0:
@@ -218,7 +279,7 @@ def _texture(name: str, rgb: bool, px: float, crop: tuple[float, float, float, f
 def _box(center, size, textures: list[np.ndarray]) -> list[Quad]:
     """Six quads of an axis-aligned box (textures cycled over the faces)."""
     c = np.asarray(center, np.float64)
-    sx, sy, sz = (np.asarray(size, np.float64) / 2)
+    sx, sy, sz = np.asarray(size, np.float64) / 2
     ex, ey, ez = np.array([2 * sx, 0, 0]), np.array([0, 2 * sy, 0]), np.array([0, 0, 2 * sz])
     lo = c - [sx, sy, sz]
     faces = [
@@ -240,31 +301,62 @@ def _px_per_unit(width: int, depth: float) -> float:
 def build_boxes(width: int, rgb: bool) -> RayScene:
     """Textured boxes and a plane at several depths in front of a photograph wall."""
     ppu = lambda d: 1.5 * _px_per_unit(width, d)  # noqa: E731 - texels per world unit at depth d
-    wall = Quad(np.array([-11.0, -6.5, 8.5]), np.array([22.0, 0, 0]), np.array([0, 8.0, 0]),
-                _texture("astronaut", rgb, 22.0 * ppu(8.5)))
-    floor = Quad(np.array([-11.0, 1.4, -1.0]), np.array([22.0, 0, 0]), np.array([0, 0, 9.5]),
-                 _texture("gravel", rgb, 22.0 * ppu(3.0)))
+    wall = Quad(
+        np.array([-11.0, -6.5, 8.5]),
+        np.array([22.0, 0, 0]),
+        np.array([0, 8.0, 0]),
+        _texture("astronaut", rgb, 22.0 * ppu(8.5)),
+    )
+    floor = Quad(
+        np.array([-11.0, 1.4, -1.0]),
+        np.array([22.0, 0, 0]),
+        np.array([0, 0, 9.5]),
+        _texture("gravel", rgb, 22.0 * ppu(3.0)),
+    )
     prims = [wall, floor]
-    prims += _box([-1.3, 0.55, 3.6], [1.2, 1.7, 1.2],
-                  [_texture("coffee", rgb, 1.7 * ppu(3.0)), _texture("brick", rgb, 1.7 * ppu(3.0))])
-    prims += _box([1.25, 0.8, 4.6], [1.3, 1.2, 1.3],
-                  [_texture("chelsea", rgb, 1.3 * ppu(4.0)), _texture("grass", rgb, 1.3 * ppu(4.0))])
-    prims.append(Quad(np.array([-0.2, -1.6, 6.0]), np.array([1.8, 0, 0.4]), np.array([0, 1.3, 0]),
-                      _texture("rocket", rgb, 1.8 * ppu(6.0))))
+    prims += _box(
+        [-1.3, 0.55, 3.6],
+        [1.2, 1.7, 1.2],
+        [_texture("coffee", rgb, 1.7 * ppu(3.0)), _texture("brick", rgb, 1.7 * ppu(3.0))],
+    )
+    prims += _box(
+        [1.25, 0.8, 4.6],
+        [1.3, 1.2, 1.3],
+        [_texture("chelsea", rgb, 1.3 * ppu(4.0)), _texture("grass", rgb, 1.3 * ppu(4.0))],
+    )
+    prims.append(
+        Quad(
+            np.array([-0.2, -1.6, 6.0]),
+            np.array([1.8, 0, 0.4]),
+            np.array([0, 1.3, 0]),
+            _texture("rocket", rgb, 1.8 * ppu(6.0)),
+        )
+    )
     return RayScene(prims, background=0.1)
 
 
 def build_spheres(width: int, rgb: bool) -> RayScene:
     """Textured spheres at three depths before a textured wall and floor."""
     ppu = lambda d: 1.5 * _px_per_unit(width, d)  # noqa: E731
-    wall = Quad(np.array([-11.0, -6.5, 8.5]), np.array([22.0, 0, 0]), np.array([0, 8.0, 0]),
-                _texture("coffee", rgb, 22.0 * ppu(8.5)))
-    floor = Quad(np.array([-11.0, 1.4, -1.0]), np.array([22.0, 0, 0]), np.array([0, 0, 9.5]),
-                 _texture("brick", rgb, 22.0 * ppu(3.0)))
-    prims = [wall, floor,
-             Sphere(np.array([-1.2, 0.5, 3.3]), 0.85, _texture("astronaut", rgb, 5.3 * ppu(3.0))),
-             Sphere(np.array([1.1, 0.2, 4.6]), 1.1, _texture("chelsea", rgb, 6.9 * ppu(4.0))),
-             Sphere(np.array([0.0, -1.2, 6.4]), 0.9, _texture("rocket", rgb, 5.7 * ppu(6.0)))]
+    wall = Quad(
+        np.array([-11.0, -6.5, 8.5]),
+        np.array([22.0, 0, 0]),
+        np.array([0, 8.0, 0]),
+        _texture("coffee", rgb, 22.0 * ppu(8.5)),
+    )
+    floor = Quad(
+        np.array([-11.0, 1.4, -1.0]),
+        np.array([22.0, 0, 0]),
+        np.array([0, 0, 9.5]),
+        _texture("brick", rgb, 22.0 * ppu(3.0)),
+    )
+    prims = [
+        wall,
+        floor,
+        Sphere(np.array([-1.2, 0.5, 3.3]), 0.85, _texture("astronaut", rgb, 5.3 * ppu(3.0))),
+        Sphere(np.array([1.1, 0.2, 4.6]), 1.1, _texture("chelsea", rgb, 6.9 * ppu(4.0))),
+        Sphere(np.array([0.0, -1.2, 6.4]), 0.9, _texture("rocket", rgb, 5.7 * ppu(6.0))),
+    ]
     return RayScene(prims, background=0.1)
 
 
@@ -397,9 +489,12 @@ class SynthScene:
         return render(self.ray_scene, c2w, c.K, c.width, c.height)
 
 
-def sensor_events(irradiance: np.ndarray,  # [S, H, W, D] linear irradiance renders
-                  times: np.ndarray,  # [S] seconds, increasing
-                  sensor: Sensor, seed: int = 0) -> tuple[EventStream, np.ndarray, np.ndarray]:
+def sensor_events(
+    irradiance: np.ndarray,  # [S, H, W, D] linear irradiance renders
+    times: np.ndarray,  # [S] seconds, increasing
+    sensor: Sensor,
+    seed: int = 0,
+) -> tuple[EventStream, np.ndarray, np.ndarray]:
     """The events ``sensor``'s pixels fire watching ``irradiance``: its luminance model for colour
     (the channel mean goes through ``simulate_events`` as it always did), thresholds, mismatch,
     refractory period, noise, hot pixels and log offset. Returns (EventStream, c_pos [H, W],
@@ -408,9 +503,19 @@ def sensor_events(irradiance: np.ndarray,  # [S, H, W, D] linear irradiance rend
     if irr.ndim == 4 and irr.shape[3] == 3 and tuple(sensor.luminance) != CHANNEL_MEAN:
         irr = np.tensordot(irr, np.asarray(sensor.luminance, np.float32), axes=([3], [0]))  # [S, H, W]
     hot = int(round(sensor.hot_pixel_fraction * irr.shape[1] * irr.shape[2]))
-    return simulate_events(irr, times, c=(sensor.c_pos, sensor.c_neg), sigma_c=sensor.sigma_c,
-                           refractory=sensor.refractory, noise_hz=sensor.noise_hz, leak_hz=sensor.leak_hz,
-                           hot_pixels=hot, eps=sensor.log_eps, seed=seed, return_thresholds=True)
+    return simulate_events(
+        irr,
+        times,
+        c=(sensor.c_pos, sensor.c_neg),
+        sigma_c=sensor.sigma_c,
+        refractory=sensor.refractory,
+        noise_hz=sensor.noise_hz,
+        leak_hz=sensor.leak_hz,
+        hot_pixels=hot,
+        eps=sensor.log_eps,
+        seed=seed,
+        return_thresholds=True,
+    )
 
 
 def _intrinsics(width: int, height: int) -> np.ndarray:
@@ -431,8 +536,12 @@ def _tremor(rng: np.random.Generator, strength: float) -> tuple[np.ndarray, np.n
     return freq, amp, phase
 
 
-def _perturb(c2w: np.ndarray,  # [N, 4, 4]
-             rng: np.random.Generator, rot_deg: float, trans: float) -> np.ndarray:
+def _perturb(
+    c2w: np.ndarray,  # [N, 4, 4]
+    rng: np.random.Generator,
+    rot_deg: float,
+    trans: float,
+) -> np.ndarray:
     """Poses with SfM-like error: a random rotation of RMS angle ``rot_deg`` (camera frame) and a
     random offset of RMS length ``trans`` (world units) per pose."""
     out = c2w.copy()
@@ -450,8 +559,17 @@ def _resolve_sensor(sensor: str | Sensor, poses, c, sigma_c, noise_hz, refractor
         sensor = SENSORS[sensor]
     elif not isinstance(sensor, Sensor):
         raise CaptureError(None, "sensor", f"must be a preset name or a Sensor, got {type(sensor).__name__}")
-    over = {k: v for k, v in (("poses", poses), ("sigma_c", sigma_c), ("noise_hz", noise_hz),
-                              ("refractory", refractory), ("tremor", tremor)) if v is not None}
+    over = {
+        k: v
+        for k, v in (
+            ("poses", poses),
+            ("sigma_c", sigma_c),
+            ("noise_hz", noise_hz),
+            ("refractory", refractory),
+            ("tremor", tremor),
+        )
+        if v is not None
+    }
     if c is not None:
         try:
             cp, cn = (float(c), float(c)) if np.ndim(c) == 0 else (float(c[0]), float(c[1]))
@@ -461,12 +579,25 @@ def _resolve_sensor(sensor: str | Sensor, poses, c, sigma_c, noise_hz, refractor
     return replace(sensor, **over).validate()
 
 
-def make_scene(name: str = "boxes", size: str = "tiny", seed: int = 0, rgb: bool = False,
-               sensor: str | Sensor = "realistic", poses: Literal["exact", "noisy", "none"] | None = None,
-               c: float | tuple[float, float] | None = None, sigma_c: float | None = None,
-               noise_hz: float | None = None, shake: float = 1.0, tremor: float | None = None,
-               n_frames: int | None = None, n_test: int | None = None, exposure: float | None = None,
-               sharp_fraction: float = 0.0, n_blur: int = N_BLUR, refractory: float | None = None) -> SynthScene:
+def make_scene(
+    name: str = "boxes",
+    size: str = "tiny",
+    seed: int = 0,
+    rgb: bool = False,
+    sensor: str | Sensor = "realistic",
+    poses: Literal["exact", "noisy", "none"] | None = None,
+    c: float | tuple[float, float] | None = None,
+    sigma_c: float | None = None,
+    noise_hz: float | None = None,
+    shake: float = 1.0,
+    tremor: float | None = None,
+    n_frames: int | None = None,
+    n_test: int | None = None,
+    exposure: float | None = None,
+    sharp_fraction: float = 0.0,
+    n_blur: int = N_BLUR,
+    refractory: float | None = None,
+) -> SynthScene:
     """Build a synthetic blurry event capture with ground truth.
 
     Args:
@@ -542,7 +673,7 @@ def make_scene(name: str = "boxes", size: str = "tiny", seed: int = 0, rgb: bool
     trap[[0, -1]] *= 0.5  # trapezoidal mean over the exposure's n_blur + 1 grid instants
     for k in range(n_frames):
         i0 = lead_steps + period_steps * k
-        frames[k] = aps_record(np.tensordot(trap, renders[i0:i0 + n_blur + 1], axes=1), sen, rng_aps)
+        frames[k] = aps_record(np.tensordot(trap, renders[i0 : i0 + n_blur + 1], axes=1), sen, rng_aps)
     events, c_pos, c_neg = sensor_events(renders, grid, sen, seed)
     del renders
     mids = 0.5 * (starts + ends)
@@ -562,23 +693,59 @@ def make_scene(name: str = "boxes", size: str = "tiny", seed: int = 0, rgb: bool
         given, given_test = (_perturb(m, rng_pose, sen.pose_rot_deg, sen.pose_trans) for m in (c2w_mid, test_c2w))
     if sen.poses == "none":
         given, given_test = None, [None] * len(gaps)
-    test_views = [TestView(name=f"test_{j:03d}", t=float(test_t[j]), c2w=given_test[j], image=test_rec[j])
-                  for j in range(len(gaps))]
-    meta = {"source_layout": "synthetic", "scene": name, "size": size, "rgb": bool(rgb),
-            "sensor": sensor if isinstance(sensor, str) else "custom", "poses": sen.poses,
-            "renderer": "trimesh ray casting" + (" (embree)" if _has_embree() else " (pure Python)")}
-    cap = Capture(frames=frames, exposures=np.stack([starts, ends], 1), events=events, K=K, c2w=given,
-                  split=["train"] * n_frames, test_views=test_views, names=[f"{k:04d}" for k in range(n_frames)],
-                  meta=meta, pose_trust=POSE_TRUST_OF[sen.poses]).validate("make_scene")
+    test_views = [
+        TestView(name=f"test_{j:03d}", t=float(test_t[j]), c2w=given_test[j], image=test_rec[j])
+        for j in range(len(gaps))
+    ]
+    meta = {
+        "source_layout": "synthetic",
+        "scene": name,
+        "size": size,
+        "rgb": bool(rgb),
+        "sensor": sensor if isinstance(sensor, str) else "custom",
+        "poses": sen.poses,
+        "renderer": "trimesh ray casting" + (" (embree)" if _has_embree() else " (pure Python)"),
+    }
+    cap = Capture(
+        frames=frames,
+        exposures=np.stack([starts, ends], 1),
+        events=events,
+        K=K,
+        c2w=given,
+        split=["train"] * n_frames,
+        test_views=test_views,
+        names=[f"{k:04d}" for k in range(n_frames)],
+        meta=meta,
+        pose_trust=POSE_TRUST_OF[sen.poses],
+    ).validate("make_scene")
     hit = gt_depths[gt_depths > 0]
-    truth = {"sensor": asdict(sen), "seed": int(seed), "c": [sen.c_pos, sen.c_neg], "shake": float(shake),
-             "n_blur": int(n_blur), "exposure": float(exposure), "period": PERIOD_S,
-             "sharp_frames": np.flatnonzero(sharp).tolist(),
-             "depth_range": [float(hit.min()), float(hit.max())] if len(hit) else None,
-             "event_channel": ("luminance " + str(list(sen.luminance))) if rgb else "grey"}
-    return SynthScene(capture=cap, gt_frames=gt_frames, gt_depths=gt_depths, trajectory=traj, ray_scene=scene,
-                      name=name, c_pos=c_pos, c_neg=c_neg, sensor=sen, gt_c2w=c2w_mid, gt_test_c2w=test_c2w,
-                      gt_test_images=gt_test, truth=truth)
+    truth = {
+        "sensor": asdict(sen),
+        "seed": int(seed),
+        "c": [sen.c_pos, sen.c_neg],
+        "shake": float(shake),
+        "n_blur": int(n_blur),
+        "exposure": float(exposure),
+        "period": PERIOD_S,
+        "sharp_frames": np.flatnonzero(sharp).tolist(),
+        "depth_range": [float(hit.min()), float(hit.max())] if len(hit) else None,
+        "event_channel": ("luminance " + str(list(sen.luminance))) if rgb else "grey",
+    }
+    return SynthScene(
+        capture=cap,
+        gt_frames=gt_frames,
+        gt_depths=gt_depths,
+        trajectory=traj,
+        ray_scene=scene,
+        name=name,
+        c_pos=c_pos,
+        c_neg=c_neg,
+        sensor=sen,
+        gt_c2w=c2w_mid,
+        gt_test_c2w=test_c2w,
+        gt_test_images=gt_test,
+        truth=truth,
+    )
 
 
 def _has_embree() -> bool:
@@ -587,8 +754,9 @@ def _has_embree() -> bool:
     return bool(getattr(trimesh.ray, "has_embree", False))
 
 
-def write_scene(scene: SynthScene, out_dir: str | os.PathLike, overwrite: bool = False,
-                trajectory_samples: int = 9) -> Path:
+def write_scene(
+    scene: SynthScene, out_dir: str | os.PathLike, overwrite: bool = False, trajectory_samples: int = 9
+) -> Path:
     """Write ``out_dir/capture`` (ebad-capture/1, what a method reads) and ``out_dir/gt``
     (sharp mid-exposure frames as the camera records them, noise-free, as lossless images;
     depths; true thresholds; gt.json with the truth, the true mid-exposure poses and per-frame
@@ -605,8 +773,12 @@ def write_scene(scene: SynthScene, out_dir: str | os.PathLike, overwrite: bool =
             raise CaptureError(None, "out_dir", f"{out} already exists and is not empty (pass overwrite)")
         held = sorted(p.name for p in out.iterdir())
         if not (set(held) <= {"capture", "gt"} and (out / "gt" / "gt.json").is_file()):
-            raise CaptureError(None, "out_dir", f"refusing to overwrite {out}: it is not a synthetic scene written by "
-                                                f"write_scene (it holds {', '.join(held[:5])}{' ...' if len(held) > 5 else ''})")
+            raise CaptureError(
+                None,
+                "out_dir",
+                f"refusing to overwrite {out}: it is not a synthetic scene written by "
+                f"write_scene (it holds {', '.join(held[:5])}{' ...' if len(held) > 5 else ''})",
+            )
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp-", dir=out.parent))
     try:
@@ -614,23 +786,45 @@ def write_scene(scene: SynthScene, out_dir: str | os.PathLike, overwrite: bool =
         gt = tmp / "gt"
         (gt / "frames").mkdir(parents=True)
         cap = scene.capture
-        files = [write_image(gt / "frames" / cap.names[k], scene.gt_frames[k]).relative_to(gt).as_posix()
-                 for k in range(cap.num_frames)]
+        files = [
+            write_image(gt / "frames" / cap.names[k], scene.gt_frames[k]).relative_to(gt).as_posix()
+            for k in range(cap.num_frames)
+        ]
         (gt / "test").mkdir()
-        test_docs = [{"name": tv.name, "t": float(tv.t), "c2w": np.asarray(scene.gt_test_c2w[j]).tolist(),
-                      "file": write_image(gt / "test" / tv.name, scene.gt_test_images[j]).relative_to(gt).as_posix()}
-                     for j, tv in enumerate(cap.test_views)]
+        test_docs = [
+            {
+                "name": tv.name,
+                "t": float(tv.t),
+                "c2w": np.asarray(scene.gt_test_c2w[j]).tolist(),
+                "file": write_image(gt / "test" / tv.name, scene.gt_test_images[j]).relative_to(gt).as_posix(),
+            }
+            for j, tv in enumerate(cap.test_views)
+        ]
         np.save(gt / "depths.npy", scene.gt_depths)
         if scene.c_pos is not None:
             np.savez(gt / "thresholds.npz", c_pos=scene.c_pos, c_neg=scene.c_neg)
-        doc = {"scene": scene.name, "meta": cap.meta, "truth": scene.truth,
-               "frames": [{"name": cap.names[k], "file": files[k],
-                           "t_start": float(cap.exposures[k, 0]), "t_end": float(cap.exposures[k, 1]),
-                           "c2w_mid": scene.gt_c2w[k].tolist(),
-                           "trajectory": {"t": np.linspace(*cap.exposures[k], trajectory_samples).tolist(),
-                                          "c2w": scene.gt_trajectory(k, trajectory_samples).tolist()}}
-                          for k in range(cap.num_frames)],
-               "test_views": test_docs, "depths": "depths.npy", "thresholds": "thresholds.npz" if scene.c_pos is not None else None}
+        doc = {
+            "scene": scene.name,
+            "meta": cap.meta,
+            "truth": scene.truth,
+            "frames": [
+                {
+                    "name": cap.names[k],
+                    "file": files[k],
+                    "t_start": float(cap.exposures[k, 0]),
+                    "t_end": float(cap.exposures[k, 1]),
+                    "c2w_mid": scene.gt_c2w[k].tolist(),
+                    "trajectory": {
+                        "t": np.linspace(*cap.exposures[k], trajectory_samples).tolist(),
+                        "c2w": scene.gt_trajectory(k, trajectory_samples).tolist(),
+                    },
+                }
+                for k in range(cap.num_frames)
+            ],
+            "test_views": test_docs,
+            "depths": "depths.npy",
+            "thresholds": "thresholds.npz" if scene.c_pos is not None else None,
+        }
         (gt / "gt.json").write_text(json.dumps(doc, indent=1))
         if out.exists():
             shutil.rmtree(out)

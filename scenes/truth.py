@@ -3,6 +3,7 @@
 ``scenes.format.read_ground_truth`` parses it; ``scenes.e2nerf.ground_truth_blur`` maps an
 EBAD-NeRF folder's sharp frames onto it.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field

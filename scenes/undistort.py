@@ -3,6 +3,7 @@
 Convention: pixel coordinates with the top-left pixel centre at (0.5, 0.5) (pixel index j
 covers [j, j + 1)); the undistorted capture keeps the same K.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -39,8 +40,11 @@ def undistort_normalized(xy_d: np.ndarray, dist: np.ndarray, iters: int = 20) ->
     return np.stack([x, y], axis=-1)
 
 
-def undistort_frames(frames: np.ndarray,  # [F, H, W, D]
-                     K: np.ndarray, dist: np.ndarray) -> np.ndarray:
+def undistort_frames(
+    frames: np.ndarray,  # [F, H, W, D]
+    K: np.ndarray,
+    dist: np.ndarray,
+) -> np.ndarray:
     """Resample distorted frames onto the ideal pinhole grid with the same K (bilinear,
     border pixels that map outside the sensor take the nearest edge value). [F, H, W, D]."""
     f, h, w, d = frames.shape

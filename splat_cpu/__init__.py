@@ -27,8 +27,12 @@ def _fast_path():
     try:
         from ._numba_impl import rasterize_numba
     except ImportError as exc:  # pragma: no cover - numba is a declared dependency
-        warnings.warn(f"splat_cpu: numba unavailable ({exc}); using the slow torch reference. "
-                      "Install it with `pip install numba`.", RuntimeWarning, stacklevel=3)
+        warnings.warn(
+            f"splat_cpu: numba unavailable ({exc}); using the slow torch reference. "
+            "Install it with `pip install numba`.",
+            RuntimeWarning,
+            stacklevel=3,
+        )
         return None
     return rasterize_numba
 

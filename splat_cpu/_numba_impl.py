@@ -38,8 +38,16 @@ _CHUNK = 2  # tiles per scheduling chunk: tiles cost very different amounts, sma
 class _Plan:
     """Per-call binning: which Gaussians touch which tile, front to back (no gradients)."""
 
-    def __init__(self, rows: np.ndarray, tile_start: np.ndarray, gid: np.ndarray,
-                 width: int, height: int, tiles_x: int, tiles_y: int):
+    def __init__(
+        self,
+        rows: np.ndarray,
+        tile_start: np.ndarray,
+        gid: np.ndarray,
+        width: int,
+        height: int,
+        tiles_x: int,
+        tiles_y: int,
+    ):
         self.rows, self.tile_start, self.gid = rows, tile_start, gid
         self.width, self.height, self.tiles_x, self.tiles_y = width, height, tiles_x, tiles_y
 
@@ -66,8 +74,7 @@ class _Project(torch.autograd.Function):
     """
 
     @staticmethod
-    def forward(ctx, means, quats, scales, opacities, viewmats, ks, width: int, height: int, out: dict,
-                timings: dict):
+    def forward(ctx, means, quats, scales, opacities, viewmats, ks, width: int, height: int, out: dict, timings: dict):
         n, n_cam = means.shape[0], viewmats.shape[0]
         arrs = [_np(x) for x in (means, quats, scales, opacities, viewmats, ks)]
         means2d = np.empty((n_cam, n, 2))
@@ -93,8 +100,23 @@ class _Project(torch.autograd.Function):
         v_co = _np(v_conics).astype(np.float64) if v_conics is not None else zeros(n_cam, n, 3)
         v_means, v_quats, v_scales = np.empty((n, 3)), np.empty((n, 4)), np.empty((n, 3))
         v_view = np.empty((_PROJECT_CHUNKS, n_cam, 3, 4))
-        P.project_backward(means, quats, scales, viewmats, ks, ctx.width, ctx.height, ctx.valid, ctx.conics,
-                           v_m2, v_co, v_means, v_quats, v_scales, v_view)
+        P.project_backward(
+            means,
+            quats,
+            scales,
+            viewmats,
+            ks,
+            ctx.width,
+            ctx.height,
+            ctx.valid,
+            ctx.conics,
+            v_m2,
+            v_co,
+            v_means,
+            v_quats,
+            v_scales,
+            v_view,
+        )
         v_vm = np.zeros((n_cam, 4, 4))
         v_vm[:, :3, :] = v_view.sum(axis=0)
         dt = v_means2d.dtype if v_means2d is not None else v_conics.dtype
@@ -124,8 +146,9 @@ class _Composite(torch.autograd.Function):
         t_final = np.empty((c_n, p.height, p.width), dtype=arrs[0].dtype)
         last = np.empty((c_n, p.height, p.width), dtype=np.int32)
         with numba.parallel_chunksize(_CHUNK):
-            K.forward_tiles(*arrs, p.rows, p.tile_start, p.gid, p.width, p.height, p.tiles_x, p.tiles_y,
-                            img, t_final, last)
+            K.forward_tiles(
+                *arrs, p.rows, p.tile_start, p.gid, p.width, p.height, p.tiles_x, p.tiles_y, img, t_final, last
+            )
         ctx.plan, ctx.arrs, ctx.t_final, ctx.last = plan, arrs, t_final, last
         ctx.dtype, ctx.timings = means2d.dtype, timings
         alphas = torch.from_numpy((1.0 - t_final)[..., None])
@@ -139,14 +162,29 @@ class _Composite(torch.autograd.Function):
         c_n, n = means2d.shape[0], means2d.shape[1]
         d = colors.shape[1]
         v_img_np = _np(v_img) if v_img is not None else np.zeros((c_n, p.height, p.width, d), dtype=means2d.dtype)
-        v_al_np = (_np(v_alphas[..., 0]) if v_alphas is not None
-                   else np.zeros((c_n, p.height, p.width), dtype=means2d.dtype))
+        v_al_np = (
+            _np(v_alphas[..., 0]) if v_alphas is not None else np.zeros((c_n, p.height, p.width), dtype=means2d.dtype)
+        )
         n_isect = p.gid.shape[0]
         geo = np.empty((n_isect, 6), dtype=means2d.dtype)  # every row written by backward_tiles
         col = np.empty((n_isect, d), dtype=means2d.dtype)
         with numba.parallel_chunksize(_CHUNK):
-            K.backward_tiles(*arrs, p.rows, p.tile_start, p.gid, p.width, p.height, p.tiles_x, p.tiles_y,
-                             ctx.t_final, ctx.last, v_img_np, v_al_np, geo, col)
+            K.backward_tiles(
+                *arrs,
+                p.rows,
+                p.tile_start,
+                p.gid,
+                p.width,
+                p.height,
+                p.tiles_x,
+                p.tiles_y,
+                ctx.t_final,
+                ctx.last,
+                v_img_np,
+                v_al_np,
+                geo,
+                col,
+            )
         v_m = np.zeros((c_n, n, 2))
         v_c = np.zeros((c_n, n, 3))
         v_o = np.zeros((c_n, n))
@@ -186,8 +224,9 @@ def rasterize_numba(
     n_valid = valid.sum(axis=1)
     tiles_x, tiles_y = -(-width // TILE), -(-height // TILE)
     pix_box = pr["pix_box"]
-    tile_start, gid, rows = K.bin_tiles(order, n_valid, pix_box, _np(means2d), _np(conics), _np(opacities), width,
-                                        height, tiles_x, tiles_y)
+    tile_start, gid, rows = K.bin_tiles(
+        order, n_valid, pix_box, _np(means2d), _np(conics), _np(opacities), width, height, tiles_x, tiles_y
+    )
     plan = _Plan(rows, tile_start, gid, width, height, tiles_x, tiles_y)
     t2 = time.perf_counter()
     bg = background if background is not None else torch.zeros(colors.shape[1], dtype=colors.dtype)

@@ -46,8 +46,14 @@ _LN2 = math.log(2.0)  # one constant: fastmath would fold a Cody-Waite split of 
 # exp(-r) on |r| <= ln2 / 2 by its Chebyshev interpolant in the power basis, lowest degree first; the
 # degree per float width reaches the width's rounding (tested in tests/splat_cpu/test_numba_kernels.py)
 _EXP_DEGREE = {32: 6, 64: 12}
-_EXP_COEFS = {bits: tuple(Chebyshev.interpolate(lambda r: np.exp(-r), deg, domain=[-_LN2 / 2, _LN2 / 2])
-                          .convert(kind=Polynomial).coef.tolist()) for bits, deg in _EXP_DEGREE.items()}
+_EXP_COEFS = {
+    bits: tuple(
+        Chebyshev.interpolate(lambda r: np.exp(-r), deg, domain=[-_LN2 / 2, _LN2 / 2])
+        .convert(kind=Polynomial)
+        .coef.tolist()
+    )
+    for bits, deg in _EXP_DEGREE.items()
+}
 _FLOAT_BITS = {32: (23, 127), 64: (52, 1023)}  # mantissa bits and exponent bias of IEEE floats
 
 
@@ -168,8 +174,12 @@ def _band_rows(ell, trusted, bx0, bx1, by0, by1, col0, col1, ty, height):  # -> 
 
 @njit(cache=True, inline="always")
 def _tile_range(pix_box, c, g):  # -> (tx0, tx1, ty0, ty1): the tiles of the pixel box (inside the image: >= 0)
-    return (pix_box[c, g, 0] >> _TILE_SHIFT, pix_box[c, g, 1] >> _TILE_SHIFT,
-            pix_box[c, g, 2] >> _TILE_SHIFT, pix_box[c, g, 3] >> _TILE_SHIFT)
+    return (
+        pix_box[c, g, 0] >> _TILE_SHIFT,
+        pix_box[c, g, 1] >> _TILE_SHIFT,
+        pix_box[c, g, 2] >> _TILE_SHIFT,
+        pix_box[c, g, 3] >> _TILE_SHIFT,
+    )
 
 
 @njit(cache=True, parallel=True)
@@ -184,16 +194,20 @@ def _tile_hits(order, n_valid, means2d, conics, smax, pix_box, width, height, bo
             ca, cb, cc = np.float64(conics[c, g, 0]), np.float64(conics[c, g, 1]), np.float64(conics[c, g, 2])
             # an underflowed or needle-thin conic is not trusted: its box's rows are kept
             trusted = ca > 0.0 and cc > 0.0 and ca * cc - cb * cb > _ILL_CONDITIONED * ca * cc
-            ell = _ellipse(np.float64(means2d[c, g, 0]), np.float64(means2d[c, g, 1]), ca, cb, cc,
-                           smax[g] + _CULL_MARGIN) if trusted else (0.0,) * 10
+            ell = (
+                _ellipse(np.float64(means2d[c, g, 0]), np.float64(means2d[c, g, 1]), ca, cb, cc, smax[g] + _CULL_MARGIN)
+                if trusted
+                else (0.0,) * 10
+            )
             bx0, bx1, by0, by1 = pix_box[c, g, 0], pix_box[c, g, 1], pix_box[c, g, 2], pix_box[c, g, 3]
             tx0, tx1, ty0, ty1 = _tile_range(pix_box, c, g)
             for ty in range(ty0, ty1 + 1):
                 for tx in range(tx0, tx1 + 1):
                     for h in range(2):
                         col0 = tx * TILE + h * HALF
-                        row0, row1 = _band_rows(ell, trusted, bx0, bx1, by0, by1, col0,
-                                                min(col0 + HALF, width) - 1, ty, height)
+                        row0, row1 = _band_rows(
+                            ell, trusted, bx0, bx1, by0, by1, col0, min(col0 + HALF, width) - 1, ty, height
+                        )
                         miss = row0 > row1
                         out_rows[r, 2 * h] = 0 if miss else row0 - ty * TILE
                         out_rows[r, 2 * h + 1] = -1 if miss else row1 - ty * TILE
@@ -241,7 +255,7 @@ def _box_starts(order, n_valid, pix_box):  # -> box_start [C, N + 1] int64 (box_
             tx0, tx1, ty0, ty1 = _tile_range(pix_box, c, order[c, j])
             box_start[c, j] = total
             total += (tx1 - tx0 + 1) * (ty1 - ty0 + 1)
-        box_start[c, n_valid[c]:] = total
+        box_start[c, n_valid[c] :] = total
     return box_start
 
 
@@ -389,7 +403,7 @@ def forward_tiles(
                 n_active -= np.int64(n_stop)
                 for ch in range(1, d):
                     cv = f(colors[g, ch])
-                    ach = acc[ch * npx + i0: ch * npx + i1]
+                    ach = acc[ch * npx + i0 : ch * npx + i1]
                     for j in range(i1 - i0):
                         ach[j] += wb[j] * cv
         for ly in range(ph):
@@ -460,8 +474,8 @@ def backward_tiles(
                 h = lx >> _HALF_SHIFT
                 row_kmax[h, ly] = max(row_kmax[h, ly], np.int64(last[i]))
         kmax = row_kmax.max()
-        out_geo[start + kmax + 1: end] = 0.0  # behind every pixel's last contribution
-        out_col[start + kmax + 1: end] = 0.0
+        out_geo[start + kmax + 1 : end] = 0.0  # behind every pixel's last contribution
+        out_col[start + kmax + 1 : end] = 0.0
         wbuf = np.zeros(npx, fdt)
         cdot = np.zeros(npx, fdt)
         for kk in range(kmax, -1, -1):
@@ -502,7 +516,7 @@ def backward_tiles(
                         cd[j] = c0 * v0[j]
                     for ch in range(1, d):
                         cv = f(colors[g, ch])
-                        vch = vc[ch * npx + i0: ch * npx + i1]
+                        vch = vc[ch * npx + i0 : ch * npx + i1]
                         for j in range(i1 - i0):
                             cd[j] += cv * vch[j]
                 for j in range(i1 - i0):
@@ -535,7 +549,7 @@ def backward_tiles(
                     g_y += sy
                     n_hit += one if ok else zero
                 for ch in range(1, d):
-                    vch = vc[ch * npx + i0: ch * npx + i1]
+                    vch = vc[ch * npx + i0 : ch * npx + i1]
                     sc = zero
                     for j in range(i1 - i0):
                         sc += wb[j] * vch[j]

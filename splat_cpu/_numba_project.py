@@ -53,8 +53,12 @@ def _covariance(quats, scales, g, q, m, cov):  # q [4], m = R S [3, 3], cov = M 
 @njit(cache=True, inline="always")
 def _camera_point(viewmats, c, means, g, p):  # p = W mean + t [3] written
     for i in range(3):
-        p[i] = (viewmats[c, i, 0] * means[g, 0] + viewmats[c, i, 1] * means[g, 1]
-                + viewmats[c, i, 2] * means[g, 2] + viewmats[c, i, 3])
+        p[i] = (
+            viewmats[c, i, 0] * means[g, 0]
+            + viewmats[c, i, 1] * means[g, 1]
+            + viewmats[c, i, 2] * means[g, 2]
+            + viewmats[c, i, 3]
+        )
 
 
 @njit(cache=True, inline="always")
@@ -62,8 +66,12 @@ def _frustum_limits(ks, c, width, height):  # -> (x neg, x pos, y neg, y pos): `
     fx, fy = np.float64(ks[c, 0, 0]), np.float64(ks[c, 1, 1])
     cx, cy = np.float64(ks[c, 0, 2]), np.float64(ks[c, 1, 2])
     tan_x, tan_y = 0.5 * width / fx, 0.5 * height / fy
-    return (cx / fx + FRUSTUM_MARGIN * tan_x, (width - cx) / fx + FRUSTUM_MARGIN * tan_x,
-            cy / fy + FRUSTUM_MARGIN * tan_y, (height - cy) / fy + FRUSTUM_MARGIN * tan_y)
+    return (
+        cx / fx + FRUSTUM_MARGIN * tan_x,
+        (width - cx) / fx + FRUSTUM_MARGIN * tan_x,
+        cy / fy + FRUSTUM_MARGIN * tan_y,
+        (height - cy) / fy + FRUSTUM_MARGIN * tan_y,
+    )
 
 
 @njit(cache=True, inline="always")
@@ -82,8 +90,28 @@ def _jw(viewmats, c, fx, fy, xc, yc, z, t):  # t = J W [2, 3] written (J at the 
 
 
 @njit(cache=True, inline="always")
-def _project_one(means, quats, scales, opacities, viewmats, ks, width, height, g, q, m, cov, p, t,
-                 out_means2d, out_conics, out_depths, out_radii, out_box, out_valid):
+def _project_one(
+    means,
+    quats,
+    scales,
+    opacities,
+    viewmats,
+    ks,
+    width,
+    height,
+    g,
+    q,
+    m,
+    cov,
+    p,
+    t,
+    out_means2d,
+    out_conics,
+    out_depths,
+    out_radii,
+    out_box,
+    out_valid,
+):
     """project_forward for Gaussian g into every camera; q, m, cov, p, t are scratch."""
     n_cam = viewmats.shape[0]
     _covariance(quats, scales, g, q, m, cov)
@@ -175,8 +203,28 @@ def project_forward(
         p = np.empty(3)
         t = np.empty((2, 3))
         for g in range(chunk * n // n_chunks, (chunk + 1) * n // n_chunks):
-            _project_one(means, quats, scales, opacities, viewmats, ks, width, height, g, q, m, cov, p, t,
-                         out_means2d, out_conics, out_depths, out_radii, out_box, out_valid)
+            _project_one(
+                means,
+                quats,
+                scales,
+                opacities,
+                viewmats,
+                ks,
+                width,
+                height,
+                g,
+                q,
+                m,
+                cov,
+                p,
+                t,
+                out_means2d,
+                out_conics,
+                out_depths,
+                out_radii,
+                out_box,
+                out_valid,
+            )
 
 
 @njit(cache=True, parallel=True)
@@ -247,8 +295,9 @@ def project_backward(
                     v_t[1, k] = 2.0 * (w01 * tsig[0, k] + w11 * tsig[1, k])
                 for i in range(3):
                     for j in range(3):
-                        v_cov[i, j] += (t[0, i] * (w00 * t[0, j] + w01 * t[1, j])
-                                        + t[1, i] * (w01 * t[0, j] + w11 * t[1, j]))
+                        v_cov[i, j] += t[0, i] * (w00 * t[0, j] + w01 * t[1, j]) + t[1, i] * (
+                            w01 * t[0, j] + w11 * t[1, j]
+                        )
                 # T = J W: v_J = v_T W^T, v_W += J^T v_T
                 j00, j02 = fx / z, -fx * xc / z
                 j11, j12 = fy / z, -fy * yc / z
@@ -272,9 +321,14 @@ def project_backward(
                 iz2 = iz * iz
                 vx = vu * fx * iz - (vj02 * fx * iz2 if x_in else 0.0)
                 vy = vv * fy * iz - (vj12 * fy * iz2 if y_in else 0.0)
-                vz = (-vu * fx * x * iz2 - vv * fy * y * iz2 - vj00 * fx * iz2 - vj11 * fy * iz2
-                      + vj02 * fx * (2.0 * x * iz2 * iz if x_in else xc * iz2)
-                      + vj12 * fy * (2.0 * y * iz2 * iz if y_in else yc * iz2))
+                vz = (
+                    -vu * fx * x * iz2
+                    - vv * fy * y * iz2
+                    - vj00 * fx * iz2
+                    - vj11 * fy * iz2
+                    + vj02 * fx * (2.0 * x * iz2 * iz if x_in else xc * iz2)
+                    + vj12 * fy * (2.0 * y * iz2 * iz if y_in else yc * iz2)
+                )
                 # p = W mean + t
                 for k in range(3):
                     out_view[ch, c, k, 0] += (vx if k == 0 else vy if k == 1 else vz) * means[g, 0]
@@ -302,12 +356,24 @@ def project_backward(
                 out_scales[g, j] = vs
             w, qx, qy, qz = q[0], q[1], q[2], q[3]
             dw = 2.0 * (qx * (vr[2, 1] - vr[1, 2]) + qy * (vr[0, 2] - vr[2, 0]) + qz * (vr[1, 0] - vr[0, 1]))
-            dx = 2.0 * (-2.0 * qx * (vr[1, 1] + vr[2, 2]) + qy * (vr[1, 0] + vr[0, 1])
-                        + qz * (vr[2, 0] + vr[0, 2]) + w * (vr[2, 1] - vr[1, 2]))
-            dy = 2.0 * (qx * (vr[1, 0] + vr[0, 1]) - 2.0 * qy * (vr[0, 0] + vr[2, 2])
-                        + qz * (vr[2, 1] + vr[1, 2]) + w * (vr[0, 2] - vr[2, 0]))
-            dz = 2.0 * (qx * (vr[2, 0] + vr[0, 2]) + qy * (vr[2, 1] + vr[1, 2])
-                        - 2.0 * qz * (vr[0, 0] + vr[1, 1]) + w * (vr[1, 0] - vr[0, 1]))
+            dx = 2.0 * (
+                -2.0 * qx * (vr[1, 1] + vr[2, 2])
+                + qy * (vr[1, 0] + vr[0, 1])
+                + qz * (vr[2, 0] + vr[0, 2])
+                + w * (vr[2, 1] - vr[1, 2])
+            )
+            dy = 2.0 * (
+                qx * (vr[1, 0] + vr[0, 1])
+                - 2.0 * qy * (vr[0, 0] + vr[2, 2])
+                + qz * (vr[2, 1] + vr[1, 2])
+                + w * (vr[0, 2] - vr[2, 0])
+            )
+            dz = 2.0 * (
+                qx * (vr[2, 0] + vr[0, 2])
+                + qy * (vr[2, 1] + vr[1, 2])
+                - 2.0 * qz * (vr[0, 0] + vr[1, 1])
+                + w * (vr[1, 0] - vr[0, 1])
+            )
             # q = quats / |quats|: project out the radial part
             dot = dw * w + dx * qx + dy * qy + dz * qz
             out_quats[g, 0] = (dw - dot * w) / nrm

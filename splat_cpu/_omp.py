@@ -11,14 +11,21 @@ force; ``choose_threading_layer`` picks numba's layer from it, before numba's fi
 launch. ``ebad.threads.configure`` calls the three; the rasteriser calls the last before its
 first kernel, so that a caller who configured nothing never runs on spinning threads.
 """
+
 from __future__ import annotations
 
 import os
 import sys
 from typing import Literal
 
-__all__ = ["NumbaLayer", "openmp_loaded", "set_wait_policy", "openmp_threads_sleep", "choose_threading_layer",
-           "WORKQUEUE"]
+__all__ = [
+    "NumbaLayer",
+    "openmp_loaded",
+    "set_wait_policy",
+    "openmp_threads_sleep",
+    "choose_threading_layer",
+    "WORKQUEUE",
+]
 
 NumbaLayer = Literal["omp", "workqueue", "user", "launched"]  # what choose_threading_layer did
 POLICY = "OMP_WAIT_POLICY"

@@ -72,7 +72,8 @@ def composite_tiles(
                 if g.numel() == 0:
                     continue
                 ys, xs = torch.meshgrid(
-                    torch.arange(ty, y1, device=dev, dtype=dt), torch.arange(tx, x1, device=dev, dtype=dt),
+                    torch.arange(ty, y1, device=dev, dtype=dt),
+                    torch.arange(tx, x1, device=dev, dtype=dt),
                     indexing="ij",
                 )
                 pix = torch.stack([xs.reshape(-1), ys.reshape(-1)], dim=-1) + 0.5

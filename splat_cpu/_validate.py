@@ -88,14 +88,17 @@ def validate_inputs(
         _check_tensor("background", background, 1, (), means)
         if background.shape[0] != colors.shape[1]:
             raise ValueError(
-                f"background: expected {colors.shape[1]} channels (as colors), got shape {tuple(background.shape)}")
+                f"background: expected {colors.shape[1]} channels (as colors), got shape {tuple(background.shape)}"
+            )
     if n > 0:
         sv, ov, qv = _values(scales), _values(opacities), _values(quats)
         if bool((sv <= 0).any()):
             raise ValueError("scales: must be > 0 (activated scales, not logs)")
         if bool((sv > SCALE_MAX).any()):
-            raise ValueError(f"scales: must be <= SCALE_MAX = {SCALE_MAX:g} (activated scales, not logs), "
-                             f"got {float(sv.max()):.3g}; beyond it the projected covariance overflows")
+            raise ValueError(
+                f"scales: must be <= SCALE_MAX = {SCALE_MAX:g} (activated scales, not logs), "
+                f"got {float(sv.max()):.3g}; beyond it the projected covariance overflows"
+            )
         if bool(((ov < 0) | (ov > 1)).any()):
             raise ValueError("opacities: must lie in [0, 1] (activated opacities, not logits)")
         # the squared norm by columns: a numpy sum over a last axis of 4 took 76 us for 6k quaternions, this 18
@@ -106,6 +109,10 @@ def validate_inputs(
         raise ValueError("viewmats: the last row of every 4x4 must be [0, 0, 0, 1]")
     if bool((kv[:, 0, 0] <= 0).any()) or bool((kv[:, 1, 1] <= 0).any()):
         raise ValueError("Ks: focal lengths fx = K[0, 0] and fy = K[1, 1] must be > 0")
-    if bool((kv[:, 0, 1] != 0).any()) or bool((kv[:, 1, 0] != 0).any()) or bool((kv[:, 2, :2] != 0).any()) \
-            or bool((kv[:, 2, 2] != 1).any()):
+    if (
+        bool((kv[:, 0, 1] != 0).any())
+        or bool((kv[:, 1, 0] != 0).any())
+        or bool((kv[:, 2, :2] != 0).any())
+        or bool((kv[:, 2, 2] != 1).any())
+    ):
         raise ValueError("Ks: expected [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] (no skew)")

@@ -1,6 +1,7 @@
 """Every command the README and docs/ show parses: each ``ebad SUBCOMMAND ...`` (by ``ebad.cli.parse``,
 tyro's parser of every subcommand) and ``python -m benchmarks.NAME ...`` in backticks is handed to its own
 argument parser (nothing runs), so a renamed or removed option fails here instead of in a user's shell."""
+
 from __future__ import annotations
 
 import argparse

@@ -157,14 +157,17 @@ def _write(root: Path, files: dict[str, str]) -> None:
 
 
 def test_checker_finds_a_cycle_hidden_in_a_function(tmp_path):
-    _write(tmp_path, {
-        "ebad/__init__.py": "",
-        "ebad/a.py": "from .b import f\n",
-        "ebad/b.py": "def f():\n    from .c import g\n    return g\n",
-        "ebad/c.py": "import ebad.a\n",
-        "ebad/d.py": "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from .a import x\n",
-        "ebad/e.py": "from . import d\n",
-    })
+    _write(
+        tmp_path,
+        {
+            "ebad/__init__.py": "",
+            "ebad/a.py": "from .b import f\n",
+            "ebad/b.py": "def f():\n    from .c import g\n    return g\n",
+            "ebad/c.py": "import ebad.a\n",
+            "ebad/d.py": "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from .a import x\n",
+            "ebad/e.py": "from . import d\n",
+        },
+    )
     graph = import_graph(module_files(tmp_path))
     assert graph["ebad.b"] == {"ebad.c"}
     assert graph["ebad.d"] == set()  # under TYPE_CHECKING: not a runtime import
@@ -175,7 +178,9 @@ def test_checker_finds_a_cycle_hidden_in_a_function(tmp_path):
 
 
 def test_checker_sees_a_package_imported_the_wrong_way(tmp_path):
-    _write(tmp_path, {"edi/__init__.py": "def f():\n    import scenes.x\n", "scenes/__init__.py": "", "scenes/x.py": ""})
+    _write(
+        tmp_path, {"edi/__init__.py": "def f():\n    import scenes.x\n", "scenes/__init__.py": "", "scenes/x.py": ""}
+    )
     graph = import_graph(module_files(tmp_path))
     assert graph["edi"] == {"scenes.x"}
 

@@ -1,4 +1,5 @@
 """``benchmarks.margins``: ablation rows merged across files and the reference's margins paired per seed."""
+
 import json
 
 import pytest
@@ -7,23 +8,54 @@ from benchmarks import margins as M
 
 
 def _row(setting, preset, seed, novel, deblur, steps=100):
-    return {"setting": setting, "preset": preset, "seed": seed, "steps": steps, "test_refined_psnr": novel,
-            "test_refined_ssim": novel / 100, "deblur_psnr": deblur, "deblur_ssim": deblur / 100}
+    return {
+        "setting": setting,
+        "preset": preset,
+        "seed": seed,
+        "steps": steps,
+        "test_refined_psnr": novel,
+        "test_refined_ssim": novel / 100,
+        "deblur_psnr": deblur,
+        "deblur_ssim": deblur / 100,
+    }
 
 
 def _write(path, rows, seconds=600.0, argv=("--refine-iters", "150")):
-    path.write_text(json.dumps({"environment": {"date_utc": "2026-11-23T00:00:00+00:00", "commit": "abc"},
-                                "size": "small", "seconds": seconds, "iters": 1000000, "rows": rows,
-                                "argv": list(argv)}))
+    path.write_text(
+        json.dumps(
+            {
+                "environment": {"date_utc": "2026-11-23T00:00:00+00:00", "commit": "abc"},
+                "size": "small",
+                "seconds": seconds,
+                "iters": 1000000,
+                "rows": rows,
+                "argv": list(argv),
+            }
+        )
+    )
     return str(path)
 
 
 def test_margins_are_paired_per_seed_across_files(tmp_path):
-    a = _write(tmp_path / "a.json", [_row("noisy", "ebad", 0, 26.0, 27.0), _row("noisy", "ebad", 1, 27.0, 27.5),
-                                     _row("noisy", "ebad", 2, 25.0, 26.0)])
-    b = _write(tmp_path / "b.json", [_row("noisy", "bad", 0, 24.0, 23.0), _row("noisy", "bad", 2, 24.5, 23.5),
-                                     _row("noisy", "3dgs", 0, 20.0, 20.0), _row("noisy", "3dgs", 1, 19.0, 19.5),
-                                     _row("noisy", "3dgs-po", 0, 20.5, 20.0), _row("noisy", "3dgs-po", 1, 19.2, 19.0)])
+    a = _write(
+        tmp_path / "a.json",
+        [
+            _row("noisy", "ebad", 0, 26.0, 27.0),
+            _row("noisy", "ebad", 1, 27.0, 27.5),
+            _row("noisy", "ebad", 2, 25.0, 26.0),
+        ],
+    )
+    b = _write(
+        tmp_path / "b.json",
+        [
+            _row("noisy", "bad", 0, 24.0, 23.0),
+            _row("noisy", "bad", 2, 24.5, 23.5),
+            _row("noisy", "3dgs", 0, 20.0, 20.0),
+            _row("noisy", "3dgs", 1, 19.0, 19.5),
+            _row("noisy", "3dgs-po", 0, 20.5, 20.0),
+            _row("noisy", "3dgs-po", 1, 19.2, 19.0),
+        ],
+    )
     rows, headers = M.load_rows([a, b])
     assert [h["name"] for h in headers] == ["a", "b"]
     out = M.paired_margins(rows, "ebad")["noisy"]

@@ -14,9 +14,11 @@ def test_cli_help_lists_commands():
 
 def test_help_imports_no_heavy_module():
     # ``ebad --help`` and a subcommand's help stay quick: the heavy modules are imported by the commands' run
-    code = ("import sys\nfrom ebad.cli import main\n"
-            "assert main(['--help']) == 0 and main(['reconstruct', '--help']) == 0 and main(['synth', '--help']) == 0\n"
-            f"print([m for m in {HEAVY!r} if m in sys.modules])")
+    code = (
+        "import sys\nfrom ebad.cli import main\n"
+        "assert main(['--help']) == 0 and main(['reconstruct', '--help']) == 0 and main(['synth', '--help']) == 0\n"
+        f"print([m for m in {HEAVY!r} if m in sys.modules])"
+    )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip().splitlines()[-1] == "[]"

@@ -22,6 +22,7 @@ or argument (a command line that does not parse: ``UsageError``), and file-syste
 raise ``OSError`` with the path; ``main`` prints those as one line and exits 2 (``--traceback``
 shows the traceback instead). Anything else is a bug and shows its traceback.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -77,14 +78,23 @@ def _root_type(mods: list[ModuleType], selected: str | None, argv: list[str]) ->
     for mod in mods:
         default = tyro.MISSING_NONPROP
         if mod.NAME == selected and hasattr(mod, "default_args"):
-            default = mod.default_args(argv[argv.index(mod.NAME) + 1:])
-        options.append(Annotated[mod.Args, tyro.conf.subcommand(mod.NAME, description=mod.HELP, default=default,
-                                                                  prefix_name=False)])
-    root = dataclasses.make_dataclass("Ebad", [
-        ("command", Annotated[Union[tuple(options)], tyro.conf.arg(name="")]),  # type: ignore[misc]  # noqa: UP007
-        ("traceback", Annotated[bool, tyro.conf.arg(help="show the full traceback of a user mistake too")],
-         dataclasses.field(default=False)),
-    ])
+            default = mod.default_args(argv[argv.index(mod.NAME) + 1 :])
+        options.append(
+            Annotated[
+                mod.Args, tyro.conf.subcommand(mod.NAME, description=mod.HELP, default=default, prefix_name=False)
+            ]
+        )
+    root = dataclasses.make_dataclass(
+        "Ebad",
+        [
+            ("command", Annotated[Union[tuple(options)], tyro.conf.arg(name="")]),  # type: ignore[misc]  # noqa: UP007
+            (
+                "traceback",
+                Annotated[bool, tyro.conf.arg(help="show the full traceback of a user mistake too")],
+                dataclasses.field(default=False),
+            ),
+        ],
+    )
     root.__doc__ = DESCRIPTION
     return root
 
@@ -102,8 +112,9 @@ def parse(argv: list[str]) -> Parsed:
     selected = _command_name(argv, set(by_name))
     root = _root_type(mods, selected, argv)
     with _one_line_errors(by_name.get(selected or ""), mods):
-        ns: Any = tyro.cli(root, prog=PROG, args=argv,
-                           config=(tyro.conf.FlagCreatePairsOff, tyro.conf.CascadeSubcommandArgs))
+        ns: Any = tyro.cli(
+            root, prog=PROG, args=argv, config=(tyro.conf.FlagCreatePairsOff, tyro.conf.CascadeSubcommandArgs)
+        )
     mod = next(m for m in mods if isinstance(ns.command, m.Args))
     return Parsed(mod, ns.command, bool(ns.traceback))
 
@@ -139,6 +150,7 @@ def _one_line(exc: BaseException) -> str:
 
 
 # --------------------------------------------------------------------------- parse errors
+
 
 def _option_names(cls: type, prefix: str = "") -> list[str]:
     """The ``--options`` of a dataclass of arguments (nested dataclasses as ``--section.field``)."""
@@ -177,8 +189,12 @@ def _describe(event: Any, mod: ModuleType | None, mods: list[ModuleType]) -> str
     def unrecognized(tokens: list[str]) -> str:
         options = [t for t in tokens if t.startswith("-")] or list(tokens)
         known = (_option_names(mod.Args) if mod else []) + ["--traceback", "--help"]
-        return ", ".join(f"{o} (did you mean {' or '.join(close)}?)" if (close := difflib.get_close_matches(
-            o.split("=")[0].replace("_", "-"), known, n=2, cutoff=0.7)) else o for o in options)
+        return ", ".join(
+            f"{o} (did you mean {' or '.join(close)}?)"
+            if (close := difflib.get_close_matches(o.split("=")[0].replace("_", "-"), known, n=2, cutoff=0.7))
+            else o
+            for o in options
+        )
 
     if isinstance(event, ev.UnrecognizedArgs):
         if mod is None and not any(t.startswith("-") for t in event.tokens):
@@ -191,8 +207,10 @@ def _describe(event: Any, mod: ModuleType | None, mods: list[ModuleType]) -> str
     if isinstance(event, ev.MissingSubcommand):
         return f"choose a command: {', '.join(m.NAME for m in mods)} ({PROG} --help describes them)"
     if isinstance(event, ev.InvalidChoice):
-        return (f"{name(event.argument)}: invalid choice {event.value!r}, choose one of "
-                f"{', '.join(str(c) for c in event.choices)}")
+        return (
+            f"{name(event.argument)}: invalid choice {event.value!r}, choose one of "
+            f"{', '.join(str(c) for c in event.choices)}"
+        )
     if isinstance(event, ev.BadValue):
         if event.reason == "too_few_values":
             return f"{name(event.argument)}: expected {event.argument.lowered.nargs} value(s)"
@@ -209,6 +227,7 @@ def _one_line_errors(mod: ModuleType | None, mods: list[ModuleType]):
     ``_errors.on_parse_error`` hook; without it, tyro prints its box and exits 2)."""
     try:
         from tyro import _errors
+
         hook_into = _errors.on_parse_error
     except (ImportError, AttributeError):  # a tyro without the hook
         yield

@@ -1,4 +1,5 @@
 """``ebad deblur``: sharp frames (and sharp video) from blurry frames and their events (EDI, mEDI)."""
+
 from __future__ import annotations
 
 import json
@@ -21,24 +22,34 @@ _IMAGE_EXT = {".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".pgm", ".npy"}
 @dataclass
 class Args:
     input: Annotated[tyro.conf.Positional[str], tyro.conf.arg(metavar="INPUT")]
-    ("a capture folder (ebad-capture/1, with capture.json), an AEDAT4 recording (.aedat4: its frames and events), "
-     "or a frame image (.png ...) with --events FILE and, optionally, --exposure T0 T1")
+    (
+        "a capture folder (ebad-capture/1, with capture.json), an AEDAT4 recording (.aedat4: its frames and events), "
+        "or a frame image (.png ...) with --events FILE and, optionally, --exposure T0 T1"
+    )
     out: str
-    ("output folder (created): sharp/NAME.png (mid-exposure), instants/NAME_KK.png (with --times), "
-     "side_by_side/NAME.png (blurry | sharp), c.json (the contrast thresholds used, per frame, and how they were "
-     "found); PNG values are linear intensity")
+    (
+        "output folder (created): sharp/NAME.png (mid-exposure), instants/NAME_KK.png (with --times), "
+        "side_by_side/NAME.png (blurry | sharp), c.json (the contrast thresholds used, per frame, and how they were "
+        "found); PNG values are linear intensity"
+    )
     c: str = "auto"
-    ("contrast threshold: a float, 'c_pos,c_neg', or 'auto': estimated jointly from consecutive frames when there "
-     "are two or more (c_pos and c_neg), else from the one frame (brightness constancy of the latent video); when "
-     "that estimate has no interior minimum the command says so: give --c (DAVIS sensors: 0.1 to 0.5) or more frames")
+    (
+        "contrast threshold: a float, 'c_pos,c_neg', or 'auto': estimated jointly from consecutive frames when there "
+        "are two or more (c_pos and c_neg), else from the one frame (brightness constancy of the latent video); when "
+        "that estimate has no interior minimum the command says so: give --c (DAVIS sensors: 0.1 to 0.5) or more frames"
+    )
     gamma: str = "1"
-    ("the frames' response, recorded = irradiance ** GAMMA (1: linear); the frames are linearised for EDI and the "
-     "output mapped back. With linear frames assumed on a non-linear camera the estimated c is in the frames' units "
-     "(about G x c): it deblurs those frames as well as the true c and response do, but is not the events' "
-     "threshold (the frames and events do not tell G apart from c); give --gamma for c in the events' units")
+    (
+        "the frames' response, recorded = irradiance ** GAMMA (1: linear); the frames are linearised for EDI and the "
+        "output mapped back. With linear frames assumed on a non-linear camera the estimated c is in the frames' units "
+        "(about G x c): it deblurs those frames as well as the true c and response do, but is not the events' "
+        "threshold (the frames and events do not tell G apart from c); give --gamma for c in the events' units"
+    )
     medi: bool = False
-    ("solve all frames jointly (mEDI, two or more frames: each pixel's log intensities follow the events between "
-     "frames; saturated pixels are carried by their neighbours in time) instead of one by one")
+    (
+        "solve all frames jointly (mEDI, two or more frames: each pixel's log intensities follow the events between "
+        "frames; saturated pixels are carried by their neighbours in time) instead of one by one"
+    )
     times: Annotated[int, tyro.conf.arg(metavar="N")] = 0
     """also write N sharp instants per exposure, at the centres of N equal sub-intervals"""
     events: Annotated[str | None, tyro.conf.arg(metavar="FILE")] = None
@@ -77,8 +88,9 @@ def _parse_gamma(s: str) -> float:
     try:
         return check_gamma(float(s), "--gamma")
     except (ValueError, InputError):
-        raise UserError(f"--gamma must be a number in [{GAMMA_RANGE[0]}, {GAMMA_RANGE[1]}] (1: linear), "
-                        f"got {s!r}") from None
+        raise UserError(
+            f"--gamma must be a number in [{GAMMA_RANGE[0]}, {GAMMA_RANGE[1]}] (1: linear), got {s!r}"
+        ) from None
 
 
 def _load_input(args):
@@ -127,8 +139,9 @@ def _load_input(args):
 def _event_counts(events, exposures: np.ndarray) -> np.ndarray:
     import edi
 
-    return np.array([np.subtract(*edi.events_in_window(events, t0, t1)[::-1]) if t1 > t0 else 0
-                     for t0, t1 in exposures])
+    return np.array(
+        [np.subtract(*edi.events_in_window(events, t0, t1)[::-1]) if t1 > t0 else 0 for t0, t1 in exposures]
+    )
 
 
 def _check_events_reach_the_frames(events, exposures: np.ndarray, counts: np.ndarray, unit: str) -> None:
@@ -136,8 +149,11 @@ def _check_events_reach_the_frames(events, exposures: np.ndarray, counts: np.nda
     blurry = exposures[:, 1] > exposures[:, 0]
     if not blurry.any() or counts[blurry].any():
         return
-    ev_range = ("no events at all" if len(events) == 0 else
-                f"events from {events.t[0] * 1e-6:.6f} to {events.t[-1] * 1e-6:.6f} s")
+    ev_range = (
+        "no events at all"
+        if len(events) == 0
+        else f"events from {events.t[0] * 1e-6:.6f} to {events.t[-1] * 1e-6:.6f} s"
+    )
     raise UserError(
         f"no exposure has events: exposures from {exposures[:, 0].min():.6f} to {exposures[:, 1].max():.6f} s, "
         f"{ev_range}, time unit assumed {unit}; check the time unit (--t-unit) or the exposure times"
@@ -210,14 +226,19 @@ def run(args: Args) -> int:
     blurry = exposures[:, 1] > exposures[:, 0]
     n_empty = int((blurry & (counts == 0)).sum())
     if n_empty:
-        print(f"ebad deblur: {n_empty} of {int(blurry.sum())} blurry exposure(s) have no events: written "
-              "unchanged (listed in c.json)")
+        print(
+            f"ebad deblur: {n_empty} of {int(blurry.sum())} blurry exposure(s) have no events: written "
+            "unchanged (listed in c.json)"
+        )
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
 
     c_all, c_source, c_rep = _estimate(frames, exposures, events, counts, c_arg, gamma)
-    units = (f"log-irradiance units, frames linearised with gamma {gamma:g}" if gamma != 1.0 else
-             "frames taken as linear: if they are not, c is in the frames' units; give --gamma")
+    units = (
+        f"log-irradiance units, frames linearised with gamma {gamma:g}"
+        if gamma != 1.0
+        else "frames taken as linear: if they are not, c is in the frames' units; give --gamma"
+    )
     if c_all is not None:
         print(f"ebad deblur: c_pos {c_all[0]:.4f}, c_neg {c_all[1]:.4f} ({c_source}; {units})")
     _say_unreliable(c_rep, "the joint estimate")
@@ -226,8 +247,12 @@ def run(args: Args) -> int:
         from edi.model import to_unit_range
 
         lin = edi.linearize(to_unit_range(frames, "frames"), gamma)
-        medi_lat = edi.apply_gamma(edi.medi(lin, exposures, events, c=c_all,
-                                            saturation=float(edi.linearize(np.float64(edi.SATURATION), gamma))), gamma)
+        medi_lat = edi.apply_gamma(
+            edi.medi(
+                lin, exposures, events, c=c_all, saturation=float(edi.linearize(np.float64(edi.SATURATION), gamma))
+            ),
+            gamma,
+        )
         c_source += ", mEDI"
         print(f"ebad deblur: mEDI: {frames.shape[0]} frames solved jointly")
     per_frame = []
@@ -250,29 +275,44 @@ def run(args: Args) -> int:
             for k in range(args.times):
                 _save(out / "instants" / f"{names[i]}_{k:02d}.png", lats[k], args.bits)
         c_report = rep.c_report or c_rep
-        per_frame.append({
-            "name": names[i],
-            "t_start": t_s,
-            "t_end": t_e,
-            "num_events": rep.num_events,
-            "c_pos": None if sharp_frame else rep.c.pos,
-            "c_neg": None if sharp_frame else rep.c.neg,
-            "c_source": "unused (sharp frame or no events)" if sharp_frame else c_source,
-            "c_at_bracket_end": None if sharp_frame or c_report is None else bool(c_report.at_bound),
-            "c_reliable": None if sharp_frame or c_report is None else bool(c_report.reliable),
-            "c_message": None if sharp_frame or c_report is None else c_report.message,
-            "saturated_pixels": int(rep.saturated.sum()),
-            "notes": rep.notes,
-        })
+        per_frame.append(
+            {
+                "name": names[i],
+                "t_start": t_s,
+                "t_end": t_e,
+                "num_events": rep.num_events,
+                "c_pos": None if sharp_frame else rep.c.pos,
+                "c_neg": None if sharp_frame else rep.c.neg,
+                "c_source": "unused (sharp frame or no events)" if sharp_frame else c_source,
+                "c_at_bracket_end": None if sharp_frame or c_report is None else bool(c_report.at_bound),
+                "c_reliable": None if sharp_frame or c_report is None else bool(c_report.reliable),
+                "c_message": None if sharp_frame or c_report is None else c_report.message,
+                "saturated_pixels": int(rep.saturated.sum()),
+                "notes": rep.notes,
+            }
+        )
     with open(out / "c.json", "w") as f:
-        json.dump({"input": str(args.input), "time_unit": unit, "medi": bool(args.medi), "gamma": gamma,
-                   "gamma_source": "given (--gamma)" if gamma != 1.0 else "assumed linear (default: c in the frames' units)",
-                   "frames": per_frame},
-                  f, indent=2)
+        json.dump(
+            {
+                "input": str(args.input),
+                "time_unit": unit,
+                "medi": bool(args.medi),
+                "gamma": gamma,
+                "gamma_source": "given (--gamma)"
+                if gamma != 1.0
+                else "assumed linear (default: c in the frames' units)",
+                "frames": per_frame,
+            },
+            f,
+            indent=2,
+        )
     unreliable = [fr["name"] for fr in per_frame if fr["c_reliable"] is False]
-    tail = (f"; {len(unreliable)} of them with an unreliable c (at a bracket end, or events that do not follow "
-            f"the frame's blur), so not deblurred reliably "
-            f"({', '.join(unreliable[:3])}{', ...' if len(unreliable) > 3 else ''}): give --c (c.json has the reports)"
-            if unreliable else "")
+    tail = (
+        f"; {len(unreliable)} of them with an unreliable c (at a bracket end, or events that do not follow "
+        f"the frame's blur), so not deblurred reliably "
+        f"({', '.join(unreliable[:3])}{', ...' if len(unreliable) > 3 else ''}): give --c (c.json has the reports)"
+        if unreliable
+        else ""
+    )
     print(f"ebad deblur: {len(per_frame)} frame(s) written to {out}{tail}")
     return 0

@@ -1,6 +1,7 @@
 """``ebad demo``: a synthetic blurry event capture from a realistic camera, reconstructed with
 EBAD-Gaussian and with plain 3DGS (poses optimised too) on the blurry frames, equal time each;
 scored by the evaluation protocol; prints PSNR / SSIM and writes renders and a comparison."""
+
 from __future__ import annotations
 
 import json
@@ -81,8 +82,11 @@ def run(args: Args) -> int:
     print(f"ebad demo: building the synthetic scene '{args.scene}' ({args.size}, {args.sensor} camera) ...", flush=True)
     scene = scenes.make_scene(args.scene, size=args.size, seed=args.seed, rgb=args.rgb, sensor=args.sensor)
     cap = scene.capture
-    print(f"  {cap.num_frames} blurry {cap.width}x{cap.height} frames, {len(cap.events)} events, "
-          f"{len(cap.test_views)} held-out views, poses given: {cap.effective_pose_trust}", flush=True)
+    print(
+        f"  {cap.num_frames} blurry {cap.width}x{cap.height} frames, {len(cap.events)} events, "
+        f"{len(cap.test_views)} held-out views, poses given: {cap.effective_pose_trust}",
+        flush=True,
+    )
     results, runs = {}, {}
     blurry_scores = score_frames(cap.frames, scene.gt_frames)
     blurry = {"train_psnr": blurry_scores.psnr, "train_ssim": blurry_scores.ssim}
@@ -99,12 +103,20 @@ def run(args: Args) -> int:
         r = reconstruct(cap, cfg)
         runs[name] = r
         renders: dict[str, np.ndarray] = {}
-        ev = evaluate(r, cap, refine=refine, gt_frames=scene.gt_frames,
-                      renders_to=lambda n, img: renders.__setitem__(n, img))
+        ev = evaluate(
+            r, cap, refine=refine, gt_frames=scene.gt_frames, renders_to=lambda n, img: renders.__setitem__(n, img)
+        )
         test = ev["test_refined" if refine else "test"]
-        results[name] = {"test_psnr": test.psnr, "test_ssim": test.ssim, "train_psnr": ev["deblurred"].psnr,
-                         "train_ssim": ev["deblurred"].ssim, "seconds": r.metrics.train_seconds,
-                         "steps": r.metrics.steps, "gaussians": r.num_gaussians, "renders": renders}
+        results[name] = {
+            "test_psnr": test.psnr,
+            "test_ssim": test.ssim,
+            "train_psnr": ev["deblurred"].psnr,
+            "train_ssim": ev["deblurred"].ssim,
+            "seconds": r.metrics.train_seconds,
+            "steps": r.metrics.steps,
+            "gaussians": r.num_gaussians,
+            "renders": renders,
+        }
         for view_name, img in renders.items():
             write_render(out / "renders" / name / f"{view_name}.png", img, 8)
         gt_traj = np.stack([scene.gt_trajectory(k, 9) for k in range(cap.num_frames)])
@@ -112,15 +124,18 @@ def run(args: Args) -> int:
     truth = {v.name: scene.gt_test_images[j] for j, v in enumerate(cap.test_views)}  # noise-free, for display
     rows = [[truth[n]] + [results[m]["renders"][n] for m, _ in METHODS] for n in results["ebad"]["renders"]]
     db = {n: runs[n].deblurred_frames() for n, _ in METHODS}
-    rows += [[cap.frames[k]] + [db[n][k] for n, _ in METHODS] + [scene.gt_frames[k]] for k in range(min(2, cap.num_frames))]
+    rows += [
+        [cap.frames[k]] + [db[n][k] for n, _ in METHODS] + [scene.gt_frames[k]] for k in range(min(2, cap.num_frames))
+    ]
     width = max(len(r_) for r_ in rows)
     blank = np.ones_like(cap.frames[0])
     rows = [r_ + [blank] * (width - len(r_)) for r_ in rows]
     Image.fromarray(comparison_image(rows, k=4 if cap.width <= 64 else 2)).save(out / "comparison.png")
     for res in results.values():
         res.pop("renders")
-    (out / "results.json").write_text(json.dumps(json_safe({"blurry_input": blurry, "test_poses_refined": refine,
-                                                            **results}), indent=2) + "\n")
+    (out / "results.json").write_text(
+        json.dumps(json_safe({"blurry_input": blurry, "test_poses_refined": refine, **results}), indent=2) + "\n"
+    )
 
     print()
     print(f"{'':24s} {'novel views':>20s} {'training frames':>20s}")
@@ -128,13 +143,19 @@ def run(args: Args) -> int:
     print(f"{'blurry input':24s} {'-':>10s} {'-':>9s} {blurry['train_psnr']:10.2f} {blurry['train_ssim']:9.3f}")
     for name, label in METHODS:
         m = results[name]
-        print(f"{label:24s} {m['test_psnr']:10.2f} {m['test_ssim']:9.3f} {m['train_psnr']:10.2f} {m['train_ssim']:9.3f}"
-              f"   ({m['steps']} steps, {m['seconds']:.0f} s, {m['gaussians']} Gaussians)")
+        print(
+            f"{label:24s} {m['test_psnr']:10.2f} {m['test_ssim']:9.3f} {m['train_psnr']:10.2f} {m['train_ssim']:9.3f}"
+            f"   ({m['steps']} steps, {m['seconds']:.0f} s, {m['gaussians']} Gaussians)"
+        )
     gain = results["ebad"]["test_psnr"] - results["3dgs"]["test_psnr"]
-    print(f"\nebad is {gain:+.2f} dB over 3dgs on novel views"
-          + (" (test poses refined against their images, scene frozen)." if refine else "."))
-    print(f"comparison image: {out / 'comparison.png'}  (rows: test views truth | 3dgs | ebad; "
-          f"training frames blurry | 3dgs | ebad | truth)")
+    print(
+        f"\nebad is {gain:+.2f} dB over 3dgs on novel views"
+        + (" (test poses refined against their images, scene frozen)." if refine else ".")
+    )
+    print(
+        f"comparison image: {out / 'comparison.png'}  (rows: test views truth | 3dgs | ebad; "
+        f"training frames blurry | 3dgs | ebad | truth)"
+    )
     print(f"renders: {out / 'renders'}, run folders: {out / 'run_3dgs'}, {out / 'run_ebad'}")
     print(f"total {time.perf_counter() - t_all:.0f} s")
     return 0

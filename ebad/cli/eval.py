@@ -2,6 +2,7 @@
 
 The protocol (which poses, refinement, metric conventions) is ``ebad.evaluate``'s docstring.
 """
+
 from __future__ import annotations
 
 import json
@@ -22,8 +23,10 @@ class Args:
     capture: Annotated[tyro.conf.Positional[str], tyro.conf.arg(metavar="CAPTURE")]
     """the capture (its test views carry the images)"""
     refine_poses: bool = False
-    ("also refine each test pose against its image with the scene frozen, until the loss stops improving "
-     "(BAD-Gaussians / EBAD-NeRF protocol); scores before and after")
+    (
+        "also refine each test pose against its image with the scene frozen, until the loss stops improving "
+        "(BAD-Gaussians / EBAD-NeRF protocol); scores before and after"
+    )
     refine_iters: int = 300
     """at most this many Adam steps per test pose"""
     renders: str | None = None
@@ -51,19 +54,29 @@ def run(args: Args) -> int:
     gt = scenes.read_ground_truth(gt_dir).frames(run_.names) if (gt_dir / "gt.json").exists() else None
     renders_to = None
     if args.renders:
+
         def renders_to(name, img, folder=Path(args.renders)):
             scenes.write_image(folder / f"{name}.png", img, bits=16)
-    res = evaluate(run_, cap, refine=args.refine_poses, gt_frames=gt, refine_iters=args.refine_iters,
-                   renders_to=renders_to)
+
+    res = evaluate(
+        run_, cap, refine=args.refine_poses, gt_frames=gt, refine_iters=args.refine_iters, renders_to=renders_to
+    )
     if not any(k in res for k in ("test", "deblurred")):
-        raise UserError(f"nothing to evaluate: capture {args.capture} has no test view with an image and a pose, "
-                        "and no ground truth was found")
+        raise UserError(
+            f"nothing to evaluate: capture {args.capture} has no test view with an image and a pose, "
+            "and no ground truth was found"
+        )
     missing = [n for n, how in res.get("poses", {}).items() if how == "none"]
     if missing:
-        print(f"ebad eval: {len(missing)} test view(s) have no pose in the run's frame and are not scored: "
-              f"{', '.join(missing)}")
-    for key, label in [("test", "test views"), ("test_refined", "test views, poses refined"),
-                       ("deblurred", "deblurred training frames")]:
+        print(
+            f"ebad eval: {len(missing)} test view(s) have no pose in the run's frame and are not scored: "
+            f"{', '.join(missing)}"
+        )
+    for key, label in [
+        ("test", "test views"),
+        ("test_refined", "test views, poses refined"),
+        ("deblurred", "deblurred training frames"),
+    ]:
         if key in res:
             print(f"{label:28s} PSNR {res[key].psnr:6.2f} dB  SSIM {res[key].ssim:.4f}  (n={res[key].n})")
     out = Path(args.out) if args.out else Path(args.run) / "eval.json"

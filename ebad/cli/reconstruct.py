@@ -7,6 +7,7 @@ run being resumed). ``--resume`` continues a run folder's checkpoint; it applies
 that are safe to change (``config.RESUMABLE_FIELDS``: iterations, time budget, progress,
 evaluation and checkpoint intervals) and refuses the others, naming them.
 """
+
 from __future__ import annotations
 
 import sys
@@ -30,13 +31,17 @@ class Args:
     out: str
     """run folder to write"""
     preset: Literal[tuple(sorted(PRESETS))] | None = None  # type: ignore[valid-type]
-    ("the method whose settings are the defaults of the options below (None: ebad, or the resumed run's); "
-     "with --help, the defaults shown are this preset's")
+    (
+        "the method whose settings are the defaults of the options below (None: ebad, or the resumed run's); "
+        "with --help, the defaults shown are this preset's"
+    )
     config: Annotated[str | None, tyro.conf.arg(metavar="JSON")] = None
     """a config.json to start from instead of the preset"""
     resume: bool = False
-    ("continue the run folder's checkpoint; only the iterations, time budget, progress, evaluation and checkpoint "
-     "intervals can change (ebad.config.RESUMABLE_FIELDS)")
+    (
+        "continue the run folder's checkpoint; only the iterations, time budget, progress, evaluation and checkpoint "
+        "intervals can change (ebad.config.RESUMABLE_FIELDS)"
+    )
     no_progress: bool = False
     """no progress bar (same as --train.progress False)"""
     settings: Annotated[Config, tyro.conf.arg(name=""), tyro.conf.FlagConversionOff] = field(default_factory=Config)
@@ -98,8 +103,10 @@ def resolve(args: Args) -> tuple[Config, dict]:
         refused = {k: v for k, v in diff.items() if k not in RESUMABLE_FIELDS}
         if refused:
             what = ", ".join(f"{k} ({a!r} -> {b!r})" for k, (a, b) in sorted(refused.items()))
-            raise ConfigError(f"--resume cannot change {what}: they change what is being optimised; start a new "
-                              f"run folder instead (only {', '.join(sorted(RESUMABLE_FIELDS))} can change on resume)")
+            raise ConfigError(
+                f"--resume cannot change {what}: they change what is being optimised; start a new "
+                f"run folder instead (only {', '.join(sorted(RESUMABLE_FIELDS))} can change on resume)"
+            )
         applied = diff
     return cfg, applied
 
@@ -144,16 +151,24 @@ def run(args: Args) -> int:
         write_run(run_, out, gt_trajectories=gt)
     m = run_.metrics
     test = m.test
-    print(f"ebad reconstruct [{cfg.name}]: {m.steps} steps ({m.stop_reason}), {m.gaussians} Gaussians, "
-          f"{time.perf_counter() - t0:.1f} s" + (f", test PSNR {test.psnr:.2f} dB SSIM {test.ssim:.3f}" if test else ""))
+    print(
+        f"ebad reconstruct [{cfg.name}]: {m.steps} steps ({m.stop_reason}), {m.gaussians} Gaussians, "
+        f"{time.perf_counter() - t0:.1f} s" + (f", test PSNR {test.psnr:.2f} dB SSIM {test.ssim:.3f}" if test else "")
+    )
     print(f"  run folder: {out}")
     if not m.complete:
-        print(f"  the run was interrupted at step {m.steps}; continue it with: ebad reconstruct {args.capture} "
-              f"--out {out} --resume", file=sys.stderr)
+        print(
+            f"  the run was interrupted at step {m.steps}; continue it with: ebad reconstruct {args.capture} "
+            f"--out {out} --resume",
+            file=sys.stderr,
+        )
         return 130
     if m.test is not None and m.test_initial is not None and abs(m.test.psnr - m.test_initial.psnr) < 0.01:
-        print(f"ebad reconstruct: warning: test PSNR did not change ({m.test_initial.psnr:.2f} dB before and after): "
-              "the scene did not learn; check the poses and intrinsics", file=sys.stderr)
+        print(
+            f"ebad reconstruct: warning: test PSNR did not change ({m.test_initial.psnr:.2f} dB before and after): "
+            "the scene did not learn; check the poses and intrinsics",
+            file=sys.stderr,
+        )
     return 0
 
 

@@ -3,6 +3,7 @@
 PNGs are 8-bit sRGB-encoded by default (what image viewers and browsers expect: the linear
 renders go through the sRGB transfer curve), or 16-bit linear intensity ``round(v * 65535)``
 with ``--bits 16`` (for measurements; written by ``scenes.images.write_png16``)."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass

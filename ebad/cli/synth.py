@@ -1,4 +1,5 @@
 """``ebad synth``: build a synthetic blurry event capture with ground truth."""
+
 from __future__ import annotations
 
 import time
@@ -31,15 +32,19 @@ class Args:
     rgb: bool = False
     """colour frames instead of grey"""
     sensor: SensorName = "realistic"
-    ("camera model: realistic (non-linear saturating APS with read noise, c_pos != c_neg, noise events, hand "
-     "tremor, noisy poses) or ideal (linear APS, symmetric thresholds, constant-velocity shake, exact poses)")
+    (
+        "camera model: realistic (non-linear saturating APS with read noise, c_pos != c_neg, noise events, hand "
+        "tremor, noisy poses) or ideal (linear APS, symmetric thresholds, constant-velocity shake, exact poses)"
+    )
     poses: Literal["exact", "noisy", "none"] | None = None
     """poses given with the capture (None: the sensor's; realistic: noisy, ideal: exact)"""
     noise_hz: float | None = None
     """shot-noise events per pixel per second (None: the sensor's)"""
     c: Annotated[tuple[float, ...] | None, tyro.conf.arg(metavar="C [C]")] = None
-    ("contrast threshold (log units): one value, or two for c_pos c_neg (None: the sensor's; realistic 0.24 0.18, "
-     "ideal 0.2)")
+    (
+        "contrast threshold (log units): one value, or two for c_pos c_neg (None: the sensor's; realistic 0.24 0.18, "
+        "ideal 0.2)"
+    )
     shake: float = 1.0
     """camera shake scale (0: no shake)"""
     tremor: float | None = None
@@ -66,14 +71,29 @@ def run(args: Args) -> int:
             raise UserError(f"--c takes one value or two (c_pos c_neg), got {len(args.c)}")
         c = args.c[0] if len(args.c) == 1 else (args.c[0], args.c[1])
     t0 = time.perf_counter()
-    scene = make_scene(args.name, size=args.size, seed=args.seed, rgb=args.rgb, sensor=args.sensor, poses=args.poses,
-                       c=c, noise_hz=args.noise_hz, shake=args.shake, tremor=args.tremor, n_frames=args.frames,
-                       n_test=args.test_views, exposure=args.exposure, sharp_fraction=args.sharp_fraction)
+    scene = make_scene(
+        args.name,
+        size=args.size,
+        seed=args.seed,
+        rgb=args.rgb,
+        sensor=args.sensor,
+        poses=args.poses,
+        c=c,
+        noise_hz=args.noise_hz,
+        shake=args.shake,
+        tremor=args.tremor,
+        n_frames=args.frames,
+        n_test=args.test_views,
+        exposure=args.exposure,
+        sharp_fraction=args.sharp_fraction,
+    )
     out = write_scene(scene, args.out, overwrite=args.overwrite)
     cap = scene.capture
-    print(f"ebad synth: {args.name} {cap.width}x{cap.height}x{cap.channels} ({args.sensor} sensor, poses "
-          f"{scene.sensor.poses}), {cap.num_frames} frames, {len(cap.test_views)} test views, {len(cap.events)} "
-          f"events in {time.perf_counter() - t0:.1f} s")
+    print(
+        f"ebad synth: {args.name} {cap.width}x{cap.height}x{cap.channels} ({args.sensor} sensor, poses "
+        f"{scene.sensor.poses}), {cap.num_frames} frames, {len(cap.test_views)} test views, {len(cap.events)} "
+        f"events in {time.perf_counter() - t0:.1f} s"
+    )
     print(f"  capture: {out / 'capture'}  (ebad-capture/1)")
     print(f"  ground truth: {out / 'gt'}")
     return 0

@@ -20,6 +20,7 @@ wheel ships an ffmpeg binary; odd sizes are padded by one edge pixel), ``.gif`` 
 a folder (no suffix): one PNG per frame. Frames are 8-bit sRGB-encoded from the linear
 renders, like ``ebad render``'s default.
 """
+
 from __future__ import annotations
 
 import json
@@ -53,21 +54,29 @@ class Args:
     run: Annotated[tyro.conf.Positional[str], tyro.conf.arg(metavar="RUN")]
     """run folder written by 'ebad reconstruct'"""
     out: str
-    ("FILE.mp4 (H.264, needs imageio-ffmpeg), FILE.gif, or a folder (no suffix) for a PNG sequence; frames are "
-     "8-bit sRGB-encoded from the linear renders")
+    (
+        "FILE.mp4 (H.264, needs imageio-ffmpeg), FILE.gif, or a folder (no suffix) for a PNG sequence; frames are "
+        "8-bit sRGB-encoded from the linear renders"
+    )
     frames: int = DEFAULT_FRAMES
     """frames along a smooth path through the training cameras (their mid-exposure poses)"""
     camera_path: Annotated[str | None, tyro.conf.arg(metavar="JSON")] = None
-    ("a nerfstudio-style camera_path.json to follow instead of the smooth path (camera_to_world 4x4 row-major in "
-     "nerfstudio's OpenGL axes, vertical fov in degrees, render_width / render_height; poses in the run's frame)")
+    (
+        "a nerfstudio-style camera_path.json to follow instead of the smooth path (camera_to_world 4x4 row-major in "
+        "nerfstudio's OpenGL axes, vertical fov in degrees, render_width / render_height; poses in the run's frame)"
+    )
     exposure: Annotated[str | None, tyro.conf.arg(metavar="NAME")] = None
-    ("instead: the sharp video of this training frame's exposure, its recovered trajectory rendered at the centres "
-     "of --instants equal sub-intervals")
+    (
+        "instead: the sharp video of this training frame's exposure, its recovered trajectory rendered at the centres "
+        "of --instants equal sub-intervals"
+    )
     instants: int = DEFAULT_INSTANTS
     """with --exposure: instants rendered inside the exposure"""
     capture: str | None = None
-    ("with --exposure: the capture; each video frame is then the blurry frame | EDI's latent at the same instant "
-     "(the run's contrast threshold, else one estimated from the capture) | the render")
+    (
+        "with --exposure: the capture; each video frame is then the blurry frame | EDI's latent at the same instant "
+        "(the run's contrast threshold, else one estimated from the capture) | the render"
+    )
     fps: float | None = None
     """frames per second (None: 30; 10 with --exposure)"""
     no_progress: bool = False
@@ -75,6 +84,7 @@ class Args:
 
 
 # --------------------------------------------------------------------------- writing
+
 
 def write_video(path: str | Path, frames: np.ndarray, fps: float) -> Path:  # [T, H, W, D] uint8, D in {1, 3}
     """Write 8-bit frames as ``.mp4`` (imageio-ffmpeg), ``.gif`` (Pillow), or PNGs in a folder
@@ -105,16 +115,26 @@ def write_video(path: str | Path, frames: np.ndarray, fps: float) -> Path:  # [T
         try:
             import imageio_ffmpeg
         except ImportError:
-            raise UserError(f"--out {path}: writing .mp4 needs imageio-ffmpeg: {_INSTALL_VIDEO}; "
-                            "or write a .gif or a PNG folder instead") from None
+            raise UserError(
+                f"--out {path}: writing .mp4 needs imageio-ffmpeg: {_INSTALL_VIDEO}; "
+                "or write a .gif or a PNG folder instead"
+            ) from None
         if frames.shape[3] == 1:
             frames = np.repeat(frames, 3, axis=3)
         H, W = frames.shape[1:3]
         pad = ((0, 0), (0, H % 2), (0, W % 2), (0, 0))  # yuv420p needs even sizes
         frames = np.pad(frames, pad, mode="edge")
-        writer = imageio_ffmpeg.write_frames(str(path), (frames.shape[2], frames.shape[1]), fps=fps,
-                                             codec="libx264", pix_fmt_in="rgb24", pix_fmt_out="yuv420p",
-                                             quality=_MP4_QUALITY, macro_block_size=1, ffmpeg_log_level="error")
+        writer = imageio_ffmpeg.write_frames(
+            str(path),
+            (frames.shape[2], frames.shape[1]),
+            fps=fps,
+            codec="libx264",
+            pix_fmt_in="rgb24",
+            pix_fmt_out="yuv420p",
+            quality=_MP4_QUALITY,
+            macro_block_size=1,
+            ffmpeg_log_level="error",
+        )
         writer.send(None)
         for fr in frames:
             writer.send(np.ascontiguousarray(fr))
@@ -124,6 +144,7 @@ def write_video(path: str | Path, frames: np.ndarray, fps: float) -> Path:  # [T
 
 
 # --------------------------------------------------------------------------- camera paths
+
 
 def read_camera_path(path: str | Path) -> tuple[np.ndarray, np.ndarray, int, int]:  # -> [T, 4, 4], [T, 3, 3], W, H
     """Cameras of a nerfstudio-style ``camera_path.json`` as OpenCV camera-to-world poses,
@@ -159,15 +180,28 @@ def read_camera_path(path: str | Path) -> tuple[np.ndarray, np.ndarray, int, int
     return np.stack(c2w), np.asarray(K), W, H
 
 
-def write_camera_path(path: str | Path, c2w: np.ndarray, K: np.ndarray,  # [T, 4, 4] OpenCV, [3, 3]
-                      width: int, height: int, fps: float = DEFAULT_FPS_PATH) -> Path:
+def write_camera_path(
+    path: str | Path,
+    c2w: np.ndarray,
+    K: np.ndarray,  # [T, 4, 4] OpenCV, [3, 3]
+    width: int,
+    height: int,
+    fps: float = DEFAULT_FPS_PATH,
+) -> Path:
     """A nerfstudio-style ``camera_path.json`` of OpenCV poses (a starting point to edit)."""
     c2w = np.asarray(c2w, dtype=np.float64)
     fov = math.degrees(2 * math.atan(0.5 * height / float(K[1, 1])))
-    cams = [{"camera_to_world": (T @ _GL_TO_CV).reshape(-1).tolist(), "fov": fov, "aspect": width / height}
-            for T in c2w]
-    doc = {"camera_type": "perspective", "render_width": int(width), "render_height": int(height),
-           "fps": fps, "seconds": len(cams) / fps, "camera_path": cams}
+    cams = [
+        {"camera_to_world": (T @ _GL_TO_CV).reshape(-1).tolist(), "fov": fov, "aspect": width / height} for T in c2w
+    ]
+    doc = {
+        "camera_type": "perspective",
+        "render_width": int(width),
+        "render_height": int(height),
+        "fps": fps,
+        "seconds": len(cams) / fps,
+        "camera_path": cams,
+    }
     path = Path(path)
     path.write_text(json.dumps(doc, indent=1) + "\n")
     return path
@@ -175,8 +209,15 @@ def write_camera_path(path: str | Path, c2w: np.ndarray, K: np.ndarray,  # [T, 4
 
 # --------------------------------------------------------------------------- frames
 
-def render_views(run, c2w: np.ndarray, K: np.ndarray | None = None, width: int | None = None,
-                 height: int | None = None, progress: bool = True) -> np.ndarray:  # [T, 4, 4] -> [T, H, W, D]
+
+def render_views(
+    run,
+    c2w: np.ndarray,
+    K: np.ndarray | None = None,
+    width: int | None = None,
+    height: int | None = None,
+    progress: bool = True,
+) -> np.ndarray:  # [T, 4, 4] -> [T, H, W, D]
     """Linear renders of ``c2w`` (K [3, 3] or [T, 3, 3]; default the run's), with a progress bar."""
     from tqdm import tqdm
 
@@ -211,8 +252,9 @@ def exposure_instants(exposure: tuple[float, float], n: int) -> tuple[np.ndarray
     return u, t0 + u * (t1 - t0)
 
 
-def exposure_frames(run, name: str, instants: int, capture=None,
-                    progress: bool = True) -> tuple[np.ndarray, str]:  # -> [N, H, W', D] linear, description
+def exposure_frames(
+    run, name: str, instants: int, capture=None, progress: bool = True
+) -> tuple[np.ndarray, str]:  # -> [N, H, W', D] linear, description
     """The renders of frame ``name`` along its recovered exposure trajectory at ``instants``
     instants; with a capture, [blurry | EDI latent | render] side by side."""
     import torch
@@ -243,8 +285,10 @@ def exposure_frames(run, name: str, instants: int, capture=None,
     if c is None:
         c = edi.estimate_c(np.asarray(capture.frames), np.asarray(capture.exposures), capture.events, pair=True)
     c = (float(c[0]), float(c[1]))
-    lat = np.asarray(edi.deblur(blurry, (float(exposure[0]), float(exposure[1])), capture.events,
-                                times=times.tolist(), c=c), np.float64).reshape(renders.shape)
+    lat = np.asarray(
+        edi.deblur(blurry, (float(exposure[0]), float(exposure[1])), capture.events, times=times.tolist(), c=c),
+        np.float64,
+    ).reshape(renders.shape)
     panels = side_by_side([np.broadcast_to(blurry, renders.shape), np.clip(lat, 0, 1), renders])
     return panels, f"blurry | EDI latent (c_pos {c[0]:.3f}, c_neg {c[1]:.3f}) | render, at the same instants"
 

@@ -14,6 +14,7 @@ SSH from your own computer and open the same address there::
 ``--host 0.0.0.0`` serves every network interface instead (anyone who can reach the port
 sees the scene). Needs ``viser``: ``pip install viser`` (or the ``view`` extra). Stop with Ctrl-C.
 """
+
 from __future__ import annotations
 
 import math
@@ -47,9 +48,11 @@ class Args:
     capture: str | None = None
     """capture whose test views to show"""
     host: str = DEFAULT_HOST
-    ("interface to listen on (127.0.0.1: this machine only; from another computer, forward the port with "
-     "'ssh -L 8080:localhost:8080 HOST' and open http://localhost:8080 there; 0.0.0.0: every interface, anyone who "
-     "can reach the port sees the scene)")
+    (
+        "interface to listen on (127.0.0.1: this machine only; from another computer, forward the port with "
+        "'ssh -L 8080:localhost:8080 HOST' and open http://localhost:8080 there; 0.0.0.0: every interface, anyone who "
+        "can reach the port sees the scene)"
+    )
     port: int = DEFAULT_PORT
     """port"""
 
@@ -79,19 +82,38 @@ def splat_arrays(params) -> dict[str, np.ndarray]:
     colors = act["colors"].detach().double().numpy()
     if colors.shape[1] == 1:
         colors = np.repeat(colors, 3, axis=1)
-    return {"centers": act["means"].detach().numpy().astype(np.float32), "covariances": cov.numpy().astype(np.float32),
-            "rgbs": srgb_encode(colors).astype(np.float32),
-            "opacities": act["opacities"].detach().numpy().astype(np.float32)[:, None]}
+    return {
+        "centers": act["means"].detach().numpy().astype(np.float32),
+        "covariances": cov.numpy().astype(np.float32),
+        "rgbs": srgb_encode(colors).astype(np.float32),
+        "opacities": act["opacities"].detach().numpy().astype(np.float32)[:, None],
+    }
 
 
-def _frustum(server, name: str, c2w: np.ndarray, K: np.ndarray, width: int, height: int, scale: float,
-             color: tuple[int, int, int]):
+def _frustum(
+    server,
+    name: str,
+    c2w: np.ndarray,
+    K: np.ndarray,
+    width: int,
+    height: int,
+    scale: float,
+    color: tuple[int, int, int],
+):
     from ..export import rotmat_to_quat
 
     fov = 2 * math.atan(0.5 * height / float(K[1, 1]))  # vertical
     return server.scene.add_camera_frustum(
-        name, fov=fov, aspect=width / height, scale=scale, color=color, thickness=LINE_PIXELS,
-        thickness_units="screen", wxyz=rotmat_to_quat(c2w[:3, :3]), position=c2w[:3, 3])
+        name,
+        fov=fov,
+        aspect=width / height,
+        scale=scale,
+        color=color,
+        thickness=LINE_PIXELS,
+        thickness_units="screen",
+        wxyz=rotmat_to_quat(c2w[:3, :3]),
+        position=c2w[:3, 3],
+    )
 
 
 def build_scene(server, run, test_views=()) -> dict:
@@ -111,15 +133,30 @@ def build_scene(server, run, test_views=()) -> dict:
     server.scene.set_up_direction(up)
     handles = {"splats": server.scene.add_gaussian_splats("/gaussians", **arrays), "train": [], "test": []}
     for f, name in enumerate(run.names):
-        handles["train"].append(_frustum(server, f"/train/{name}", mid[f], run.K, run.width, run.height,
-                                         scale, TRAIN_COLOR))
+        handles["train"].append(
+            _frustum(server, f"/train/{name}", mid[f], run.K, run.width, run.height, scale, TRAIN_COLOR)
+        )
     segments = np.stack([poses[:, :-1, :3, 3], poses[:, 1:, :3, 3]], axis=2).reshape(-1, 2, 3)  # [F*(S-1), 2, 3]
     handles["trajectories"] = server.scene.add_line_segments(
-        "/trajectories", points=segments.astype(np.float32), colors=TRAJECTORY_COLOR, thickness=LINE_PIXELS,
-        thickness_units="screen")
+        "/trajectories",
+        points=segments.astype(np.float32),
+        colors=TRAJECTORY_COLOR,
+        thickness=LINE_PIXELS,
+        thickness_units="screen",
+    )
     for v in test_views:
-        handles["test"].append(_frustum(server, f"/test/{v.name}", np.asarray(v.c2w, np.float64), run.K,
-                                        run.width, run.height, scale, TEST_COLOR))
+        handles["test"].append(
+            _frustum(
+                server,
+                f"/test/{v.name}",
+                np.asarray(v.c2w, np.float64),
+                run.K,
+                run.width,
+                run.height,
+                scale,
+                TEST_COLOR,
+            )
+        )
     # start behind the cameras, looking at the scene
     eye = centres.mean(0) + BACK_OFF * (centres.mean(0) - target)
     server.initial_camera.position = tuple(float(v) for v in eye)
@@ -150,12 +187,15 @@ def run(args: Args) -> int:
         test_views = [v for v in scenes.load(args.capture).test_views if getattr(v, "c2w", None) is not None]
     server, _ = serve(run_, args.host, args.port, test_views)
     port = server.get_port()
-    print(f"ebad view: {run_.num_gaussians} Gaussians, {len(run_.names)} training cameras, "
-          f"{len(test_views)} test views")
+    print(
+        f"ebad view: {run_.num_gaussians} Gaussians, {len(run_.names)} training cameras, {len(test_views)} test views"
+    )
     print(f"ebad view: open http://localhost:{port} (listening on {args.host}:{port}; Ctrl-C stops)")
     if args.host in ("127.0.0.1", "localhost"):
-        print(f"ebad view: from another computer: ssh -L {port}:localhost:{port} THIS_HOST, "
-              f"then open http://localhost:{port} there")
+        print(
+            f"ebad view: from another computer: ssh -L {port}:localhost:{port} THIS_HOST, "
+            f"then open http://localhost:{port} there"
+        )
     try:
         server.sleep_forever()
     finally:

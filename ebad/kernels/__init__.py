@@ -17,6 +17,7 @@ reference for any other device or inside ``torch_reference()``. ``losses`` impor
 modules on a loss's first call, and numba compiles each kernel on its first call, or loads it from
 its cache (``ebad.trainer.warm_up`` does both before timed work).
 """
+
 from __future__ import annotations
 
 import contextlib

@@ -13,6 +13,7 @@ Here each direction is one parallel region over bands of rows. Arrays are float3
 L [V, H, W], counts [V - 1, 2, H, W]. ``ebad.kernels.losses`` wraps the kernels in an autograd
 Function; ``ebad.losses.event_loss``'s torch code is the reference they are tested against.
 """
+
 from __future__ import annotations
 
 import numpy as np

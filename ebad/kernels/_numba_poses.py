@@ -17,6 +17,7 @@ e W^2, e = (1 - (t / 2) cot(t / 2)) / t^2. Series replace the ratios near t = 0.
 within ``NEAR_PI_COS`` of pi is refused (``_poses`` returns False, ``ebad.kernels.poses`` raises
 ``NearPi``): the caller takes the torch path, as ``so3_log`` takes kornia's there.
 """
+
 from __future__ import annotations
 
 import math
@@ -155,9 +156,9 @@ def _frame(kind, Rm, tm, knots, u, scale, R, t, dR, dt):  # pragma: no cover - j
         for v in range(V):
             uu = u[v]
             B[0] = (1 - uu) ** 3 / 6
-            B[1] = (3 * uu ** 3 - 6 * uu ** 2 + 4) / 6
-            B[2] = (-3 * uu ** 3 + 3 * uu ** 2 + 3 * uu + 1) / 6
-            B[3] = uu ** 3 / 6
+            B[1] = (3 * uu**3 - 6 * uu**2 + 4) / 6
+            B[2] = (-3 * uu**3 + 3 * uu**2 + 3 * uu + 1) / 6
+            B[3] = uu**3 / 6
             for i in range(6):
                 xi[i] = B[0] * knots[0, i] + B[1] * knots[1, i] + B[2] * knots[2, i] + B[3] * knots[3, i]
             _exp_jr(xi[0], xi[1], xi[2], E, J)
@@ -287,16 +288,22 @@ def _poses(kind, c2w_mid, knots, u, scale, anchored, c2w, dC):  # pragma: no cov
                     for j in range(3):
                         dRM[i, j] = Rm[i, 0] * dR[p, V, j, 0] + Rm[i, 1] * dR[p, V, j, 1] + Rm[i, 2] * dR[p, V, j, 2]
                 for i in range(3):
-                    dtM[i] = -(dRM[i, 0] * t[V, 0] + dRM[i, 1] * t[V, 1] + dRM[i, 2] * t[V, 2]) \
-                        - (RM[i, 0] * dt[p, V, 0] + RM[i, 1] * dt[p, V, 1] + RM[i, 2] * dt[p, V, 2])
+                    dtM[i] = -(dRM[i, 0] * t[V, 0] + dRM[i, 1] * t[V, 1] + dRM[i, 2] * t[V, 2]) - (
+                        RM[i, 0] * dt[p, V, 0] + RM[i, 1] * dt[p, V, 1] + RM[i, 2] * dt[p, V, 2]
+                    )
             for v in range(V):  # dT_out = dM T(u) + M dT(u)
                 _mm(dRM, R[v], M1)
                 _mm(RM, dR[p, v], M2)
                 for i in range(3):
                     for j in range(3):
                         dC[b, p, v, i, j] = M1[i, j] + M2[i, j]
-                    dC[b, p, v, i, 3] = (dRM[i, 0] * t[v, 0] + dRM[i, 1] * t[v, 1] + dRM[i, 2] * t[v, 2]
-                                         + RM[i, 0] * dt[p, v, 0] + RM[i, 1] * dt[p, v, 1] + RM[i, 2] * dt[p, v, 2]
-                                         + dtM[i])
+                    dC[b, p, v, i, 3] = (
+                        dRM[i, 0] * t[v, 0]
+                        + dRM[i, 1] * t[v, 1]
+                        + dRM[i, 2] * t[v, 2]
+                        + RM[i, 0] * dt[p, v, 0]
+                        + RM[i, 1] * dt[p, v, 1]
+                        + RM[i, 2] * dt[p, v, 2]
+                        + dtM[i]
+                    )
     return True
-

@@ -29,6 +29,7 @@ reference they are tested against.
 Arrays are [N, H, W] (N = batch x channels) float32 or float64, H and W larger than ``win // 2``,
 with ``g`` the window's ``win`` 1-D weights (summing to 1).
 """
+
 from __future__ import annotations
 
 import functools
@@ -39,7 +40,7 @@ from numba import njit, prange
 import splat_cpu._numba_impl  # noqa: F401  (chooses numba's threading layer before any kernel here launches)
 
 _FASTMATH = {"contract", "arcp", "nsz", "reassoc"}  # FMA and reassociation; no nan/inf assumptions
-C1, C2 = 0.01 ** 2, 0.03 ** 2  # kornia's constants for a data range of 1
+C1, C2 = 0.01**2, 0.03**2  # kornia's constants for a data range of 1
 DEN_EPS = 1e-12  # kornia's: added to the denominator
 BAND = 24  # image rows per task: few enough tasks to start, enough to share 2 threads evenly
 TAPS = 7  # taps the kernels' window loops take at a time, written out (``window_taps``)
@@ -94,8 +95,8 @@ def ssim_forward(a, b, g, s_map, coef, want_grad, sums):  # pragma: no cover - j
         xb = np.empty(Wp, a.dtype)
         for r in range(nr):  # along each padded row: the five row sums
             src = ridx[i0 + r]
-            xa[left:left + W] = a[n, src]
-            xb[left:left + W] = b[n, src]
+            xa[left : left + W] = a[n, src]
+            xb[left : left + W] = b[n, src]
             for e in range(left):  # the reflected edges
                 xa[e] = a[n, src, cidx[e]]
                 xb[e] = b[n, src, cidx[e]]
@@ -112,18 +113,53 @@ def ssim_forward(a, b, g, s_map, coef, want_grad, sums):  # pragma: no cover - j
                 o = blk * TAPS
                 g0, g1, g2, g3, g4, g5, g6 = g[o], g[o + 1], g[o + 2], g[o + 3], g[o + 4], g[o + 5], g[o + 6]
                 for j in range(W):
-                    x0, x1, x2, x3, x4, x5, x6 = xa[o + j], xa[o + j + 1], xa[o + j + 2], xa[o + j + 3], \
-                        xa[o + j + 4], xa[o + j + 5], xa[o + j + 6]
-                    y0, y1, y2, y3, y4, y5, y6 = xb[o + j], xb[o + j + 1], xb[o + j + 2], xb[o + j + 3], \
-                        xb[o + j + 4], xb[o + j + 5], xb[o + j + 6]
+                    x0, x1, x2, x3, x4, x5, x6 = (
+                        xa[o + j],
+                        xa[o + j + 1],
+                        xa[o + j + 2],
+                        xa[o + j + 3],
+                        xa[o + j + 4],
+                        xa[o + j + 5],
+                        xa[o + j + 6],
+                    )
+                    y0, y1, y2, y3, y4, y5, y6 = (
+                        xb[o + j],
+                        xb[o + j + 1],
+                        xb[o + j + 2],
+                        xb[o + j + 3],
+                        xb[o + j + 4],
+                        xb[o + j + 5],
+                        xb[o + j + 6],
+                    )
                     v0 = g0 * x0 + g1 * x1 + g2 * x2 + g3 * x3 + g4 * x4 + g5 * x5 + g6 * x6
                     v1 = g0 * y0 + g1 * y1 + g2 * y2 + g3 * y3 + g4 * y4 + g5 * y5 + g6 * y6
-                    v2 = g0 * x0 * x0 + g1 * x1 * x1 + g2 * x2 * x2 + g3 * x3 * x3 + g4 * x4 * x4 + g5 * x5 * x5 \
+                    v2 = (
+                        g0 * x0 * x0
+                        + g1 * x1 * x1
+                        + g2 * x2 * x2
+                        + g3 * x3 * x3
+                        + g4 * x4 * x4
+                        + g5 * x5 * x5
                         + g6 * x6 * x6
-                    v3 = g0 * y0 * y0 + g1 * y1 * y1 + g2 * y2 * y2 + g3 * y3 * y3 + g4 * y4 * y4 + g5 * y5 * y5 \
+                    )
+                    v3 = (
+                        g0 * y0 * y0
+                        + g1 * y1 * y1
+                        + g2 * y2 * y2
+                        + g3 * y3 * y3
+                        + g4 * y4 * y4
+                        + g5 * y5 * y5
                         + g6 * y6 * y6
-                    v4 = g0 * x0 * y0 + g1 * x1 * y1 + g2 * x2 * y2 + g3 * x3 * y3 + g4 * x4 * y4 + g5 * x5 * y5 \
+                    )
+                    v4 = (
+                        g0 * x0 * y0
+                        + g1 * x1 * y1
+                        + g2 * x2 * y2
+                        + g3 * x3 * y3
+                        + g4 * x4 * y4
+                        + g5 * x5 * y5
                         + g6 * x6 * y6
+                    )
                     r0[j] += v0
                     r1[j] += v1
                     r2[j] += v2
@@ -144,7 +180,9 @@ def ssim_forward(a, b, g, s_map, coef, want_grad, sums):  # pragma: no cover - j
                     q0, q1, q2, q3 = rows[c, o], rows[c, o + 1], rows[c, o + 2], rows[c, o + 3]
                     q4, q5, q6 = rows[c, o + 4], rows[c, o + 5], rows[c, o + 6]
                     for j in range(W):
-                        mc[j] += g0 * q0[j] + g1 * q1[j] + g2 * q2[j] + g3 * q3[j] + g4 * q4[j] + g5 * q5[j] + g6 * q6[j]
+                        mc[j] += (
+                            g0 * q0[j] + g1 * q1[j] + g2 * q2[j] + g3 * q3[j] + g4 * q4[j] + g5 * q5[j] + g6 * q6[j]
+                        )
             for j in range(W):
                 # from here on in float64 on purpose (C1, C2 and 2.0 are Python floats): the variances are
                 # differences of raw moments, which lose digits in float32 (SSIM of two equal flat images
@@ -229,26 +267,57 @@ def ssim_backward(a, b, g, coef, grad_s, gs_const, l1_coef, grad_a, grad_b, want
                 for c in range(4):
                     if (c == 0 and not want_a) or (c == 1 and not want_b):
                         continue
-                    dst = cols[c, T - 1:T - 1 + W]
+                    dst = cols[c, T - 1 : T - 1 + W]
                     dst[:] = 0.0
                     for blk in range(T // TAPS):
                         o = blk * TAPS
-                        w0, w1, w2, w3, w4, w5, w6 = gw[o], gw[o + 1], gw[o + 2], gw[o + 3], gw[o + 4], gw[o + 5], \
-                            gw[o + 6]
-                        p0, p1, p2, p3 = coef[c, n, gr[o]], coef[c, n, gr[o + 1]], coef[c, n, gr[o + 2]], coef[c, n, gr[o + 3]]
+                        w0, w1, w2, w3, w4, w5, w6 = (
+                            gw[o],
+                            gw[o + 1],
+                            gw[o + 2],
+                            gw[o + 3],
+                            gw[o + 4],
+                            gw[o + 5],
+                            gw[o + 6],
+                        )
+                        p0, p1, p2, p3 = (
+                            coef[c, n, gr[o]],
+                            coef[c, n, gr[o + 1]],
+                            coef[c, n, gr[o + 2]],
+                            coef[c, n, gr[o + 3]],
+                        )
                         p4, p5, p6 = coef[c, n, gr[o + 4]], coef[c, n, gr[o + 5]], coef[c, n, gr[o + 6]]
                         if const:
                             G = gs_const[n]
                             w0, w1, w2, w3, w4, w5, w6 = G * w0, G * w1, G * w2, G * w3, G * w4, G * w5, G * w6
                             for j in range(W):
-                                dst[j] += w0 * p0[j] + w1 * p1[j] + w2 * p2[j] + w3 * p3[j] + w4 * p4[j] + w5 * p5[j] \
+                                dst[j] += (
+                                    w0 * p0[j]
+                                    + w1 * p1[j]
+                                    + w2 * p2[j]
+                                    + w3 * p3[j]
+                                    + w4 * p4[j]
+                                    + w5 * p5[j]
                                     + w6 * p6[j]
+                                )
                         else:
-                            s0, s1, s2, s3 = grad_s[n, gr[o]], grad_s[n, gr[o + 1]], grad_s[n, gr[o + 2]], grad_s[n, gr[o + 3]]
+                            s0, s1, s2, s3 = (
+                                grad_s[n, gr[o]],
+                                grad_s[n, gr[o + 1]],
+                                grad_s[n, gr[o + 2]],
+                                grad_s[n, gr[o + 3]],
+                            )
                             s4, s5, s6 = grad_s[n, gr[o + 4]], grad_s[n, gr[o + 5]], grad_s[n, gr[o + 6]]
                             for j in range(W):
-                                dst[j] += w0 * s0[j] * p0[j] + w1 * s1[j] * p1[j] + w2 * s2[j] * p2[j] \
-                                    + w3 * s3[j] * p3[j] + w4 * s4[j] * p4[j] + w5 * s5[j] * p5[j] + w6 * s6[j] * p6[j]
+                                dst[j] += (
+                                    w0 * s0[j] * p0[j]
+                                    + w1 * s1[j] * p1[j]
+                                    + w2 * s2[j] * p2[j]
+                                    + w3 * s3[j] * p3[j]
+                                    + w4 * s4[j] * p4[j]
+                                    + w5 * s5[j] * p5[j]
+                                    + w6 * s6[j] * p6[j]
+                                )
                     # the adjoint of the row pass: padded column x gathers tap k from column x - k
                     src = cols[c]
                     tc = t[c]
@@ -259,10 +328,17 @@ def ssim_backward(a, b, g, coef, grad_s, gs_const, l1_coef, grad_a, grad_b, want
                         # column x - k of the adjoint sits at T - 1 + x - k in src: for k = o + 6 .. o that
                         # is sv[x] .. sv[x + 6] (offsets from the loop's own index: no negative-index
                         # checks in the loop, which then vectorises)
-                        sv = src[T - 1 - o - 6:]
+                        sv = src[T - 1 - o - 6 :]
                         for x in range(Wp):
-                            tc[x] += g6 * sv[x] + g5 * sv[x + 1] + g4 * sv[x + 2] + g3 * sv[x + 3] + g2 * sv[x + 4] \
-                                + g1 * sv[x + 5] + g0 * sv[x + 6]
+                            tc[x] += (
+                                g6 * sv[x]
+                                + g5 * sv[x + 1]
+                                + g4 * sv[x + 2]
+                                + g3 * sv[x + 3]
+                                + g2 * sv[x + 4]
+                                + g1 * sv[x + 5]
+                                + g0 * sv[x + 6]
+                            )
                 # the product rule onto a and b, folded back onto the image: the inside, then the
                 # reflected edges (x < left and x >= W + left)
                 ar = a[n, i]
@@ -309,6 +385,6 @@ def window_taps(win: int) -> np.ndarray:
     T = TAPS * -(-win // TAPS)
     out = np.zeros(T)
     lo = T // 2 - win // 2
-    out[lo:lo + win] = gauss_taps(win)
+    out[lo : lo + win] = gauss_taps(win)
     out.setflags(write=False)
     return out

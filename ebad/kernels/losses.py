@@ -8,6 +8,7 @@ gradients from the kernels' adjoints: one kernel pass each way, numpy in and num
 operation between the kernels and the losses for autograd to undo. ``ebad.losses``' torch code
 is the reference these are tested against (``tests/ebad/kernels/test_losses.py``).
 """
+
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -22,16 +23,23 @@ from . import LUMA
 __all__ = ["event_loss", "exposure_losses", "l1_ssim_each", "ssim_map"]
 
 
-def ssim_map(a: Tensor,  # [B, H, W, D]
-             b: Tensor,  # [B, H, W, D]
-             win: int, dtype: torch.dtype) -> Tensor:  # [B, H, W, D]
+def ssim_map(
+    a: Tensor,  # [B, H, W, D]
+    b: Tensor,  # [B, H, W, D]
+    win: int,
+    dtype: torch.dtype,
+) -> Tensor:  # [B, H, W, D]
     """``ebad.losses.ssim_map`` with a window of ``win`` taps, computed in ``dtype``."""
     return _unstack(_FusedSSIM.apply(_stack(a, dtype), _stack(b, dtype), win), a.shape)
 
 
-def l1_ssim_each(preds: Sequence[Tensor],  # P x [B_i, H, W, D]
-                 targets: Sequence[Tensor],  # P x [B_i, H, W, D]
-                 ssim_weight: float, win: int, dtype: torch.dtype) -> list[Tensor]:  # P x []
+def l1_ssim_each(
+    preds: Sequence[Tensor],  # P x [B_i, H, W, D]
+    targets: Sequence[Tensor],  # P x [B_i, H, W, D]
+    ssim_weight: float,
+    win: int,
+    dtype: torch.dtype,
+) -> list[Tensor]:  # P x []
     """``ebad.losses.l1_ssim_each`` of the pairs (one image size, ``ssim_weight`` > 0) in one kernel
     call each way, computed in ``dtype``."""
     pred = torch.cat(list(preds)) if len(preds) > 1 else preds[0]
@@ -42,10 +50,14 @@ def l1_ssim_each(preds: Sequence[Tensor],  # P x [B_i, H, W, D]
     return list(losses.unbind())
 
 
-def event_loss(L: Tensor,  # [V, H, W] luminances, float32 or float64
-               counts: Tensor,  # [V - 1, 2, H, W] in L's dtype
-               c_pos: Tensor, c_neg: Tensor,  # [] in L's dtype
-               eps: float, l2: bool) -> Tensor:
+def event_loss(
+    L: Tensor,  # [V, H, W] luminances, float32 or float64
+    counts: Tensor,  # [V - 1, 2, H, W] in L's dtype
+    c_pos: Tensor,
+    c_neg: Tensor,  # [] in L's dtype
+    eps: float,
+    l2: bool,
+) -> Tensor:
     """``ebad.losses.event_loss`` of luminances ``L`` (V >= 2); gradients to L and both thresholds."""
     return _EventLoss.apply(L, counts, c_pos, c_neg, eps, l2)
 
@@ -69,9 +81,16 @@ def exposure_losses(
     L_EDI (None without latents), L_ev (None with fewer than two event views) and the mean of the
     V renders [H, W, D], detached."""
     views = latents is not None and latents.ndim == 4
-    spec = _ExposureSpec(V=V, mid=None if latents is None or views else int(mid), views=views,
-                         event_views=event_views if len(event_views) >= 2 else (), win=win, w=float(ssim_weight),
-                         eps=float(eps), l2=l2)
+    spec = _ExposureSpec(
+        V=V,
+        mid=None if latents is None or views else int(mid),
+        views=views,
+        event_views=event_views if len(event_views) >= 2 else (),
+        win=win,
+        w=float(ssim_weight),
+        eps=float(eps),
+        l2=l2,
+    )
     losses, mean = _ExposureLosses.apply(images, c_pos, c_neg, blurry, latents, counts, spec)
     blur, edi, ev = losses.unbind()
     return blur, (edi if latents is not None else None), (ev if spec.event_views else None), mean
@@ -101,8 +120,9 @@ class _SSIMPass:
     coef: np.ndarray
 
 
-def _ssim_pass(A: np.ndarray, B: np.ndarray, win: int, want: bool,
-               s_map: bool) -> tuple[np.ndarray | None, np.ndarray, _SSIMPass]:
+def _ssim_pass(
+    A: np.ndarray, B: np.ndarray, win: int, want: bool, s_map: bool
+) -> tuple[np.ndarray | None, np.ndarray, _SSIMPass]:
     """``_numba_ssim.ssim_forward`` on stacks [N, H, W] of one dtype -> the SSIM map (when
     ``s_map``), each image's sums of S and of |a - b| [N, 2], and what the adjoint needs."""
     from . import _numba_ssim as K
@@ -115,8 +135,9 @@ def _ssim_pass(A: np.ndarray, B: np.ndarray, win: int, want: bool,
     return (s if s_map else None), sums.reshape(A.shape[0], -1, 2).sum(1), _SSIMPass(A, B, g, coef)
 
 
-def _ssim_adjoint(p: _SSIMPass, grad_s: np.ndarray, gs_const: np.ndarray, l1_coef: np.ndarray, want_a: bool,
-                  want_b: bool) -> tuple[np.ndarray | None, np.ndarray | None]:
+def _ssim_adjoint(
+    p: _SSIMPass, grad_s: np.ndarray, gs_const: np.ndarray, l1_coef: np.ndarray, want_a: bool, want_b: bool
+) -> tuple[np.ndarray | None, np.ndarray | None]:
     """``_numba_ssim.ssim_backward`` after ``_ssim_pass`` -> the gradients of the stacks
     (None where not wanted). ``grad_s``: the map's upstream gradient [N, H, W] (or empty),
     ``gs_const`` and ``l1_coef``: each image's constant gradient of its mean S and of its mean
@@ -188,8 +209,13 @@ class _FusedL1SSIM(torch.autograd.Function):
     @staticmethod
     def backward(ctx, grad: Tensor):  # [P]
         G = (grad.detach().to(torch.float64).numpy() * ctx.inv_count)[ctx.group]  # per image
-        return *_kernel_backward(ctx, np.empty(_EMPTY, ctx.ssim.A.dtype), -ctx.w * G, (1 - ctx.w) * G), None, None, \
-            None, None
+        return (
+            *_kernel_backward(ctx, np.empty(_EMPTY, ctx.ssim.A.dtype), -ctx.w * G, (1 - ctx.w) * G),
+            None,
+            None,
+            None,
+            None,
+        )
 
 
 def _group_l1_ssim(sums: np.ndarray, group: np.ndarray, P: int, pixels: int, w: float) -> tuple[np.ndarray, np.ndarray]:
@@ -202,8 +228,9 @@ def _group_l1_ssim(sums: np.ndarray, group: np.ndarray, P: int, pixels: int, w: 
     return (1 - w) * l1_mean + w * (1 - s_mean), 1.0 / count
 
 
-def _event_pass(Ln: np.ndarray, counts: np.ndarray, c_pos: float, c_neg: float, eps: float,
-                l2: bool) -> tuple[float, np.ndarray, float, float]:
+def _event_pass(
+    Ln: np.ndarray, counts: np.ndarray, c_pos: float, c_neg: float, eps: float, l2: bool
+) -> tuple[float, np.ndarray, float, float]:
     """``_numba_event.event_forward`` on luminances [V, H, W] and counts [V - 1, 2, H, W] of
     one dtype -> the loss (mean over windows and pixels), dloss/dr per window and pixel g
     [V - 1, H, W] before the mean, and the sums of g N_on and g N_off."""
@@ -235,8 +262,9 @@ class _EventLoss(torch.autograd.Function):
     @staticmethod
     def forward(ctx, L: Tensor, counts: Tensor, c_pos: Tensor, c_neg: Tensor, eps: float, l2: bool) -> Tensor:
         Ln = np.ascontiguousarray(L.detach().numpy())
-        loss, ctx.g, ctx.s_on, ctx.s_off = _event_pass(Ln, np.ascontiguousarray(counts.detach().numpy()), c_pos, c_neg,
-                                                       eps, l2)
+        loss, ctx.g, ctx.s_on, ctx.s_off = _event_pass(
+            Ln, np.ascontiguousarray(counts.detach().numpy()), c_pos, c_neg, eps, l2
+        )
         ctx.Ln, ctx.eps, ctx.inv_count = Ln, eps, 1.0 / ctx.g.size
         return torch.tensor(loss, dtype=L.dtype)
 
@@ -244,17 +272,21 @@ class _EventLoss(torch.autograd.Function):
     def backward(ctx, grad: Tensor):
         scale = float(grad) * ctx.inv_count
         grad_L = torch.from_numpy(_event_adjoint(ctx.Ln, ctx.g, scale, ctx.eps)) if ctx.needs_input_grad[0] else None
-        g_pos, g_neg = _threshold_grads(scale, ctx.s_on, ctx.s_off, ctx.needs_input_grad[2], ctx.needs_input_grad[3],
-                                        grad.dtype)
+        g_pos, g_neg = _threshold_grads(
+            scale, ctx.s_on, ctx.s_off, ctx.needs_input_grad[2], ctx.needs_input_grad[3], grad.dtype
+        )
         return grad_L, None, g_pos, g_neg, None, None
 
 
-def _threshold_grads(scale: float, s_on: float, s_off: float, want_pos: bool, want_neg: bool,
-                     dtype: torch.dtype) -> tuple[Tensor | None, Tensor | None]:
+def _threshold_grads(
+    scale: float, s_on: float, s_off: float, want_pos: bool, want_neg: bool, dtype: torch.dtype
+) -> tuple[Tensor | None, Tensor | None]:
     """The gradients of L_ev with respect to c_pos and c_neg from ``_event_pass``'s sums (r falls
     with c_pos, rises with c_neg), for an upstream gradient ``scale`` of the sum."""
-    return (torch.tensor(-scale * s_on, dtype=dtype) if want_pos else None,
-            torch.tensor(scale * s_off, dtype=dtype) if want_neg else None)
+    return (
+        torch.tensor(-scale * s_on, dtype=dtype) if want_pos else None,
+        torch.tensor(scale * s_off, dtype=dtype) if want_neg else None,
+    )
 
 
 @dataclass(frozen=True)
@@ -271,7 +303,9 @@ class _ExposureSpec:
     l2: bool
 
 
-def _hwd_stack(x: np.ndarray) -> np.ndarray:  # [B, H, W, D] -> [B*D, H, W] contiguous (a view when D = 1 and contiguous)
+def _hwd_stack(
+    x: np.ndarray,
+) -> np.ndarray:  # [B, H, W, D] -> [B*D, H, W] contiguous (a view when D = 1 and contiguous)
     B, H, W, D = x.shape
     return np.ascontiguousarray(x.transpose(0, 3, 1, 2)).reshape(B * D, H, W)
 
@@ -281,16 +315,24 @@ class _ExposureLosses(torch.autograd.Function):
     and to both thresholds."""
 
     @staticmethod
-    def forward(ctx, images: Tensor, c_pos: Tensor, c_neg: Tensor, blurry: Tensor, latents: Tensor | None,
-                counts: Tensor | None, spec: _ExposureSpec):
+    def forward(
+        ctx,
+        images: Tensor,
+        c_pos: Tensor,
+        c_neg: Tensor,
+        blurry: Tensor,
+        latents: Tensor | None,
+        counts: Tensor | None,
+        spec: _ExposureSpec,
+    ):
         X = np.ascontiguousarray(images.detach().numpy())
         dt = X.dtype
         Vp, H, W, D = X.shape
-        mean = X[:spec.V].mean(0, dtype=dt)  # [H, W, D]
+        mean = X[: spec.V].mean(0, dtype=dt)  # [H, W, D]
         preds, targets = [mean[None]], [np.asarray(blurry.detach().numpy(), dt)[None]]
         if latents is not None:
             lat = np.asarray(latents.detach().numpy(), dt)
-            preds.append(X[:spec.V] if spec.views else X[spec.mid][None])
+            preds.append(X[: spec.V] if spec.views else X[spec.mid][None])
             targets.append(lat if spec.views else lat[None])
         A = _hwd_stack(np.concatenate(preds))
         B = _hwd_stack(np.concatenate(targets))
@@ -301,8 +343,9 @@ class _ExposureLosses(torch.autograd.Function):
         if spec.event_views:
             Xe = X[list(spec.event_views)]
             Ln = np.ascontiguousarray(Xe[..., 0] if D == 1 else Xe @ np.asarray(LUMA, dt))  # [E, H, W] luminance
-            ev, ctx.g, ctx.s_on, ctx.s_off = _event_pass(Ln, np.ascontiguousarray(counts.detach().numpy(), dtype=dt),
-                                                         c_pos, c_neg, spec.eps, spec.l2)
+            ev, ctx.g, ctx.s_on, ctx.s_off = _event_pass(
+                Ln, np.ascontiguousarray(counts.detach().numpy(), dtype=dt), c_pos, c_neg, spec.eps, spec.l2
+            )
             ctx.Ln = Ln
         ctx.spec, ctx.group, ctx.shape = spec, group, X.shape
         mean_t = torch.from_numpy(mean)
@@ -318,19 +361,20 @@ class _ExposureLosses(torch.autograd.Function):
         grad_images = None
         g_pos = g_neg = None
         if ctx.needs_input_grad[0]:
-            per_image = (G[:len(ctx.inv_count)] * ctx.inv_count)[ctx.group]
-            ga, _ = _ssim_adjoint(ctx.ssim, np.empty(_EMPTY, ctx.ssim.A.dtype), -spec.w * per_image,
-                                  (1 - spec.w) * per_image, True, False)
+            per_image = (G[: len(ctx.inv_count)] * ctx.inv_count)[ctx.group]
+            ga, _ = _ssim_adjoint(
+                ctx.ssim, np.empty(_EMPTY, ctx.ssim.A.dtype), -spec.w * per_image, (1 - spec.w) * per_image, True, False
+            )
             ga = ga.reshape(-1, D, H, W).transpose(0, 2, 3, 1)  # [P images, H, W, D]
             blur_share = ga[0] / ga.dtype.type(spec.V)  # the mean's gradient, to each of the V renders
             if spec.views and Vp == spec.V:  # each render's own L_EDI gradient plus its share: one pass
                 out = ga[1:] + blur_share
             else:
                 out = np.empty(ctx.shape, ga.dtype)
-                out[:spec.V] = blur_share
-                out[spec.V:] = 0
+                out[: spec.V] = blur_share
+                out[spec.V :] = 0
                 if spec.views:
-                    out[:spec.V] += ga[1:]
+                    out[: spec.V] += ga[1:]
                 elif spec.mid is not None:
                     out[spec.mid] += ga[1]
             if spec.event_views:
@@ -341,6 +385,12 @@ class _ExposureLosses(torch.autograd.Function):
                 out[idx] += gl[..., None] if D == 1 else gl[..., None] * np.asarray(LUMA, gl.dtype)
             grad_images = torch.from_numpy(np.ascontiguousarray(out))
         if spec.event_views:
-            g_pos, g_neg = _threshold_grads(float(G[2]) / ctx.g.size, ctx.s_on, ctx.s_off, ctx.needs_input_grad[1],
-                                            ctx.needs_input_grad[2], grad.dtype)
+            g_pos, g_neg = _threshold_grads(
+                float(G[2]) / ctx.g.size,
+                ctx.s_on,
+                ctx.s_off,
+                ctx.needs_input_grad[1],
+                ctx.needs_input_grad[2],
+                grad.dtype,
+            )
         return grad_images, g_pos, g_neg, None, None, None, None

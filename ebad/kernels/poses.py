@@ -3,6 +3,7 @@
 ``trajectory_poses`` is what ``ebad.trajectory.trajectory_poses`` dispatches to for the kinds in
 ``KINDS``; the torch functions of ``ebad.trajectory`` are the reference it is tested against.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -23,8 +24,9 @@ def available(kind: str) -> bool:
     return kind in KINDS
 
 
-def poses_with_tangents(kind: str, c2w_mid: np.ndarray, knots: np.ndarray, u: np.ndarray, scale: float,
-                        anchored: bool) -> tuple[np.ndarray, np.ndarray]:
+def poses_with_tangents(
+    kind: str, c2w_mid: np.ndarray, knots: np.ndarray, u: np.ndarray, scale: float, anchored: bool
+) -> tuple[np.ndarray, np.ndarray]:
     """c2w [B, V, 4, 4] of a trajectory kind with knots (``ebad.trajectory``'s ``linear``, ``cubic``,
     ``offset`` on c2w_mid [B, 4, 4], knots [B, K, 6], u [V]), anchored or not, and its tangents
     along every knot coordinate: dC [B, P, V, 3, 4] (the top three rows), P = K x 6 in the knots'
@@ -33,8 +35,16 @@ def poses_with_tangents(kind: str, c2w_mid: np.ndarray, knots: np.ndarray, u: np
     V = len(u)
     c2w = np.empty((B, V, 4, 4))
     dC = np.empty((B, 6 * K, V, 3, 4))
-    if not _poses(_KIND_ID[kind], np.ascontiguousarray(c2w_mid, np.float64), np.ascontiguousarray(knots, np.float64),
-                  np.ascontiguousarray(u, np.float64), float(scale), bool(anchored), c2w, dC):
+    if not _poses(
+        _KIND_ID[kind],
+        np.ascontiguousarray(c2w_mid, np.float64),
+        np.ascontiguousarray(knots, np.float64),
+        np.ascontiguousarray(u, np.float64),
+        float(scale),
+        bool(anchored),
+        c2w,
+        dC,
+    ):
         raise NearPi("a rotation whose logarithm a linear trajectory needs is near pi")
     return c2w, dC
 
@@ -45,8 +55,9 @@ class TrajectoryPoses(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, knots: Tensor, c2w_mid: Tensor, u: Tensor, kind: str, scale: float, anchored: bool) -> Tensor:
-        c2w, dC = poses_with_tangents(kind, c2w_mid.detach().numpy(), knots.detach().numpy(), u.detach().numpy(),
-                                      scale, anchored)
+        c2w, dC = poses_with_tangents(
+            kind, c2w_mid.detach().numpy(), knots.detach().numpy(), u.detach().numpy(), scale, anchored
+        )
         ctx.dC, ctx.knot_shape = dC, knots.shape
         return torch.from_numpy(c2w).to(knots.dtype)
 

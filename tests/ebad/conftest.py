@@ -1,4 +1,5 @@
 """A tiny written run folder shared by the export, render, video and view tests."""
+
 from __future__ import annotations
 
 from types import SimpleNamespace

@@ -1,4 +1,5 @@
 """ebad.config: presets, JSON round trip, validation."""
+
 from __future__ import annotations
 
 from ebad import config as C
@@ -28,20 +29,23 @@ def test_config_errors_name_the_key():
         C.config_from_dict({"train": {"bogus": 1}})
 
 
-@pytest.mark.parametrize("section,field,value,needle", [
-    ("train", "lr_means", float("nan"), "--train.lr_means: must be a finite number"),
-    ("train", "checkpoint_every", -1, "--train.checkpoint_every: must be >= 0"),
-    ("loss", "ssim_window", 6, "--loss.ssim_window: must be an odd number"),
-    ("loss", "event_windows", "sliding", "--loss.event_windows: must be one of consecutive, random"),
-    ("loss", "event_norm", "l3", "--loss.event_norm: must be one of l1, l2"),
-    ("loss", "edi_prior", "mapEDI", "--loss.edi_prior: must be one of edi, medi"),
-    ("model", "background", 5.0, "--model.background: must be in [0, 1]"),
-    ("model", "max_gaussians", -3, "--model.max_gaussians: must be >= 0"),
-    ("model", "init_depth", (2.0, 1.0), "--model.init_depth: must be two depths"),
-    ("train", "iters", 0, "--train.iters: must be >= 1"),
-    ("trajectory", "num_views", 0, "--trajectory.num_views: must be >= 1"),
-    ("strategy", "split_shrink", 1.0, "--strategy.split_shrink: must be > 1"),
-])
+@pytest.mark.parametrize(
+    "section,field,value,needle",
+    [
+        ("train", "lr_means", float("nan"), "--train.lr_means: must be a finite number"),
+        ("train", "checkpoint_every", -1, "--train.checkpoint_every: must be >= 0"),
+        ("loss", "ssim_window", 6, "--loss.ssim_window: must be an odd number"),
+        ("loss", "event_windows", "sliding", "--loss.event_windows: must be one of consecutive, random"),
+        ("loss", "event_norm", "l3", "--loss.event_norm: must be one of l1, l2"),
+        ("loss", "edi_prior", "mapEDI", "--loss.edi_prior: must be one of edi, medi"),
+        ("model", "background", 5.0, "--model.background: must be in [0, 1]"),
+        ("model", "max_gaussians", -3, "--model.max_gaussians: must be >= 0"),
+        ("model", "init_depth", (2.0, 1.0), "--model.init_depth: must be two depths"),
+        ("train", "iters", 0, "--train.iters: must be >= 1"),
+        ("trajectory", "num_views", 0, "--trajectory.num_views: must be >= 1"),
+        ("strategy", "split_shrink", 1.0, "--strategy.split_shrink: must be > 1"),
+    ],
+)
 def test_check_refuses_values_that_cannot_work_naming_the_option(section, field, value, needle):
     cfg = C.preset("ebad")
     cfg.check()  # the preset itself is valid

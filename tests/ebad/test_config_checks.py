@@ -1,6 +1,7 @@
 """Every option ``Config.check`` validates, at its boundaries: the first value that cannot work
 is refused naming the option, the last one that can is accepted; and ``train.pose_warmup`` does
 what it says in the loop."""
+
 from __future__ import annotations
 
 import dataclasses
@@ -156,6 +157,7 @@ def test_the_cross_checks_name_the_option():
 
 
 # --------------------------------------------------------------------------- train.pose_warmup in the loop
+
 
 @pytest.mark.parametrize("warmup", [0, 1, 3])
 def test_pose_warmup_holds_the_trajectories_for_exactly_that_many_steps(warmup):

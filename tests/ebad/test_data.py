@@ -1,4 +1,5 @@
 """``ebad.data.downscale`` and the coarse phase of training (``train.coarse_scale``)."""
+
 from __future__ import annotations
 
 import pytest
@@ -43,9 +44,13 @@ def test_a_render_at_the_scaled_intrinsics_is_the_block_average_of_the_full_rend
     depth = 0.5 * (d.depth_range[0] + d.depth_range[1])
     pts_cam = torch.cat([(torch.rand(n, 2, generator=g) - 0.5) * depth * 0.8, torch.full((n, 1), depth)], 1)
     means = pts_cam @ cam[:3, :3].T + cam[:3, 3]
-    params = {"means": means, "quats": torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1),
-              "scales": torch.full((n, 3), float(torch.log(torch.tensor(depth * 0.12)))),
-              "opacities": torch.full((n,), 0.0), "colors": torch.rand(n, 1, generator=g)}
+    params = {
+        "means": means,
+        "quats": torch.tensor([[1.0, 0, 0, 0]]).repeat(n, 1),
+        "scales": torch.full((n, 3), float(torch.log(torch.tensor(depth * 0.12)))),
+        "opacities": torch.full((n,), 0.0),
+        "colors": torch.rand(n, 1, generator=g),
+    }
     full, _, _ = render(params, cam[None], d.K, d.width, d.height)
     h = downscale(d, 2)
     half, _, _ = render(params, cam[None], h.K, h.width, h.height)

@@ -1,6 +1,7 @@
 """Densification by what it does to the Gaussians, not by counts: a split's children are smaller
 than their parent and drawn from it, a clone is a copy, the cap keeps the strongest gradients,
 pruning removes exactly the transparent ones."""
+
 from __future__ import annotations
 
 import math
@@ -60,13 +61,20 @@ def test_split_children_are_shrink_times_smaller_and_drawn_from_the_parent():
         local = torch.einsum("sji,sj->si", R, params["means"][rows] - parent["means"][idx])
         z = local / torch.exp(parent["scales"][idx])
         assert z.mean(0).abs().max() < 0.1 and ((z.std(0) - 1).abs() < 0.1).all(), z.std(0)
-    first, second = params["means"][3:3 + S], params["means"][3 + S:]
+    first, second = params["means"][3 : 3 + S], params["means"][3 + S :]
     assert not torch.allclose(first, second)  # two draws, not one child twice
 
 
 def test_refine_splits_big_gaussians_into_smaller_children_and_clones_small_ones_in_place():
-    cfg = C.StrategyConfig(grad_threshold=1e-3, refine_start=0, refine_every=1, reset_every=0, split_scale=0.1,
-                           split_shrink=1.6, prune_opacity=0.01)
+    cfg = C.StrategyConfig(
+        grad_threshold=1e-3,
+        refine_start=0,
+        refine_every=1,
+        reset_every=0,
+        split_scale=0.1,
+        split_shrink=1.6,
+        prune_opacity=0.01,
+    )
     params = _params(4)
     with torch.no_grad():
         params["scales"][0] = math.log(0.01)  # small, high gradient: cloned

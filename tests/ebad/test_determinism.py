@@ -5,6 +5,7 @@ noise, densification's splits, random L_ev windows); a checkpoint carries every 
 frame order of the current pass. The resume here crosses a pass boundary, where the frame order
 draws a new permutation from the restored generator.
 """
+
 from __future__ import annotations
 
 import signal

@@ -1,4 +1,5 @@
 """ebad.evaluate: which poses test views are scored at, refinement, and SfM end to end."""
+
 from __future__ import annotations
 
 import copy
@@ -19,8 +20,10 @@ from scenes.colmap import apply_similarity
 
 
 def _perturb(c2w: np.ndarray, deg: float, shift: float) -> np.ndarray:
-    d = compose_pose(so3_exp(torch.tensor([0.0, np.radians(deg), 0.0], dtype=torch.float64)),
-                     torch.tensor([shift, 0.0, 0.0], dtype=torch.float64)).numpy()
+    d = compose_pose(
+        so3_exp(torch.tensor([0.0, np.radians(deg), 0.0], dtype=torch.float64)),
+        torch.tensor([shift, 0.0, 0.0], dtype=torch.float64),
+    ).numpy()
     return c2w @ d
 
 
@@ -66,15 +69,19 @@ def test_a_capture_without_poses_runs_and_evaluates_end_to_end(tmp_path, capsys)
     scenes.write_scene(sc, tmp_path / "scene")
     cap = tmp_path / "scene" / "capture"
     run = tmp_path / "run"
-    assert main(["reconstruct", str(cap), "--out", str(run), "--preset", "3dgs", "--train.iters", "30",
-                 "--no-progress"]) == 0
+    assert (
+        main(["reconstruct", str(cap), "--out", str(run), "--preset", "3dgs", "--train.iters", "30", "--no-progress"])
+        == 0
+    )
     r = load_run(run)
     names = sorted(v.name for v in sc.capture.test_views)
     # multi-threaded COLMAP is not deterministic: on 64x48 frames a test image can stay out
     # (tests/scenes/test_colmap.py checks registration itself, single-threaded)
     assert r.pose_source == "colmap" and set(r.test_c2w) <= set(names) and len(r.test_c2w) >= 2
-    assert main(["eval", str(run), str(cap), "--refine-poses", "--refine-iters", "20",
-                 "--out", str(tmp_path / "e.json")]) == 0
+    assert (
+        main(["eval", str(run), str(cap), "--refine-poses", "--refine-iters", "20", "--out", str(tmp_path / "e.json")])
+        == 0
+    )
     res = json.loads((tmp_path / "e.json").read_text())
     assert sorted(res["poses"]) == names  # every test view is accounted for ...
     assert {n for n, how in res["poses"].items() if how == "run"} == set(r.test_c2w)  # ... at the run's poses

@@ -1,4 +1,5 @@
 """Files other tools open (ebad.export): display PNGs, cameras.json, .splat, TUM trajectories."""
+
 from __future__ import annotations
 
 import json
@@ -9,9 +10,21 @@ import torch
 from PIL import Image
 
 from ebad.errors import EbadError
-from ebad.export import (SPLAT_BYTES, exposure_samples, read_cameras_json, read_splat, read_tum, rotmat_to_quat,
-                         srgb_decode, srgb_encode, to_display8, write_cameras_json, write_render, write_splat,
-                         write_tum)
+from ebad.export import (
+    SPLAT_BYTES,
+    exposure_samples,
+    read_cameras_json,
+    read_splat,
+    read_tum,
+    rotmat_to_quat,
+    srgb_decode,
+    srgb_encode,
+    to_display8,
+    write_cameras_json,
+    write_render,
+    write_splat,
+    write_tum,
+)
 from ebad.io import read_png16
 from ebad.lie import quat_to_rotmat, so3_exp
 
@@ -29,9 +42,13 @@ def _random_c2w(C: int, seed: int) -> np.ndarray:  # [C, 4, 4]
 
 def _params(N: int, D: int, seed: int) -> dict[str, torch.Tensor]:
     g = torch.Generator().manual_seed(seed)
-    return {"means": torch.randn(N, 3, generator=g), "scales": torch.randn(N, 3, generator=g) - 3,
-            "quats": torch.randn(N, 4, generator=g), "opacities": torch.randn(N, generator=g) * 2,
-            "colors": torch.randn(N, D, generator=g)}
+    return {
+        "means": torch.randn(N, 3, generator=g),
+        "scales": torch.randn(N, 3, generator=g) - 3,
+        "quats": torch.randn(N, 4, generator=g),
+        "opacities": torch.randn(N, generator=g) * 2,
+        "colors": torch.randn(N, D, generator=g),
+    }
 
 
 def test_srgb_known_values_and_inverse():
@@ -57,7 +74,9 @@ def test_render_png_8bit_srgb_opens_in_pillow(tmp_path, D):
     np.testing.assert_array_equal(got, expect)
     # decoding back to linear is within half an 8-bit sRGB step of the input
     back = srgb_decode(got / 255.0)
-    step = srgb_decode(np.clip(expect / 255.0 + 0.5 / 255, 0, 1)) - srgb_decode(np.clip(expect / 255.0 - 0.5 / 255, 0, 1))
+    step = srgb_decode(np.clip(expect / 255.0 + 0.5 / 255, 0, 1)) - srgb_decode(
+        np.clip(expect / 255.0 - 0.5 / 255, 0, 1)
+    )
     assert np.all(np.abs(back - img) <= step + 1e-6)
     # mid grey is brighter on display than its linear value (the point of the encoding)
     assert to_display8(np.full((1, 1, 1), 0.18))[0, 0, 0] == 118

@@ -1,4 +1,5 @@
 """ebad.gaussians: initialisation and activation."""
+
 from __future__ import annotations
 
 import numpy as np

@@ -1,4 +1,5 @@
 """ebad.io: PLY and PNG round trips."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -35,16 +36,30 @@ def test_ply_bytes_are_the_inria_layout(tmp_path, D):
     n = 5
     p = _params(n, D=D)
     blob = write_ply(tmp_path / "point_cloud.ply", p).read_bytes()
-    names = (["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2", "opacity"]
-             + [f"scale_{i}" for i in range(3)] + [f"rot_{i}" for i in range(4)])
-    header = (f"ply\nformat binary_little_endian 1.0\ncomment ebad channels {D}\nelement vertex {n}\n"
-              + "".join(f"property float {name}\n" for name in names) + "end_header\n").encode("ascii")
+    names = (
+        ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2", "opacity"]
+        + [f"scale_{i}" for i in range(3)]
+        + [f"rot_{i}" for i in range(4)]
+    )
+    header = (
+        f"ply\nformat binary_little_endian 1.0\ncomment ebad channels {D}\nelement vertex {n}\n"
+        + "".join(f"property float {name}\n" for name in names)
+        + "end_header\n"
+    ).encode("ascii")
     assert blob[: len(header)] == header
     colors = p["colors"].detach().numpy()
-    rows = np.concatenate([p["means"].detach().numpy(), np.zeros((n, 3)), np.repeat(colors, 3 // D, axis=1),
-                           p["opacities"].detach().numpy()[:, None], p["scales"].detach().numpy(),
-                           p["quats"].detach().numpy()], axis=1).astype("<f4")
-    assert blob[len(header):] == rows.tobytes()
+    rows = np.concatenate(
+        [
+            p["means"].detach().numpy(),
+            np.zeros((n, 3)),
+            np.repeat(colors, 3 // D, axis=1),
+            p["opacities"].detach().numpy()[:, None],
+            p["scales"].detach().numpy(),
+            p["quats"].detach().numpy(),
+        ],
+        axis=1,
+    ).astype("<f4")
+    assert blob[len(header) :] == rows.tobytes()
 
 
 @pytest.mark.parametrize("D", [1, 3])
@@ -54,7 +69,10 @@ def test_png16_roundtrip(tmp_path, D):
     assert back.shape == (5, 7, D)
     assert np.abs(back - img).max() <= 0.5 / 65535 + 1e-7
     from PIL import Image
+
     if D == 1:
-        assert np.array(Image.open(tmp_path / "a.png")).dtype == np.uint16 or Image.open(tmp_path / "a.png").mode.startswith("I")
+        assert np.array(Image.open(tmp_path / "a.png")).dtype == np.uint16 or Image.open(
+            tmp_path / "a.png"
+        ).mode.startswith("I")
     with pytest.raises(ValueError, match="non-finite"):
         write_png16(tmp_path / "b.png", np.full((2, 2, 1), np.nan))

@@ -1,4 +1,5 @@
 """ebad.lie: so(3)/SE(3) helpers."""
+
 from __future__ import annotations
 
 import pytest
@@ -27,11 +28,10 @@ def test_viewmat_inverts_c2w():
     assert torch.allclose(viewmat_from_c2w(c2w) @ c2w, torch.eye(4).expand(3, 4, 4), atol=1e-5)
 
 
-
 def test_quaternion_convention_is_real_part_first():
     from ebad.lie import quat_to_rotmat
 
-    half = torch.tensor([[2.0 ** -0.5, 0.0, 0.0, 2.0 ** -0.5]])  # (w, x, y, z): 90 degrees about z
+    half = torch.tensor([[2.0**-0.5, 0.0, 0.0, 2.0**-0.5]])  # (w, x, y, z): 90 degrees about z
     R = quat_to_rotmat(half * 3.0)  # not unit: normalised inside
     assert torch.allclose(R[0], torch.tensor([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]), atol=1e-6)
     assert torch.allclose(so3_exp(torch.tensor([0.0, 0.0, torch.pi / 2])), R[0], atol=1e-6)

@@ -1,5 +1,6 @@
 """ebad.losses: known values, the losses' SSIM pinned to kornia's, bad inputs (the kernels against the
 reference: tests/ebad/kernels)."""
+
 from __future__ import annotations
 
 import math
@@ -33,7 +34,9 @@ def test_losses_known_values():
     mixed = torch.zeros(1, 2, 4, 4)
     mixed[:, 0], mixed[:, 1] = 3.0, 2.0
     assert float(event_loss(torch.stack([I0, I2]), mixed, (0.3, 0.2), eps)) == pytest.approx(0.0, abs=1e-5)
-    assert float(event_loss(torch.stack([I0, I2]), mixed, 0.3, eps)) == pytest.approx(0.2, abs=1e-5)  # 0.9 - 0.6 predicted
+    assert float(event_loss(torch.stack([I0, I2]), mixed, 0.3, eps)) == pytest.approx(
+        0.2, abs=1e-5
+    )  # 0.9 - 0.6 predicted
     with pytest.raises(ValueError, match="counts"):
         event_loss(torch.stack([I0, I1]), torch.zeros(2, 4, 4), c)
 
@@ -61,7 +64,8 @@ def test_the_losses_ssim_is_kornias_with_a_7_pixel_window(reference):
         assert float(edi_loss(pred, target)) == pytest.approx(0.8 * l1 + 0.2 * (1 - float(truth.mean())), abs=1e-12)
         blurry = target[0]
         assert float(blur_loss(pred[:1], blurry)) == pytest.approx(
-            0.8 * float((a[0] - b[0]).abs().mean()) + 0.2 * (1 - float(truth[0].mean())), abs=1e-12)
+            0.8 * float((a[0] - b[0]).abs().mean()) + 0.2 * (1 - float(truth[0].mean())), abs=1e-12
+        )
 
 
 def test_luminance_grey_passthrough_and_rgb():
@@ -103,8 +107,12 @@ def test_event_loss_of_one_window_compares_its_two_instants_with_the_summed_coun
     # the window (0, 3) with one ON event dropped from its middle: off by c
     short = counts.clone()
     short[1, 0] = 1.0
-    assert float(event_loss(renders[[0, 3]], window_counts(short, 0, 3), c, eps, norm="l1")) == pytest.approx(c, abs=1e-5)
-    assert float(event_loss(renders[[0, 3]], window_counts(short, 0, 3), c, eps, norm="l2")) == pytest.approx(c * c, abs=1e-5)
+    assert float(event_loss(renders[[0, 3]], window_counts(short, 0, 3), c, eps, norm="l1")) == pytest.approx(
+        c, abs=1e-5
+    )
+    assert float(event_loss(renders[[0, 3]], window_counts(short, 0, 3), c, eps, norm="l2")) == pytest.approx(
+        c * c, abs=1e-5
+    )
 
 
 def test_exposure_losses_refuse_mismatched_inputs_naming_them():
@@ -123,4 +131,3 @@ def test_exposure_losses_refuse_mismatched_inputs_naming_them():
         exposure_losses(img, 3, torch.rand(8, 9, 1), counts=torch.rand(1, 2, 8, 9), event_views=[1, 1])
     with pytest.raises(ValueError, match="V must be in"):
         exposure_losses(img, 4, torch.rand(8, 9, 1))
-

@@ -3,6 +3,7 @@
 The other tests compare PSNRs with each other; these pin the numbers themselves, so that a wrong data range
 (255 for images in [0, 1]) or another SSIM window (7 instead of 11) fails.
 """
+
 from __future__ import annotations
 
 import math
@@ -79,8 +80,14 @@ def test_ssim_interior_equals_scikit_image_gaussian_ssim():
     from skimage.metrics import structural_similarity
 
     a, b = _pair(seed=1)
-    expected = structural_similarity(a[..., 0].astype(np.float64), b[..., 0].astype(np.float64), gaussian_weights=True,
-                                     sigma=1.5, use_sample_covariance=False, data_range=1.0)
+    expected = structural_similarity(
+        a[..., 0].astype(np.float64),
+        b[..., 0].astype(np.float64),
+        gaussian_weights=True,
+        sigma=1.5,
+        use_sample_covariance=False,
+        data_range=1.0,
+    )
     assert 0.3 < expected < 0.95
     full = ssim_map(torch.from_numpy(a)[None].double(), torch.from_numpy(b)[None].double(), 11)[0]
     assert float(full[5:-5, 5:-5].mean()) == pytest.approx(expected, abs=1e-6)

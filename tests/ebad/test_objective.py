@@ -5,6 +5,7 @@ optimised as, on both paths (the one-node ``exposure_losses`` of a linear respon
 composed path of a learnt one): the total is w_blur L_blur + w_event L_ev + w_edi L_EDI, and each
 weight moves the parameters' gradient by its own loss's gradient.
 """
+
 from __future__ import annotations
 
 import numpy as np

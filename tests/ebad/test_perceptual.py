@@ -1,4 +1,5 @@
 """LPIPS where the weights are local; otherwise None with the reason, never a crash."""
+
 from __future__ import annotations
 
 import sys

@@ -1,4 +1,5 @@
 """End to end on a real recording: the AEDAT4 file in ../shared/data (skipped without it)."""
+
 from __future__ import annotations
 
 import json
@@ -11,7 +12,9 @@ from ebad.cli import main
 SHARED = Path(__file__).resolve().parents[2].parent / "shared"
 AEDAT = SHARED / "data" / "davis346_street" / "davis346_street.aedat4"
 
-pytestmark = pytest.mark.skipif(not AEDAT.is_file(), reason=f"real recording not found at {AEDAT} (../shared is absent)")
+pytestmark = pytest.mark.skipif(
+    not AEDAT.is_file(), reason=f"real recording not found at {AEDAT} (../shared is absent)"
+)
 
 
 @pytest.mark.slow
@@ -24,8 +27,19 @@ def test_aedat4_capture_reconstructs_end_to_end_on_a_static_camera(tmp_path, cap
     assert "pose_source static" in capsys.readouterr().err
     assert not (out / "point_cloud.ply").exists()
 
-    rc = main(["reconstruct", str(AEDAT), "--out", str(out), "--train.iters", "5", "--no-progress",
-               "--trajectory.pose_source", "static"])
+    rc = main(
+        [
+            "reconstruct",
+            str(AEDAT),
+            "--out",
+            str(out),
+            "--train.iters",
+            "5",
+            "--no-progress",
+            "--trajectory.pose_source",
+            "static",
+        ]
+    )
     assert rc == 0
     metrics = json.loads((out / "metrics.json").read_text())
     prep = metrics["prepare"]

@@ -1,5 +1,6 @@
 """End-to-end: a short reconstruction on the tiny synthetic scene and the skip rules (the command
 line, reconstruct with --resume, render, eval on a written capture: tests/ebad/cli/test_reconstruct.py)."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -74,6 +75,7 @@ def test_skip_rules_are_decided_and_recorded(tiny):
     # no events: no L_ev, no L_EDI, V from exposures only
     cap = copy.copy(tiny.capture)
     from edi import EventStream
+
     cap.events = EventStream.empty(cap.width, cap.height)
     q = prepare(cap, _cfg("ebad", 1))
     assert q.latents is None and all(e is None for e in q.ev_counts) and q.report.skipped is not None

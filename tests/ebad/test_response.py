@@ -1,4 +1,5 @@
 """ebad.response: the camera response curve."""
+
 from __future__ import annotations
 
 import pytest

@@ -1,4 +1,5 @@
 """ebad.runfolder: the lock between processes, atomic files, unfinished runs, interrupts."""
+
 from __future__ import annotations
 
 import json
@@ -21,8 +22,10 @@ REPO = Path(__file__).resolve().parents[2]
 
 def _holder(folder: Path) -> subprocess.Popen:
     """Another process that holds the run folder's lock until killed."""
-    code = ("import sys, time; from ebad.runfolder import RunLock; "
-            f"l = RunLock({str(folder)!r}).acquire(); print('locked', flush=True); time.sleep(60)")
+    code = (
+        "import sys, time; from ebad.runfolder import RunLock; "
+        f"l = RunLock({str(folder)!r}).acquire(); print('locked', flush=True); time.sleep(60)"
+    )
     p = subprocess.Popen([sys.executable, "-c", code], cwd=REPO, stdout=subprocess.PIPE, text=True)
     assert p.stdout.readline().strip() == "locked"
     return p
@@ -91,8 +94,23 @@ def test_sigint_checkpoints_writes_the_run_and_resume_finishes(tmp_path):
     scenes.write_scene(scene, tmp_path / "scene")
     cap = str(tmp_path / "scene" / "capture")
     run = tmp_path / "run"
-    args = [sys.executable, "-m", "ebad", "reconstruct", cap, "--out", str(run), "--preset", "3dgs",
-            "--train.iters", "100000", "--train.checkpoint_every", "5", "--train.eval_every", "0"]
+    args = [
+        sys.executable,
+        "-m",
+        "ebad",
+        "reconstruct",
+        cap,
+        "--out",
+        str(run),
+        "--preset",
+        "3dgs",
+        "--train.iters",
+        "100000",
+        "--train.checkpoint_every",
+        "5",
+        "--train.eval_every",
+        "0",
+    ]
     p = subprocess.Popen(args, cwd=REPO, stderr=subprocess.PIPE, text=True)
     deadline = time.time() + 120
     while not (run / "checkpoints" / "last.pt").exists() and time.time() < deadline:  # training has started
@@ -107,8 +125,9 @@ def test_sigint_checkpoints_writes_the_run_and_resume_finishes(tmp_path):
     with pytest.raises(UserError, match="unfinished run"):
         load_run(run)
     steps = m["steps"]
-    assert main(["reconstruct", cap, "--out", str(run), "--resume", "--train.iters", str(steps + 5),
-                 "--no-progress"]) == 0
+    assert (
+        main(["reconstruct", cap, "--out", str(run), "--resume", "--train.iters", str(steps + 5), "--no-progress"]) == 0
+    )
     m = json.loads((run / "metrics.json").read_text())
     assert m["complete"] is True and m["steps"] == steps + 5 and m["resumed_from"] == steps
     assert load_run(run).step == steps + 5
@@ -124,8 +143,19 @@ def test_a_full_disk_is_one_line_and_leaves_no_complete_looking_run(tmp_path, ca
     scenes.write_scene(scene, tmp_path / "scene")
     cap = str(tmp_path / "scene" / "capture")
     run = tmp_path / "run"
-    args = ["reconstruct", cap, "--out", str(run), "--preset", "3dgs", "--train.iters", "6",
-            "--train.checkpoint_every", "3", "--no-progress"]
+    args = [
+        "reconstruct",
+        cap,
+        "--out",
+        str(run),
+        "--preset",
+        "3dgs",
+        "--train.iters",
+        "6",
+        "--train.checkpoint_every",
+        "3",
+        "--no-progress",
+    ]
     real_save = torch.save
     calls = []
 
@@ -133,8 +163,10 @@ def test_a_full_disk_is_one_line_and_leaves_no_complete_looking_run(tmp_path, ca
         calls.append(f)
         if len(calls) == 2:  # the second checkpoint finds the disk full half-way
             Path(f).write_bytes(b"PK\x03\x04partial")
-            raise RuntimeError("[enforce fail at inline_container.cc:859] . PytorchStreamWriter failed writing "
-                               "file data/0: file write failed")
+            raise RuntimeError(
+                "[enforce fail at inline_container.cc:859] . PytorchStreamWriter failed writing "
+                "file data/0: file write failed"
+            )
         return real_save(obj, f, *a, **k)
 
     monkeypatch.setattr(torch, "save", failing_save)
@@ -154,8 +186,19 @@ def test_a_run_that_learns_nothing_is_flagged(tmp_path, capsys):
     scene = scenes.make_scene("boxes", size="tiny", seed=0, n_frames=3, n_test=1, sensor="ideal")
     scenes.write_scene(scene, tmp_path / "scene")
     zero = [f"--train.{k}" for k in ("lr_means", "lr_scales", "lr_quats", "lr_opacities", "lr_colors")]
-    args = ["reconstruct", str(tmp_path / "scene" / "capture"), "--out", str(tmp_path / "run"), "--preset", "3dgs",
-            "--train.iters", "3", "--no-progress", "--trajectory.anchor_mid", "yes"]
+    args = [
+        "reconstruct",
+        str(tmp_path / "scene" / "capture"),
+        "--out",
+        str(tmp_path / "run"),
+        "--preset",
+        "3dgs",
+        "--train.iters",
+        "3",
+        "--no-progress",
+        "--trajectory.anchor_mid",
+        "yes",
+    ]
     for z in zero:
         args += [z, "0"]
     assert main(args) == 0

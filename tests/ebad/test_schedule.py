@@ -1,5 +1,6 @@
 """The run's schedule (``ebad.schedule``): what happens at which fraction of the budget, and that
 the loop does it there (an opacity reset fires, the coarse phase ends, averaging starts)."""
+
 from __future__ import annotations
 
 import pytest

@@ -1,4 +1,5 @@
 """ebad.state: TrainState.save / load are each other's inverse, and refuse what is not theirs."""
+
 from __future__ import annotations
 
 import copy
@@ -126,6 +127,7 @@ def test_the_run_s_trajectories_are_the_mean_of_the_knots_since_average_from(tin
 
 def test_adam_is_fused_where_torch_has_it_and_falls_back_to_the_same_update(monkeypatch):
     from ebad import state as S
+
     g = torch.Generator().manual_seed(0)
     start = torch.randn(50, 3, generator=g)
     grads = [torch.randn(50, 3, generator=g) for _ in range(5)]

@@ -1,4 +1,5 @@
 """ebad.strategy: parameter surgery and the default strategy rules."""
+
 from __future__ import annotations
 
 import math
@@ -21,7 +22,7 @@ def _optims(params):
 
 
 def _touch(params, opts):
-    loss = sum((p ** 2).sum() for p in params.values())
+    loss = sum((p**2).sum() for p in params.values())
     loss.backward()
     for o in opts.values():
         o.step()
@@ -56,8 +57,9 @@ def test_surgery_keeps_adam_state_aligned():
 
 
 def test_strategy_clone_split_prune_reset_fire():
-    cfg = C.StrategyConfig(grad_threshold=1e-3, refine_start=0, refine_every=2, reset_every=4,
-                           split_scale=0.1, prune_opacity=0.05)
+    cfg = C.StrategyConfig(
+        grad_threshold=1e-3, refine_start=0, refine_every=2, reset_every=4, split_scale=0.1, prune_opacity=0.05
+    )
     params = _params(4)
     with torch.no_grad():
         params["scales"][:2] = math.log(0.01)  # small -> clone

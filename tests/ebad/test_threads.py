@@ -1,5 +1,6 @@
 """The thread set-up (``ebad.threads.configure``): nothing on import, the policy only before torch,
 numba's layer from the policy actually in force, and training with torch on one thread."""
+
 from __future__ import annotations
 
 import json
@@ -26,29 +27,34 @@ def _run(code: str, env_update: dict[str, str] | None = None, timeout: float = 3
     env = {k: v for k, v in os.environ.items() if k not in ("OMP_WAIT_POLICY", "NUMBA_THREADING_LAYER")}
     env.update(env_update or {})
     env["PYTHONPATH"] = os.pathsep.join([str(REPO), env.get("PYTHONPATH", "")])
-    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=timeout,
-                         cwd=REPO)
+    out = subprocess.run(
+        [sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=timeout, cwd=REPO
+    )
     assert out.returncode == 0, out.stderr[-2000:]
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
 def _setup_then_layer(before: str, env_update: dict[str, str] | None = None) -> dict:
     """Run ``before``, then ``configure()``, then one parallel kernel: what it reported and what ran."""
-    code = (f"import json, os\n{before}\n"
-            "import dataclasses, numba\nfrom ebad.threads import configure\n"
-            "setup = dataclasses.asdict(configure())\n"
-            f"{RASTERIZE}\n"
-            "print(json.dumps({'setup': setup, 'layer': numba.threading_layer(),"
-            " 'policy': os.environ.get('OMP_WAIT_POLICY')}))")
+    code = (
+        f"import json, os\n{before}\n"
+        "import dataclasses, numba\nfrom ebad.threads import configure\n"
+        "setup = dataclasses.asdict(configure())\n"
+        f"{RASTERIZE}\n"
+        "print(json.dumps({'setup': setup, 'layer': numba.threading_layer(),"
+        " 'policy': os.environ.get('OMP_WAIT_POLICY')}))"
+    )
     return _run(code, env_update)
 
 
 def test_importing_ebad_its_cli_and_splat_cpu_changes_no_environment_variable_nor_numba_setting():
-    code = ("import json, os\nenv = dict(os.environ)\n"
-            "import ebad, ebad.cli, ebad.run, ebad.loop, splat_cpu, splat_cpu._numba_impl, ebad.threads, numba\n"
-            "changed = sorted(k for k in set(env) | set(os.environ) if env.get(k) != os.environ.get(k))\n"
-            "print(json.dumps({'changed': changed, 'layer': numba.config.THREADING_LAYER,"
-            " 'priority': numba.config.THREADING_LAYER_PRIORITY}))")
+    code = (
+        "import json, os\nenv = dict(os.environ)\n"
+        "import ebad, ebad.cli, ebad.run, ebad.loop, splat_cpu, splat_cpu._numba_impl, ebad.threads, numba\n"
+        "changed = sorted(k for k in set(env) | set(os.environ) if env.get(k) != os.environ.get(k))\n"
+        "print(json.dumps({'changed': changed, 'layer': numba.config.THREADING_LAYER,"
+        " 'priority': numba.config.THREADING_LAYER_PRIORITY}))"
+    )
     out = _run(code)
     assert out == {"changed": [], "layer": "default", "priority": ["tbb", "omp", "workqueue"]}
 

@@ -1,4 +1,5 @@
 """ebad.loop.frame_losses: the L_ev options (windows, norm) and the L_EDI prior."""
+
 from __future__ import annotations
 
 import dataclasses
@@ -90,8 +91,9 @@ def test_every_step_says_where_its_time_went():
     assert mean["steps"] == 6 and 0 < mean["outside_share"] < 1
     assert mean["step"] == pytest.approx(sum(h.profile["step"] for h in run.history) / 6)
     assert step_profile([]) is None
-    old = dataclasses.replace(run.history[0], profile={k: v for k, v in run.history[0].profile.items()
-                                                       if k not in ("poses", "losses")})
+    old = dataclasses.replace(
+        run.history[0], profile={k: v for k, v in run.history[0].profile.items() if k not in ("poses", "losses")}
+    )
     mixed = step_profile([old, *run.history[1:]])  # a resumed run's history from before the forward's parts
     assert "poses" not in mixed and mixed["step"] == pytest.approx(mean["step"])
 
@@ -111,8 +113,13 @@ def test_edi_at_every_view_compares_each_virtual_view_with_the_latent_at_its_ins
     assert all((v is None) == (n == 1) for v, n in zip(data.view_latents, data.V))
     t0, t1 = cap.exposures[idx[f]]
     for i, u in enumerate(virtual_instants(V).tolist()):  # each view's latent is EDI at its own instant
-        ref = np.clip(edi.deblur(np.asarray(cap.frames[idx[f]], np.float32), (t0, t1), cap.events,
-                                 times=t0 + u * (t1 - t0), c=data.c), 0, 1)
+        ref = np.clip(
+            edi.deblur(
+                np.asarray(cap.frames[idx[f]], np.float32), (t0, t1), cap.events, times=t0 + u * (t1 - t0), c=data.c
+            ),
+            0,
+            1,
+        )
         assert np.allclose(data.view_latents[f][i].numpy(), np.asarray(ref).reshape(data.latents.shape[1:]), atol=1e-5)
     assert torch.allclose(data.view_latents[f][V // 2], data.latents[f], atol=1e-5)  # odd V: the middle one is mid
     assert not torch.allclose(data.view_latents[f][0], data.latents[f], atol=1e-3)  # the others are not copies of it
@@ -171,4 +178,6 @@ def test_frame_losses_in_one_node_equal_the_response_path_with_a_linear_response
     assert torch.allclose(out.mean_render, ref.mean_render, atol=1e-6)
     for k, p in state.params.items():
         assert torch.allclose(grads[k], p.grad, rtol=1e-4, atol=1e-7 * float(p.grad.abs().max())), k
-    assert torch.allclose(knots_grad, state.trajectories.knots.grad, rtol=1e-4, atol=1e-6 * float(knots_grad.abs().max()))
+    assert torch.allclose(
+        knots_grad, state.trajectories.knots.grad, rtol=1e-4, atol=1e-6 * float(knots_grad.abs().max())
+    )

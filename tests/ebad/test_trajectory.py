@@ -1,4 +1,5 @@
 """ebad.trajectory: trajectory models and the module."""
+
 from __future__ import annotations
 
 import pytest
@@ -7,7 +8,6 @@ import torch
 from ebad.lie import so3_exp, so3_log
 from ebad.trajectory import TRAJECTORIES, ExposureTrajectories, bspline_weights, virtual_instants
 from tests.ebad._helpers import random_c2w
-
 
 
 def test_linear_trajectory_endpoints_and_midpoint():
@@ -44,8 +44,9 @@ def test_cubic_and_fixed_trajectories():
 def test_exposure_trajectories_module():
     c2w = random_c2w(4)
     moving = torch.tensor([True, False, True, True])
-    traj = ExposureTrajectories(c2w, "linear", moving, scale=1.0, init_noise=1e-2,
-                                generator=torch.Generator().manual_seed(0))
+    traj = ExposureTrajectories(
+        c2w, "linear", moving, scale=1.0, init_noise=1e-2, generator=torch.Generator().manual_seed(0)
+    )
     u = virtual_instants(5)
     assert torch.allclose(u, torch.tensor([0.1, 0.3, 0.5, 0.7, 0.9]))
     p = traj(torch.arange(4), u)

@@ -1,4 +1,5 @@
 """ebad.virtual_views: V per frame, event sums."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -7,8 +8,14 @@ import pytest
 from edi import EventStream
 import torch
 
-from ebad.virtual_views import (choose_num_views, event_counts, path_lengths_px, random_window, views_from_blur,
-                                window_counts)
+from ebad.virtual_views import (
+    choose_num_views,
+    event_counts,
+    path_lengths_px,
+    random_window,
+    views_from_blur,
+    window_counts,
+)
 
 
 def _stream(n_per_frame, W=8, H=6, exposures=((0.0, 0.04), (0.1, 0.14))):
@@ -16,9 +23,12 @@ def _stream(n_per_frame, W=8, H=6, exposures=((0.0, 0.04), (0.1, 0.14))):
     rng = np.random.default_rng(0)
     for (t0, t1), n in zip(exposures, n_per_frame):
         ts.append(np.sort(rng.uniform(t0, t1, n)) * 1e6)
-        xs.append(rng.integers(0, W, n)); ys.append(rng.integers(0, H, n)); ps.append(rng.choice([-1, 1], n))
-    return EventStream(np.concatenate(ts).astype(np.int64), np.concatenate(xs), np.concatenate(ys),
-                       np.concatenate(ps), W, H)
+        xs.append(rng.integers(0, W, n))
+        ys.append(rng.integers(0, H, n))
+        ps.append(rng.choice([-1, 1], n))
+    return EventStream(
+        np.concatenate(ts).astype(np.int64), np.concatenate(xs), np.concatenate(ys), np.concatenate(ps), W, H
+    )
 
 
 def test_views_sharp_frames_get_one_view():

@@ -1,4 +1,5 @@
 """ebad.run.warm_up: every parallel kernel a training step runs is compiled before timing starts."""
+
 from __future__ import annotations
 
 import json

@@ -1,5 +1,6 @@
 """Documented rules at their exact boundaries: saturation "at or above SATURATION" at 0.99 itself,
 and the ``sensor_size`` key of an event file, which is (H, W)."""
+
 from __future__ import annotations
 
 import h5py

@@ -2,6 +2,7 @@
 
 The numbers in the docstrings were measured with ``python -m benchmarks.calibration`` and
 the runs named in the tests; every seed of a range is used, none is picked."""
+
 import math
 import warnings
 
@@ -9,8 +10,18 @@ import numpy as np
 import pytest
 import torch
 
-from edi import (Contrast, EbadError, EventStream, InputError, LOG_EPS, deblur_with_report, estimate_c, estimate_contrast,
-                 events_in_window, moving_texture)
+from edi import (
+    Contrast,
+    EbadError,
+    EventStream,
+    InputError,
+    LOG_EPS,
+    deblur_with_report,
+    estimate_c,
+    estimate_contrast,
+    events_in_window,
+    moving_texture,
+)
 
 C_BY_SEED = (0.15, 0.2, 0.3)
 
@@ -317,12 +328,22 @@ def test_mean_residual_matches_a_per_pixel_reference():
     M, W, H = 400, 4, 3
     t = np.sort(rng.integers(0, 10_000, M))
     ev = EventStream(t, rng.integers(0, W, M), rng.integers(0, H, M), np.where(rng.random(M) < 0.6, 1, -1), W, H)
-    exposures = np.array([[0.0, 0.004], [0.0025, 0.0071], [0.005, 0.005], [float(t[17]) * 1e-6, float(t[17]) * 1e-6],
-                          [0.0099, 0.0125], [0.02, 0.03]])
+    exposures = np.array(
+        [
+            [0.0, 0.004],
+            [0.0025, 0.0071],
+            [0.005, 0.005],
+            [float(t[17]) * 1e-6, float(t[17]) * 1e-6],
+            [0.0099, 0.0125],
+            [0.02, 0.03],
+        ]
+    )
     got = _mean_residual(ev, exposures)
     want = residual_reference(ev, exposures)
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-8)
-    assert (want[:4] > 0).any() and (want[:4] < 0).any() and (want[-1] == 0).all()  # something to compare; nothing after the last event
+    assert (
+        (want[:4] > 0).any() and (want[:4] < 0).any() and (want[-1] == 0).all()
+    )  # something to compare; nothing after the last event
 
 
 @pytest.mark.slow
@@ -414,8 +435,14 @@ def test_events_unrelated_to_the_frame_explain_nothing():
         rng = np.random.default_rng(seed)
         n = int(np.diff(events_in_window(s.events, *ex))[0])
         t = np.sort(rng.integers(round(ex[0] * 1e6), round(ex[1] * 1e6), n))
-        ev = EventStream(t, rng.integers(0, 56, n), rng.integers(0, 40, n),
-                         np.where(rng.random(n) < 0.5, 1, -1).astype(np.int8), 56, 40)
+        ev = EventStream(
+            t,
+            rng.integers(0, 56, n),
+            rng.integers(0, 40, n),
+            np.where(rng.random(n) < 0.5, 1, -1).astype(np.int8),
+            56,
+            40,
+        )
         rep = estimate_contrast(s.frames[0], ex, ev)
         assert min(e for _, e in rep.evals) > 0.9, sorted(rep.evals)
         assert not rep.reliable and rep.explained < 0.1 and "do not follow the frame's blur" in rep.message

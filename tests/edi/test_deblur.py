@@ -1,4 +1,5 @@
 """EDI (edi.deblur) on seeded synthetic ground truth (edi.moving_texture), and its inputs."""
+
 import numpy as np
 import pytest
 import torch
@@ -94,7 +95,6 @@ def test_sharp_frame_or_no_events_returns_blur(seq1):
     np.testing.assert_allclose(deblur(B, (0.0, 0.04), EventStream.empty(56, 40), c=0.3), B)
 
 
-
 # --- numerics
 
 
@@ -140,8 +140,6 @@ def test_deblur_bad_input(seq1, kw, exc, match):
     args.update(kw)
     with pytest.raises(exc, match=match):
         deblur(**args)
-
-
 
 
 # --- input ranges (issue 13, row 5) -------------------------------------------------------------

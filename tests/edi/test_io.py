@@ -1,4 +1,5 @@
 """Event readers: npz / h5 / txt / mat layouts, time units, epoch times, AEDAT4."""
+
 import sys
 from pathlib import Path
 

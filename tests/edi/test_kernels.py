@@ -1,4 +1,5 @@
 """The EDI pass: the numba kernel against the numpy reference, binning, numerical range."""
+
 import numpy as np
 import pytest
 

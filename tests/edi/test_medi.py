@@ -1,4 +1,5 @@
 """mEDI (edi.medi): all frames jointly, against frame-by-frame EDI and a dense per-pixel least squares."""
+
 import numpy as np
 import pytest
 import torch
@@ -99,5 +100,3 @@ def test_medi_torch_grey_and_estimated_c(seq3):
         medi(seq3.frames, seq3.exposures[::-1].copy(), seq3.events, c=0.2)
     with pytest.raises(InputError, match=r"exposures must be \[F, 2\]"):
         medi(seq3.frames, seq3.exposures[:2], seq3.events, c=0.2)
-
-

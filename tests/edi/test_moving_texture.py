@@ -1,4 +1,5 @@
 """The seeded synthetic ground truth (edi.moving_texture)."""
+
 import numpy as np
 import pytest
 

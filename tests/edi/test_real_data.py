@@ -1,4 +1,5 @@
 """Real recordings from ../shared/data (skipped with a reason when absent)."""
+
 from pathlib import Path
 
 import numpy as np

@@ -11,6 +11,7 @@ reads it high where frames are sharp and events sparse (a pixel with no later ev
 a residual of 0), both measured on a synthetic street-like sequence of known c below; so the pins
 are windows around what the estimator and the yardstick give now (docs/results.md, issue 32).
 """
+
 from pathlib import Path
 
 import numpy as np
@@ -99,8 +100,19 @@ def _street_like(seed: int, c: float):
     pixels firing once or twice between frames, per-pixel thresholds around c."""
     from edi.moving_texture import moving_texture
 
-    return moving_texture(height=40, width=56, num_frames=8, exposure=0.0005, period=0.04, velocity=(20.0, 6.0),
-                          c=c, sigma_c=0.05, seed=seed, lead=0.1, step_us=100)
+    return moving_texture(
+        height=40,
+        width=56,
+        num_frames=8,
+        exposure=0.0005,
+        period=0.04,
+        velocity=(20.0, 6.0),
+        c=c,
+        sigma_c=0.05,
+        seed=seed,
+        lead=0.1,
+        step_us=100,
+    )
 
 
 @pytest.mark.slow

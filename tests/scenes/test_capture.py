@@ -1,4 +1,5 @@
 """The in-memory Capture: pose trust and test views without a pose."""
+
 import numpy as np
 import pytest
 
@@ -8,10 +9,20 @@ from scenes import Capture, CaptureError, TestView
 
 def _capture(**kw):
     f = np.full((2, 4, 5, 1), 0.5, np.float32)
-    ev = EventStream(np.array([0, 10], np.int64), np.array([1, 2], np.int32), np.array([1, 3], np.int32),
-                     np.array([1, -1], np.int8), 5, 4)
-    args = dict(frames=f, exposures=np.array([[0.0, 0.01], [0.02, 0.03]]), events=ev,
-                K=np.array([[5.0, 0, 2.5], [0, 5.0, 2.0], [0, 0, 1]]))
+    ev = EventStream(
+        np.array([0, 10], np.int64),
+        np.array([1, 2], np.int32),
+        np.array([1, 3], np.int32),
+        np.array([1, -1], np.int8),
+        5,
+        4,
+    )
+    args = dict(
+        frames=f,
+        exposures=np.array([[0.0, 0.01], [0.02, 0.03]]),
+        events=ev,
+        K=np.array([[5.0, 0, 2.5], [0, 5.0, 2.0], [0, 0, 1]]),
+    )
     args.update(kw)
     return Capture(**args)
 
@@ -25,11 +36,14 @@ def test_effective_pose_trust_defaults():
     assert _capture(c2w=np.tile(np.eye(4), (2, 1, 1)), pose_trust="none").validate().effective_pose_trust == "none"
 
 
-@pytest.mark.parametrize("kw, word", [
-    (dict(pose_trust="trusted"), "pose_trust"),
-    (dict(pose_trust="exact"), "pose_trust"),  # exact poses that are not there
-    (dict(test_views=[TestView("a", 0.015, None, None)]), r"test_views\[0\]"),
-])
+@pytest.mark.parametrize(
+    "kw, word",
+    [
+        (dict(pose_trust="trusted"), "pose_trust"),
+        (dict(pose_trust="exact"), "pose_trust"),  # exact poses that are not there
+        (dict(test_views=[TestView("a", 0.015, None, None)]), r"test_views\[0\]"),
+    ],
+)
 def test_bad_pose_fields_name_the_field(kw, word):
     with pytest.raises(CaptureError, match=word):
         _capture(**kw).validate("x.json")

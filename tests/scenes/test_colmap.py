@@ -1,4 +1,5 @@
 """Camera initialisation: the alignment maths, and SfM on slider_depth (slow)."""
+
 from pathlib import Path
 
 import numpy as np
@@ -13,7 +14,9 @@ SLIDER = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "slide
 
 def _poses(n, rng, straight=False):
     out = np.tile(np.eye(4), (n, 1, 1))
-    out[:, :3, :3] = (Rotation.from_rotvec(np.zeros((n, 3))) if straight else Rotation.random(n, random_state=1)).as_matrix()
+    out[:, :3, :3] = (
+        Rotation.from_rotvec(np.zeros((n, 3))) if straight else Rotation.random(n, random_state=1)
+    ).as_matrix()
     out[:, :3, 3] = (np.linspace(0, 1, n)[:, None] * [1.0, 0, 0]) if straight else rng.normal(size=(n, 3))
     return out
 
@@ -134,8 +137,11 @@ def test_sfm_on_slider_depth_agrees_with_ground_truth():
     assert est.report["mean_reprojection_error_px"] < 1.0
     # too few frames to register half of them: a clear error
     with pytest.raises(SfMError, match="registered"):
-        estimate_poses(cap, ColmapConfig(min_registered_fraction=1.0, min_registered=5,
-                                         init_min_num_inliers=100000), frames=[0, 40, 80, 86, 20])
+        estimate_poses(
+            cap,
+            ColmapConfig(min_registered_fraction=1.0, min_registered=5, init_min_num_inliers=100000),
+            frames=[0, 40, 80, 86, 20],
+        )
 
 
 @pytest.mark.slow
@@ -190,8 +196,9 @@ def test_test_views_registered_by_the_same_sfm(unposed, seed):
     extent = e["trajectory_extent"]
     test = apply_similarity(np.stack([est.test_c2w[tv.name] for tv in cap.test_views]), s, r, t)
     pos = np.linalg.norm(test[:, :3, 3] - sc.gt_test_c2w[:, :3, 3], axis=1)
-    ang = np.degrees(Rotation.from_matrix(np.einsum("nji,njk->nik", sc.gt_test_c2w[:, :3, :3],
-                                                    test[:, :3, :3])).magnitude())
+    ang = np.degrees(
+        Rotation.from_matrix(np.einsum("nji,njk->nik", sc.gt_test_c2w[:, :3, :3], test[:, :3, :3])).magnitude()
+    )
     assert pos.max() < 0.06 * extent and ang.max() < 4.0
     assert e["ate_rmse"] < 0.05 * extent
 

@@ -1,4 +1,5 @@
 """``python -m scenes.convert``: the README's "your own data" commands, run on each layout's fixture."""
+
 import subprocess
 import sys
 from pathlib import Path
@@ -50,8 +51,23 @@ def test_ros_bag_converts_with_and_without_exposure_topic(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "noexp.bag" in err and "--exposure-us" in err
     assert not (tmp_path / "c2").exists()
-    assert main([str(tmp_path / "noexp.bag"), "--out", str(tmp_path / "c2"), "--exposure-us", "5000",
-                 "--intrinsics", "6", "6", "3.5", "2.5"]) == 0
+    assert (
+        main(
+            [
+                str(tmp_path / "noexp.bag"),
+                "--out",
+                str(tmp_path / "c2"),
+                "--exposure-us",
+                "5000",
+                "--intrinsics",
+                "6",
+                "6",
+                "3.5",
+                "2.5",
+            ]
+        )
+        == 0
+    )
     cap = load(tmp_path / "c2")
     np.testing.assert_allclose(np.diff(cap.exposures, axis=1), 0.005)
     np.testing.assert_array_equal(cap.K, [[6, 0, 3.5], [0, 6, 2.5], [0, 0, 1]])
@@ -69,7 +85,12 @@ def test_user_mistakes_exit_2_with_one_line(tmp_path, capsys):
 
 def test_runs_as_a_module(tmp_path):
     write_e2nerf(tmp_path / "lego")
-    r = subprocess.run([sys.executable, "-m", "scenes.convert", str(tmp_path / "lego"), "--out", str(tmp_path / "c")],
-                       cwd=ROOT, capture_output=True, text=True, timeout=120)
+    r = subprocess.run(
+        [sys.executable, "-m", "scenes.convert", str(tmp_path / "lego"), "--out", str(tmp_path / "c")],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert r.returncode == 0, r.stderr
     assert "wrote" in r.stdout and (tmp_path / "c" / "capture.json").is_file()

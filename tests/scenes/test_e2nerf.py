@@ -1,4 +1,5 @@
 """EBAD-NeRF / E2NeRF layouts: fixtures written here in each layout, loaded through scenes.load."""
+
 import json
 from pathlib import Path
 
@@ -35,8 +36,9 @@ def _save_png(path: Path, img: np.ndarray):
     Image.fromarray(img).save(path)
 
 
-def write_ebad_nerf(root: Path, n=10, seed=0, novel=True, gt_blur=True, poses_name="poses_bounds.npy",
-                    counts_dtype=torch.float64):
+def write_ebad_nerf(
+    root: Path, n=10, seed=0, novel=True, gt_blur=True, poses_name="poses_bounds.npy", counts_dtype=torch.float64
+):
     """An EBAD-NeRF folder: images/, images_gt_blur/, images_gt_novel/, events.pt [V, B, H*W],
     poses_bounds.npy in LLFF axes (down, right, backwards) with hwf = (2H, 2W, 2f)."""
     rng = np.random.default_rng(seed)
@@ -102,8 +104,9 @@ def test_binned_events_reproduce_every_bin_and_nothing_else(tmp_path):
             np.testing.assert_array_equal(ev.count_image().reshape(-1), counts[k, b])
             total += len(ev)
         # the events of several bins are the sum of their counts (an L_ev pair spanning bins 1..3)
-        np.testing.assert_array_equal(cap.events.slice_time(edges[1], edges[4]).count_image().reshape(-1),
-                                      counts[k, 1:4].sum(0))
+        np.testing.assert_array_equal(
+            cap.events.slice_time(edges[1], edges[4]).count_image().reshape(-1), counts[k, 1:4].sum(0)
+        )
     assert total == len(cap.events) == np.abs(counts).sum()
 
 
@@ -136,21 +139,25 @@ def test_ground_truth_of_the_blurry_views(tmp_path):
     truth = write_ebad_nerf(root)
     cap = load(root)
     gt = read_ground_truth(root)
-    np.testing.assert_array_equal(gt.frames(cap.names),
-                                  truth["sharp"][truth["train"]].astype(np.float32) / np.float32(255))
+    np.testing.assert_array_equal(
+        gt.frames(cap.names), truth["sharp"][truth["train"]].astype(np.float32) / np.float32(255)
+    )
 
 
-@pytest.mark.parametrize("make, match", [
-    (lambda r: torch.save(torch.full((10, BINS, H * W), 0.5), r / "events.pt"), r"events\.pt.*whole numbers"),
-    (lambda r: torch.save(torch.zeros(10, BINS, H * W + 1), r / "events.pt"), r"events\.pt.*49 pixels per bin"),
-    (lambda r: torch.save(torch.zeros(7, BINS, H * W), r / "events.pt"), r"events\.pt.*7 views of counts for 10"),
-    (lambda r: torch.save({"counts": torch.zeros(3)}, r / "events.pt"), r"events\.pt.*one tensor"),
-    (lambda r: torch.save(torch.zeros(10, H * W), r / "events.pt"), r"events\.pt.*\[views, bins, H\*W\]"),
-    (lambda r: (r / "events.pt").write_bytes(b"garbage"), r"events\.pt.*unreadable"),
-    (lambda r: np.save(r / "poses_bounds.npy", np.zeros((10, 15))), r"poses_bounds\.npy.*\[F, 17\]"),
-    (lambda r: (r / "images" / "003.png").unlink(), r"images.*9 images for 10 poses"),
-    (lambda r: (r / "images_gt_novel" / "008.png").unlink(), r"images_gt_novel.*1 images"),
-])
+@pytest.mark.parametrize(
+    "make, match",
+    [
+        (lambda r: torch.save(torch.full((10, BINS, H * W), 0.5), r / "events.pt"), r"events\.pt.*whole numbers"),
+        (lambda r: torch.save(torch.zeros(10, BINS, H * W + 1), r / "events.pt"), r"events\.pt.*49 pixels per bin"),
+        (lambda r: torch.save(torch.zeros(7, BINS, H * W), r / "events.pt"), r"events\.pt.*7 views of counts for 10"),
+        (lambda r: torch.save({"counts": torch.zeros(3)}, r / "events.pt"), r"events\.pt.*one tensor"),
+        (lambda r: torch.save(torch.zeros(10, H * W), r / "events.pt"), r"events\.pt.*\[views, bins, H\*W\]"),
+        (lambda r: (r / "events.pt").write_bytes(b"garbage"), r"events\.pt.*unreadable"),
+        (lambda r: np.save(r / "poses_bounds.npy", np.zeros((10, 15))), r"poses_bounds\.npy.*\[F, 17\]"),
+        (lambda r: (r / "images" / "003.png").unlink(), r"images.*9 images for 10 poses"),
+        (lambda r: (r / "images_gt_novel" / "008.png").unlink(), r"images_gt_novel.*1 images"),
+    ],
+)
 def test_ebad_nerf_errors_name_the_file(tmp_path, make, match):
     root = tmp_path / "scene"
     write_ebad_nerf(root)
@@ -185,6 +192,7 @@ def test_scale_in_a_pose_is_refused(tmp_path):
 
 
 # ---------------------------------------------------------------- E2NeRF (transforms json)
+
 
 def _gl(c2w_cv):
     return c2w_cv @ np.diag([1.0, -1.0, -1.0, 1.0])

@@ -1,4 +1,5 @@
 """ebad-capture/1: lossless round trip, atomic writes, errors that name the file and the field."""
+
 import json
 from pathlib import Path
 
@@ -20,20 +21,37 @@ def _capture(rgb=False, quantised=True, seed=0, f=3, h=12, w=16):
     if quantised:
         frames = quantize(frames)
     m = 400
-    ev = EventStream(np.sort(rng.integers(0, 300_000, m)), rng.integers(0, w, m), rng.integers(0, h, m),
-                     rng.integers(0, 2, m), w, h)
+    ev = EventStream(
+        np.sort(rng.integers(0, 300_000, m)), rng.integers(0, w, m), rng.integers(0, h, m), rng.integers(0, 2, m), w, h
+    )
     object.__setattr__(ev, "t0", 1_600_000_000_000_000)
-    c2w = np.stack([look_at(rng.normal(size=3), np.array([0.0, 0.0, 4.0]) + rng.normal(size=3) * 0.1)
-                    for _ in range(f)])
+    c2w = np.stack(
+        [look_at(rng.normal(size=3), np.array([0.0, 0.0, 4.0]) + rng.normal(size=3) * 0.1) for _ in range(f)]
+    )
     exps = np.stack([np.arange(f) * 0.1 + 0.01, np.arange(f) * 0.1 + 0.0437], 1)
     exps[1, 1] = exps[1, 0]  # one sharp frame
-    tv = [TestView("held_0", 0.123456789, c2w[0] @ look_at(np.zeros(3), np.array([0.1, 0, 1.0])),
-                   rng.uniform(0, 1, (h, w, d)).astype(np.float32)),
-          TestView("held_1", 0.2, c2w[1], None)]
+    tv = [
+        TestView(
+            "held_0",
+            0.123456789,
+            c2w[0] @ look_at(np.zeros(3), np.array([0.1, 0, 1.0])),
+            rng.uniform(0, 1, (h, w, d)).astype(np.float32),
+        ),
+        TestView("held_1", 0.2, c2w[1], None),
+    ]
     K = np.array([[20.5, 0, 8.1], [0, 21.25, 6.3], [0, 0, 1.0]])
-    return Capture(frames=frames, exposures=exps, events=ev, K=K, distortion=np.array([0.1, -0.01, 1e-3, 2e-4, 0.0]),
-                   c2w=c2w, split=["train", "test", "train"][:f], test_views=tv, names=[f"f{i}" for i in range(f)],
-                   meta={"c": 0.2, "note": "x", "arr": np.arange(3)})
+    return Capture(
+        frames=frames,
+        exposures=exps,
+        events=ev,
+        K=K,
+        distortion=np.array([0.1, -0.01, 1e-3, 2e-4, 0.0]),
+        c2w=c2w,
+        split=["train", "test", "train"][:f],
+        test_views=tv,
+        names=[f"f{i}" for i in range(f)],
+        meta={"c": 0.2, "note": "x", "arr": np.arange(3)},
+    )
 
 
 def _assert_same(a: Capture, b: Capture, meta=True):
@@ -74,8 +92,10 @@ def test_save_load_round_trip_is_lossless(tmp_path, rgb, quantised):
 
 def test_sixteen_bit_grey_png_is_used_when_exact(tmp_path):
     cap = _capture()
-    cap.frames = (np.round(cap.frames * 0 + np.random.default_rng(0).uniform(0, 1, cap.frames.shape) * 65535)
-                  .astype(np.float32) / np.float32(65535)).astype(np.float32)
+    cap.frames = (
+        np.round(cap.frames * 0 + np.random.default_rng(0).uniform(0, 1, cap.frames.shape) * 65535).astype(np.float32)
+        / np.float32(65535)
+    ).astype(np.float32)
     save(cap, tmp_path / "c")
     png = next((tmp_path / "c" / "frames").iterdir())
     assert png.suffix == ".png" and Image.open(png).mode.startswith("I")
@@ -217,27 +237,30 @@ def test_pose_not_rigid_names_field(saved):
         load(root)
 
 
-@pytest.mark.parametrize("edit, field", [
-    (lambda d: d.pop("format"), "format"),
-    (lambda d: d.update(format="other/2"), "format"),
-    (lambda d: d["intrinsics"].pop("fy"), "intrinsics.fy"),
-    (lambda d: d.update(width=-3), "width"),
-    (lambda d: d["frames"][1].update(t_start="soon"), r"frames\[1\]\.t_start"),
-    (lambda d: d["frames"][1].update(t_end=-1.0), r"frames\[1\]\.t_end"),
-    (lambda d: d["frames"][2].pop("c2w"), r"frames\[2\]\.c2w"),
-    (lambda d: d["events"].update(t_unit="fortnights"), r"events\.t_unit"),
-    (lambda d: d["test_views"][0].pop("t"), r"test_views\[0\]\.t"),
-    (lambda d: d.update(distortion=[1, 2]), "distortion"),
-    # wrong types (issue 13 row 9): the field and what is wrong
-    (lambda d: d["frames"][0].update(t_start="0.1"), r"frames\[0\]\.t_start.*must be a number, got '0.1'"),
-    (lambda d: d.update(width="16"), "width.*positive integer"),
-    (lambda d: d["frames"][1].update(file=3), r"frames\[1\]\.file.*string"),
-    (lambda d: d["events"].update(file=["events.npz"]), r"events\.file.*string"),
-    (lambda d: d.update(meta=[1, 2]), "meta.*object"),
-    (lambda d: d.update(test_views={"a": 1}), "test_views.*list"),
-    (lambda d: d["frames"][0].update(c2w="identity"), r"frames\[0\]\.c2w.*4x4"),
-    (lambda d: d["intrinsics"].update(fx=None), r"intrinsics\.fx.*number"),
-])
+@pytest.mark.parametrize(
+    "edit, field",
+    [
+        (lambda d: d.pop("format"), "format"),
+        (lambda d: d.update(format="other/2"), "format"),
+        (lambda d: d["intrinsics"].pop("fy"), "intrinsics.fy"),
+        (lambda d: d.update(width=-3), "width"),
+        (lambda d: d["frames"][1].update(t_start="soon"), r"frames\[1\]\.t_start"),
+        (lambda d: d["frames"][1].update(t_end=-1.0), r"frames\[1\]\.t_end"),
+        (lambda d: d["frames"][2].pop("c2w"), r"frames\[2\]\.c2w"),
+        (lambda d: d["events"].update(t_unit="fortnights"), r"events\.t_unit"),
+        (lambda d: d["test_views"][0].pop("t"), r"test_views\[0\]\.t"),
+        (lambda d: d.update(distortion=[1, 2]), "distortion"),
+        # wrong types (issue 13 row 9): the field and what is wrong
+        (lambda d: d["frames"][0].update(t_start="0.1"), r"frames\[0\]\.t_start.*must be a number, got '0.1'"),
+        (lambda d: d.update(width="16"), "width.*positive integer"),
+        (lambda d: d["frames"][1].update(file=3), r"frames\[1\]\.file.*string"),
+        (lambda d: d["events"].update(file=["events.npz"]), r"events\.file.*string"),
+        (lambda d: d.update(meta=[1, 2]), "meta.*object"),
+        (lambda d: d.update(test_views={"a": 1}), "test_views.*list"),
+        (lambda d: d["frames"][0].update(c2w="identity"), r"frames\[0\]\.c2w.*4x4"),
+        (lambda d: d["intrinsics"].update(fx=None), r"intrinsics\.fx.*number"),
+    ],
+)
 def test_bad_json_fields(saved, edit, field):
     root, doc = saved
     edit(doc)
@@ -320,6 +343,7 @@ def test_sixteen_bit_colour_png_round_trips(tmp_path):
 
 # ---------------------------------------------------------------- near-rigid poses (issue 13 row 10)
 
+
 @pytest.mark.parametrize("decimals", [4, 5])
 def test_poses_rounded_to_a_few_decimals_load_re_orthonormalised(saved, decimals):
     root, doc = saved
@@ -372,6 +396,7 @@ def test_nearest_rigid_within_tolerance_is_the_svd_rotation():
 
 # ---------------------------------------------------------------- corrupt files and wrong types (issue 13 row 9)
 
+
 def test_truncated_events_npz_names_file(saved):
     root, _ = saved
     data = (root / "events.npz").read_bytes()
@@ -407,6 +432,7 @@ def test_capture_json_that_is_not_json(saved):
 
 # ---------------------------------------------------------------- gt.json
 
+
 def test_read_ground_truth_of_a_written_scene(tmp_path):
     from scenes import make_scene, write_scene
 
@@ -424,6 +450,8 @@ def test_read_ground_truth_of_a_written_scene(tmp_path):
 def test_read_ground_truth_errors_name_file_and_field(tmp_path):
     with pytest.raises(CaptureError, match=r"gt\.json.*not found"):
         fmt.read_ground_truth(tmp_path)
-    (tmp_path / "gt.json").write_text(json.dumps({"frames": [{"name": "a", "trajectory": {"t": [0, 1], "c2w": [[1]]}}]}))
+    (tmp_path / "gt.json").write_text(
+        json.dumps({"frames": [{"name": "a", "trajectory": {"t": [0, 1], "c2w": [[1]]}}]})
+    )
     with pytest.raises(CaptureError, match=r"gt\.json.*frames\[0\]\.trajectory"):
         fmt.read_ground_truth(tmp_path)

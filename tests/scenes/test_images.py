@@ -1,4 +1,5 @@
 """scenes.images: the one image reader/writer; 16-bit PNGs of every filter type, from other tools."""
+
 import struct
 import zlib
 
@@ -42,8 +43,12 @@ def _filtered_png16(ints: np.ndarray, filter_type: int) -> bytes:  # ints [H, W,
         out.append(bytes([filter_type]) + ((r - pred) % 256).astype(np.uint8).tobytes())
         prev = r
     colour = 0 if d == 1 else 2
-    return (b"\x89PNG\r\n\x1a\n" + _chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 16, colour, 0, 0, 0))
-            + _chunk(b"IDAT", zlib.compress(b"".join(out))) + _chunk(b"IEND", b""))
+    return (
+        b"\x89PNG\r\n\x1a\n"
+        + _chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 16, colour, 0, 0, 0))
+        + _chunk(b"IDAT", zlib.compress(b"".join(out)))
+        + _chunk(b"IEND", b"")
+    )
 
 
 @pytest.mark.parametrize("shape", SHAPES)
@@ -71,8 +76,10 @@ def test_lossless_mode_picks_png8_png16_or_npy(tmp_path, shape):
 
 def test_explicit_bits_quantise_and_clip(tmp_path):
     img = np.array([[[-0.5], [0.5], [2.0]]], np.float32)
-    np.testing.assert_array_equal(read_image(write_image(tmp_path / "q", img, bits=8))[0, :, 0],
-                                  np.array([0, 128, 255], np.float32) / np.float32(255))
+    np.testing.assert_array_equal(
+        read_image(write_image(tmp_path / "q", img, bits=8))[0, :, 0],
+        np.array([0, 128, 255], np.float32) / np.float32(255),
+    )
 
 
 @pytest.mark.parametrize("filter_type", [0, 1, 2, 3, 4])

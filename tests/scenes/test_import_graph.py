@@ -1,4 +1,5 @@
 """No import cycle inside scenes/ or edi/, counting imports inside functions (issue 33)."""
+
 from __future__ import annotations
 
 import ast
@@ -41,7 +42,7 @@ def _cycle(graph: dict[str, set[str]], pkg: str) -> list[str] | None:
             if n == pkg or n not in graph:
                 continue
             if state.get(n) == 1:
-                return stack[stack.index(n):] + [n]
+                return stack[stack.index(n) :] + [n]
             if n not in state and (found := visit(n)) is not None:
                 return found
         stack.pop()

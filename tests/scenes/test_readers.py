@@ -1,4 +1,5 @@
 """Real layouts: the Event Camera Dataset's slider_depth, pose interpolation, AEDAT4."""
+
 from pathlib import Path
 
 import numpy as np
@@ -127,7 +128,9 @@ def _write_evdeblurnerf(root: Path, cap, t_scale=1.0):
         rows.append(np.concatenate([m.ravel(), [0.5, 20.0]]))
         Image.fromarray(np.round(cap.frames[i, ..., 0] * 255).astype(np.uint8)).save(root / "images_1" / f"{i:03d}.png")
     np.save(root / "poses_bounds.npy", np.array(rows))
-    np.savez(root / "images_1" / "timestamps.npz", start=cap.exposures[:, 0] * t_scale, end=cap.exposures[:, 1] * t_scale)
+    np.savez(
+        root / "images_1" / "timestamps.npz", start=cap.exposures[:, 0] * t_scale, end=cap.exposures[:, 1] * t_scale
+    )
     with h5py.File(root / "events.h5", "w") as hf:
         g = hf.create_group("events")
         for k in "txyp":

@@ -7,6 +7,7 @@ thread, so deterministic): ATE 0.26% of the slide, rotation error 0.52 deg mean,
 reprojection 0.34 px, 1166 points. Frames left distorted (the reader's undistortion lost) give
 ATE 0.85% and rotation 2.4 deg mean, 4.9 deg max.
 """
+
 from pathlib import Path
 
 import numpy as np

@@ -1,4 +1,5 @@
 """The ray-cast renderer against analytic projections and ray-plane / ray-sphere intersections."""
+
 import numpy as np
 import pytest
 from matplotlib.path import Path as MplPath
@@ -61,8 +62,9 @@ def test_quad_texture_and_depth_match_analytic_ray_plane_intersection():
     fx, fy = x - x0, y - y0
     cl = lambda a, m: np.clip(a, 0, m - 1)  # noqa: E731
     t = tex[..., 0]
-    want = ((1 - fy) * ((1 - fx) * t[cl(y0, th), cl(x0, tw)] + fx * t[cl(y0, th), cl(x0 + 1, tw)])
-            + fy * ((1 - fx) * t[cl(y0 + 1, th), cl(x0, tw)] + fx * t[cl(y0 + 1, th), cl(x0 + 1, tw)]))
+    want = (1 - fy) * ((1 - fx) * t[cl(y0, th), cl(x0, tw)] + fx * t[cl(y0, th), cl(x0 + 1, tw)]) + fy * (
+        (1 - fx) * t[cl(y0 + 1, th), cl(x0, tw)] + fx * t[cl(y0 + 1, th), cl(x0 + 1, tw)]
+    )
     np.testing.assert_allclose(img[..., 0].ravel()[inner], want, atol=1e-4)
 
 

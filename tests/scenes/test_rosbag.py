@@ -1,4 +1,5 @@
 """ROS1 bags of the rpg_dvs_ros driver: a fixture bag written here with rosbags' writer."""
+
 import sys
 from pathlib import Path
 
@@ -50,31 +51,61 @@ def write_bag(path: Path, exposure_topic=True, camera_info=True, encoding="mono8
     msgs = []  # (bag time ns, kind, message)
     for i in range(0, len(t_us), chunk):
         sl = slice(i, i + chunk)
-        evs = [Event(x=int(a), y=int(b), ts=_time(store, T0_NS + int(t) * 1000), polarity=bool(c))
-               for a, b, t, c in zip(x[sl], y[sl], t_us[sl], p[sl])]
+        evs = [
+            Event(x=int(a), y=int(b), ts=_time(store, T0_NS + int(t) * 1000), polarity=bool(c))
+            for a, b, t, c in zip(x[sl], y[sl], t_us[sl], p[sl])
+        ]
         ns = T0_NS + int(t_us[sl][0]) * 1000
         msgs.append((ns, "events", EventArray(header=_header(store, ns), height=H, width=W, events=evs)))
     for k, s in enumerate(FRAME_STAMPS_US):
         ns = T0_NS + s * 1000
         data = frames[k][..., ::-1] if encoding == "bgr8" else frames[k]
-        msgs.append((ns + 1, "image", Image(header=_header(store, ns, k), height=H, width=W, encoding=encoding,
-                                            is_bigendian=0, step=W * d, data=data.reshape(-1).copy())))
+        msgs.append(
+            (
+                ns + 1,
+                "image",
+                Image(
+                    header=_header(store, ns, k),
+                    height=H,
+                    width=W,
+                    encoding=encoding,
+                    is_bigendian=0,
+                    step=W * d,
+                    data=data.reshape(-1).copy(),
+                ),
+            )
+        )
         if exposure_topic:
             msgs.append((ns + 2, "exposure", Int32(data=EXPOSURES_US[k])))
     if camera_info:
         info = store.types["sensor_msgs/msg/CameraInfo"](
-            header=_header(store, T0_NS), height=H, width=W, distortion_model="plumb_bob",
-            D=np.array([0.01, -0.002, 0.0, 0.0, 0.0]), K=np.array([6.0, 0, 3.2, 0, 6.5, 2.1, 0, 0, 1]),
-            R=np.eye(3).reshape(-1), P=np.zeros(12), binning_x=0, binning_y=0,
-            roi=store.types["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0,
-                                                                do_rectify=False))
+            header=_header(store, T0_NS),
+            height=H,
+            width=W,
+            distortion_model="plumb_bob",
+            D=np.array([0.01, -0.002, 0.0, 0.0, 0.0]),
+            K=np.array([6.0, 0, 3.2, 0, 6.5, 2.1, 0, 0, 1]),
+            R=np.eye(3).reshape(-1),
+            P=np.zeros(12),
+            binning_x=0,
+            binning_y=0,
+            roi=store.types["sensor_msgs/msg/RegionOfInterest"](
+                x_offset=0, y_offset=0, height=0, width=0, do_rectify=False
+            ),
+        )
         msgs.append((T0_NS, "camera_info", info))
-    topics = {"events": ("/dvs/events", "dvs_msgs/msg/EventArray"), "image": ("/dvs/image_raw", "sensor_msgs/msg/Image"),
-              "exposure": ("/dvs/exposure", "std_msgs/msg/Int32"),
-              "camera_info": ("/dvs/camera_info", "sensor_msgs/msg/CameraInfo")}
+    topics = {
+        "events": ("/dvs/events", "dvs_msgs/msg/EventArray"),
+        "image": ("/dvs/image_raw", "sensor_msgs/msg/Image"),
+        "exposure": ("/dvs/exposure", "std_msgs/msg/Int32"),
+        "camera_info": ("/dvs/camera_info", "sensor_msgs/msg/CameraInfo"),
+    }
     with Writer(path) as writer:
-        conns = {k: writer.add_connection(t, mt, typestore=store) for k, (t, mt) in topics.items()
-                 if any(m[1] == k for m in msgs)}
+        conns = {
+            k: writer.add_connection(t, mt, typestore=store)
+            for k, (t, mt) in topics.items()
+            if any(m[1] == k for m in msgs)
+        }
         for ns, kind, msg in sorted(msgs, key=lambda m: m[0]):
             writer.write(conns[kind], ns, store.serialize_ros1(msg, topics[kind][1]))
     return dict(t_us=t_us, x=x, y=y, p=p, frames=frames)
@@ -125,8 +156,9 @@ def test_events_decoded_with_numpy_match_rosbags_deserialiser(tmp_path):
             arr, w, h = decode_event_array(raw)
             msg = store.deserialize_ros1(raw, conn.msgtype)
             assert (w, h) == (msg.width, msg.height) == (W, H)
-            assert [(e.x, e.y, e.ts.sec, e.ts.nanosec, e.polarity) for e in msg.events] == \
-                [(int(a["x"]), int(a["y"]), int(a["sec"]), int(a["nsec"]), bool(a["p"])) for a in arr]
+            assert [(e.x, e.y, e.ts.sec, e.ts.nanosec, e.polarity) for e in msg.events] == [
+                (int(a["x"]), int(a["y"]), int(a["sec"]), int(a["nsec"]), bool(a["p"])) for a in arr
+            ]
 
 
 def test_bgr_colour_frames(tmp_path):

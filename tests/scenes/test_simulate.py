@@ -1,4 +1,5 @@
 """Event simulator: known values, the two kernels agree, noise, refractory, bad inputs."""
+
 import math
 
 import numpy as np
@@ -118,18 +119,21 @@ def test_colour_is_averaged_to_grey():
         np.testing.assert_array_equal(getattr(a, k), getattr(b, k))
 
 
-@pytest.mark.parametrize("kwargs, word", [
-    (dict(images=np.zeros((1, 3, 3)), times=[0.0]), "images"),
-    (dict(images=np.zeros((3, 3)), times=[0.0, 1.0, 2.0]), "images"),
-    (dict(images=np.zeros((2, 3, 3, 2)), times=[0.0, 1.0]), "images"),
-    (dict(images=np.full((2, 3, 3), np.nan), times=[0.0, 1.0]), "images"),
-    (dict(images=np.zeros((2, 3, 3)), times=[1.0, 1.0]), "times"),
-    (dict(images=np.zeros((2, 3, 3)), times=[0.0, 1.0, 2.0]), "times"),
-    (dict(images=np.zeros((2, 3, 3)), times=[0.0, 1.0], c=0.0), "c"),
-    (dict(images=np.zeros((2, 3, 3)), times=[0.0, 1.0], sigma_c=-1.0), "sigma_c"),
-    (dict(images=np.zeros((2, 3, 3)), times=[0.0, 1.0], noise_hz=-1.0), "noise_hz"),
-    (dict(images=np.zeros((2, 3, 3)), times=[0.0, 1.0], hot_pixels=1.5), "hot_pixels"),
-])
+@pytest.mark.parametrize(
+    "kwargs, word",
+    [
+        (dict(images=np.zeros((1, 3, 3)), times=[0.0]), "images"),
+        (dict(images=np.zeros((3, 3)), times=[0.0, 1.0, 2.0]), "images"),
+        (dict(images=np.zeros((2, 3, 3, 2)), times=[0.0, 1.0]), "images"),
+        (dict(images=np.full((2, 3, 3), np.nan), times=[0.0, 1.0]), "images"),
+        (dict(images=np.zeros((2, 3, 3)), times=[1.0, 1.0]), "times"),
+        (dict(images=np.zeros((2, 3, 3)), times=[0.0, 1.0, 2.0]), "times"),
+        (dict(images=np.zeros((2, 3, 3)), times=[0.0, 1.0], c=0.0), "c"),
+        (dict(images=np.zeros((2, 3, 3)), times=[0.0, 1.0], sigma_c=-1.0), "sigma_c"),
+        (dict(images=np.zeros((2, 3, 3)), times=[0.0, 1.0], noise_hz=-1.0), "noise_hz"),
+        (dict(images=np.zeros((2, 3, 3)), times=[0.0, 1.0], hot_pixels=1.5), "hot_pixels"),
+    ],
+)
 def test_bad_inputs_name_the_argument(kwargs, word):
     with pytest.raises(ValueError, match=word):
         simulate_events(**kwargs)
@@ -139,8 +143,12 @@ from hypothesis import given, settings, strategies as st  # noqa: E402
 
 
 @settings(max_examples=25, deadline=None)
-@given(seed=st.integers(0, 10_000), s=st.integers(2, 12), sigma=st.sampled_from([0.0, 0.05]),
-       refractory=st.sampled_from([0.0, 0.003]))
+@given(
+    seed=st.integers(0, 10_000),
+    s=st.integers(2, 12),
+    sigma=st.sampled_from([0.0, 0.05]),
+    refractory=st.sampled_from([0.0, 0.003]),
+)
 def test_kernels_agree_property(seed, s, sigma, refractory):
     rng = np.random.default_rng(seed)
     imgs = rng.uniform(0, 1, (s, 3, 4)) ** 3

@@ -1,6 +1,7 @@
 """Synthetic scenes: blur, ground truth, events consistent with the renders, writing (the CLI:
 tests/ebad/cli/test_synth.py);
 the realistic sensor (response, thresholds, noise, tremor, poses) and the no-leak property."""
+
 import json
 import math
 import time
@@ -145,15 +146,28 @@ def test_noise_adds_events():
     assert abs(extra - expected) < 5 * math.sqrt(expected)
 
 
-@pytest.mark.parametrize("kwargs, word", [
-    (dict(name="teapot"), "name"), (dict(size="huge"), "size"), (dict(shake=-1.0), "shake"),
-    (dict(n_frames=1), "n_frames"), (dict(n_test=20), "n_test"), (dict(exposure=0.5), "exposure"),
-    (dict(sharp_fraction=2.0), "sharp_fraction"), (dict(sensor="dvxplorer"), "sensor"),
-    (dict(poses="maybe"), "sensor.poses"), (dict(c=-0.1), "sensor.c_pos"), (dict(c=(0.2, 0.0)), "sensor.c_neg"),
-    (dict(c="big"), "c"), (dict(tremor=-1.0), "sensor.tremor"), (dict(noise_hz=float("nan")), "sensor.noise_hz"),
-    (dict(sensor=Sensor(bits=12)), "sensor.bits"), (dict(sensor=Sensor(black_level=1.0)), "sensor.black_level"),
-    (dict(sensor=Sensor(luminance=(0.5, 0.5, 0.5))), "sensor.luminance"),
-])
+@pytest.mark.parametrize(
+    "kwargs, word",
+    [
+        (dict(name="teapot"), "name"),
+        (dict(size="huge"), "size"),
+        (dict(shake=-1.0), "shake"),
+        (dict(n_frames=1), "n_frames"),
+        (dict(n_test=20), "n_test"),
+        (dict(exposure=0.5), "exposure"),
+        (dict(sharp_fraction=2.0), "sharp_fraction"),
+        (dict(sensor="dvxplorer"), "sensor"),
+        (dict(poses="maybe"), "sensor.poses"),
+        (dict(c=-0.1), "sensor.c_pos"),
+        (dict(c=(0.2, 0.0)), "sensor.c_neg"),
+        (dict(c="big"), "c"),
+        (dict(tremor=-1.0), "sensor.tremor"),
+        (dict(noise_hz=float("nan")), "sensor.noise_hz"),
+        (dict(sensor=Sensor(bits=12)), "sensor.bits"),
+        (dict(sensor=Sensor(black_level=1.0)), "sensor.black_level"),
+        (dict(sensor=Sensor(luminance=(0.5, 0.5, 0.5))), "sensor.luminance"),
+    ],
+)
 def test_make_scene_bad_arguments(kwargs, word):
     with pytest.raises(CaptureError, match=word):  # an EbadError: the CLI prints it as one line
         make_scene(**kwargs)

@@ -28,11 +28,13 @@ def _rotmat(q: Tensor) -> Tensor:  # [N, 4] -> [N, 3, 3]
 def brute_render(means, quats, scales, opacities, colors, viewmats, Ks, width, height, background=None):
     """Float64 images [C, H, W, D] and alphas [C, H, W, 1], differentiable by autograd."""
     means, quats, scales, opacities, colors, viewmats, Ks = (
-        t.double() for t in (means, quats, scales, opacities, colors, viewmats, Ks))
+        t.double() for t in (means, quats, scales, opacities, colors, viewmats, Ks)
+    )
     bg = None if background is None else background.double()
     n, d = colors.shape
-    jj, ii = torch.meshgrid(torch.arange(height, dtype=torch.float64),
-                            torch.arange(width, dtype=torch.float64), indexing="ij")
+    jj, ii = torch.meshgrid(
+        torch.arange(height, dtype=torch.float64), torch.arange(width, dtype=torch.float64), indexing="ij"
+    )
     px, py = ii + 0.5, jj + 0.5
     cov3 = _rotmat(quats) @ torch.diag_embed(scales**2) @ _rotmat(quats).transpose(1, 2) if n else None
     images, alphas = [], []
@@ -55,8 +57,9 @@ def brute_render(means, quats, scales, opacities, colors, viewmats, Ks, width, h
             tan_x, tan_y = 0.5 * width / fx, 0.5 * height / fy
             xj = z * torch.clamp(x / z, min=-(cx / fx + 0.3 * tan_x), max=(width - cx) / fx + 0.3 * tan_x)
             yj = z * torch.clamp(y / z, min=-(cy / fy + 0.3 * tan_y), max=(height - cy) / fy + 0.3 * tan_y)
-            jac = torch.stack([torch.stack([fx / z, 0 * z, -fx * xj / z**2]),
-                               torch.stack([0 * z, fy / z, -fy * yj / z**2])])
+            jac = torch.stack(
+                [torch.stack([fx / z, 0 * z, -fx * xj / z**2]), torch.stack([0 * z, fy / z, -fy * yj / z**2])]
+            )
             cov2 = jac @ w2c[:3, :3] @ cov3[i] @ w2c[:3, :3].T @ jac.T + 0.3 * torch.eye(2, dtype=torch.float64)
             if not torch.linalg.det(cov2) > 0:
                 continue

@@ -8,8 +8,16 @@ import pytest
 import torch
 
 
-def make_scene(n: int, d: int = 1, n_cams: int = 2, width: int = 37, height: int = 29, seed: int = 0,
-               dtype: torch.dtype = torch.float64, dense: bool = True) -> list[torch.Tensor]:
+def make_scene(
+    n: int,
+    d: int = 1,
+    n_cams: int = 2,
+    width: int = 37,
+    height: int = 29,
+    seed: int = 0,
+    dtype: torch.dtype = torch.float64,
+    dense: bool = True,
+) -> list[torch.Tensor]:
     """Gaussians around the origin seen by n_cams cameras about 4 units away, looking down +z.
 
     `dense` makes the scene opaque enough that many pixels stop on T_MIN, some Gaussians
@@ -22,7 +30,7 @@ def make_scene(n: int, d: int = 1, n_cams: int = 2, width: int = 37, height: int
     opac = torch.rand(n, generator=g, dtype=torch.float64)
     if dense and n >= 10:
         opac[: n // 5] = 1.0  # saturate ALPHA_MAX at their centres
-        opac[n // 5: n // 5 + 2] = 0.002  # below ALPHA_MIN everywhere
+        opac[n // 5 : n // 5 + 2] = 0.002  # below ALPHA_MIN everywhere
         means[-1, 2] = -10.0  # behind every camera
         means[-2, 0] = 40.0  # far off screen
     colors = torch.rand(n, d, generator=g, dtype=torch.float64)

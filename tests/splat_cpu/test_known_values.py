@@ -26,8 +26,13 @@ def _gaussians(depths, opacities, colors, scale):
     means[:, 2] = torch.tensor(depths, dtype=torch.float64)
     quats = torch.tensor([[2.0, 0, 0, 0]], dtype=torch.float64).repeat(n, 1)  # unnormalised identity
     scales = torch.full((n, 3), scale, dtype=torch.float64)
-    return (means, quats, scales, torch.tensor(opacities, dtype=torch.float64),
-            torch.tensor(colors, dtype=torch.float64)[:, None])
+    return (
+        means,
+        quats,
+        scales,
+        torch.tensor(opacities, dtype=torch.float64),
+        torch.tensor(colors, dtype=torch.float64)[:, None],
+    )
 
 
 @pytest.mark.parametrize("path", list(PATHS))

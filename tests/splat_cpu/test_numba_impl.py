@@ -24,9 +24,22 @@ from .conftest import make_scene
 REPO = Path(__file__).resolve().parents[2]
 
 # torch ops that only wrap, view or allocate memory: no arithmetic, no parallel region
-_NO_KERNEL_OPS = {"aten::as_strided", "aten::detach", "aten::empty", "aten::empty_like", "aten::empty_strided",
-                  "aten::lift_fresh", "aten::resolve_conj", "aten::resolve_neg", "aten::select", "aten::to",
-                  "aten::alias", "aten::view", "aten::_to_copy_no_op", "detach"}
+_NO_KERNEL_OPS = {
+    "aten::as_strided",
+    "aten::detach",
+    "aten::empty",
+    "aten::empty_like",
+    "aten::empty_strided",
+    "aten::lift_fresh",
+    "aten::resolve_conj",
+    "aten::resolve_neg",
+    "aten::select",
+    "aten::to",
+    "aten::alias",
+    "aten::view",
+    "aten::_to_copy_no_op",
+    "detach",
+}
 
 _LAYER_PROBE = """
 import numba, torch, splat_cpu
@@ -40,8 +53,9 @@ def _layer_in_subprocess(env_update: dict[str, str]) -> str:
     env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_THREADING_LAYER", "OMP_WAIT_POLICY")}
     env.update(env_update)
     env["PYTHONPATH"] = os.pathsep.join([str(REPO), env.get("PYTHONPATH", "")])
-    out = subprocess.run([sys.executable, "-c", _LAYER_PROBE], capture_output=True, text=True, env=env, cwd=REPO,
-                         timeout=300)
+    out = subprocess.run(
+        [sys.executable, "-c", _LAYER_PROBE], capture_output=True, text=True, env=env, cwd=REPO, timeout=300
+    )
     assert out.returncode == 0, out.stderr
     return out.stdout.strip().splitlines()[-1]
 

@@ -72,8 +72,7 @@ def _bin(inputs, width, height):
     m2, co = m2.astype(dt), co.astype(dt)
     order = np.argsort(np.where(valid, dep, np.inf), axis=1, kind="stable")
     tiles_x, tiles_y = -(-width // TILE), -(-height // TILE)
-    tile_start, gid, rows = K.bin_tiles(order, valid.sum(axis=1), box, m2, co, arrs[3], width, height,
-                                        tiles_x, tiles_y)
+    tile_start, gid, rows = K.bin_tiles(order, valid.sum(axis=1), box, m2, co, arrs[3], width, height, tiles_x, tiles_y)
     return m2.astype(np.float64), co.astype(np.float64), arrs[3].astype(np.float64), valid, tile_start, gid, rows
 
 

@@ -207,7 +207,7 @@ def test_batched_cameras_equal_one_by_one():
     bg = torch.tensor([0.1, 0.5, 0.9], dtype=torch.float64)
     img, alpha, _ = splat_cpu.rasterize(*gs, viewmats, ks, 37, 29, background=bg)
     for c in range(4):
-        img_c, alpha_c, _ = splat_cpu.rasterize(*gs, viewmats[c:c + 1], ks[c:c + 1], 37, 29, background=bg)
+        img_c, alpha_c, _ = splat_cpu.rasterize(*gs, viewmats[c : c + 1], ks[c : c + 1], 37, 29, background=bg)
         # equal up to rounding of the batched projection matmuls
         _close(img[c], img_c[0], 1e-12, "images")
         _close(alpha[c], alpha_c[0], 1e-12, "alphas")
@@ -217,8 +217,8 @@ def test_batched_cameras_equal_one_by_one():
     g_batch = torch.autograd.grad((splat_cpu.rasterize(*leaves, viewmats, ks, 37, 29)[0] * cot).sum(), leaves)
     g_sum = [torch.zeros_like(t) for t in gs]
     for c in range(4):
-        img_c = splat_cpu.rasterize(*leaves, viewmats[c:c + 1], ks[c:c + 1], 37, 29)[0]
-        for acc, g in zip(g_sum, torch.autograd.grad((img_c * cot[c:c + 1]).sum(), leaves)):
+        img_c = splat_cpu.rasterize(*leaves, viewmats[c : c + 1], ks[c : c + 1], 37, 29)[0]
+        for acc, g in zip(g_sum, torch.autograd.grad((img_c * cot[c : c + 1]).sum(), leaves)):
             acc += g
     for name, a, b in zip(NAMES, g_batch, g_sum):
         _close(a, b, 1e-12, name)
@@ -255,8 +255,17 @@ def test_no_gaussians_renders_the_background(path):
 def test_public_functions_with_no_gaussians_and_no_background():
     viewmats, ks = make_scene(1, n_cams=1, dtype=torch.float32)[5:]
     for fn in (splat_cpu.rasterize, splat_cpu.rasterize_reference):
-        img, alpha, _ = fn(torch.zeros(0, 3), torch.zeros(0, 4), torch.zeros(0, 3), torch.zeros(0),
-                           torch.zeros(0, 1), viewmats, ks, 4, 4)
+        img, alpha, _ = fn(
+            torch.zeros(0, 3),
+            torch.zeros(0, 4),
+            torch.zeros(0, 3),
+            torch.zeros(0),
+            torch.zeros(0, 1),
+            viewmats,
+            ks,
+            4,
+            4,
+        )
         assert torch.equal(img, torch.zeros(1, 4, 4, 1)) and torch.equal(alpha, torch.zeros(1, 4, 4, 1))
 
 
@@ -266,8 +275,18 @@ def test_public_functions_with_no_gaussians_and_no_background():
 
 def _valid_args():
     means, quats, scales, opac, colors, viewmats, ks = make_scene(5, d=3, n_cams=1, dtype=torch.float32)
-    return dict(means=means, quats=quats, scales=scales, opacities=opac, colors=colors, viewmats=viewmats,
-                Ks=ks, width=37, height=29, background=torch.zeros(3))
+    return dict(
+        means=means,
+        quats=quats,
+        scales=scales,
+        opacities=opac,
+        colors=colors,
+        viewmats=viewmats,
+        Ks=ks,
+        width=37,
+        height=29,
+        background=torch.zeros(3),
+    )
 
 
 def _nan_at(t):

@@ -133,7 +133,9 @@ def test_hundred_thousand_gaussians_in_one_tile():
     # a pixel sees alpha >= 1/255 from every Gaussian or none: (1 - 1/255)^k <= T_MIN by k = 2350,
     # so the first 3000 Gaussians give the same image
     k = 3000
-    img_r, alpha_r, _ = rasterize_reference(means[:k], quats[:k], scales[:k], opac[:k], colors[:k], viewmats, ks, 16, 16)
+    img_r, alpha_r, _ = rasterize_reference(
+        means[:k], quats[:k], scales[:k], opac[:k], colors[:k], viewmats, ks, 16, 16
+    )
     _close(img, img_r, 1e-5, "images")
     _close(alpha, alpha_r, 1e-5, "alphas")
     assert float(leaves[4].grad[k:].abs().max()) == 0.0

@@ -1,4 +1,5 @@
 """``ebad deblur``: inputs, faults (issue 13, rows 2, 6, 7, 9) and what it says when c cannot be trusted."""
+
 import json
 from pathlib import Path
 
@@ -73,7 +74,9 @@ def test_epoch_nanoseconds_are_read_as_nanoseconds(tmp_path, frame_and_events, c
     out = capsys.readouterr().out
     assert rc == 0 and "time unit ns (integer timestamps from 1.7e+18: ns since 1970" in out
     assert "exposure from the events' span: 0.000000 .. 0.0396" in out  # 39.65 ms, not 39.65 s
-    rc = main(["deblur", str(png), "--events", str(tmp_path / "ns.npz"), "--t-unit", "us", "--out", str(tmp_path / "o2")])
+    rc = main(
+        ["deblur", str(png), "--events", str(tmp_path / "ns.npz"), "--t-unit", "us", "--out", str(tmp_path / "o2")]
+    )
     assert rc == 0 and "time unit us (given)" in capsys.readouterr().out
     # relative times spanning 1e9 to 1e10 are refused unless the unit is given
     z["t"] = (z["t"] - z["t"][0]) * 100
@@ -145,12 +148,37 @@ def test_cli_deblur_frame_and_mat_events(tmp_path):
     from ebad.cli import main
 
     out = tmp_path / "out"
-    rc = main(["deblur", str(NI / "toy.png"), "--events", str(NI / "toy.mat"), "--out", str(out), "--c", "0.25", "--times", "3"])
+    rc = main(
+        [
+            "deblur",
+            str(NI / "toy.png"),
+            "--events",
+            str(NI / "toy.mat"),
+            "--out",
+            str(out),
+            "--c",
+            "0.25",
+            "--times",
+            "3",
+        ]
+    )
     assert rc == 0
     sharp = io.imread(out / "sharp" / "toy.png")
     assert sharp.shape == (260, 346) and sharp.dtype == np.uint16  # 16-bit by default
-    rc = main(["deblur", str(NI / "toy.png"), "--events", str(NI / "toy.mat"), "--out", str(tmp_path / "o8"),
-               "--c", "0.25", "--bits", "8"])
+    rc = main(
+        [
+            "deblur",
+            str(NI / "toy.png"),
+            "--events",
+            str(NI / "toy.mat"),
+            "--out",
+            str(tmp_path / "o8"),
+            "--c",
+            "0.25",
+            "--bits",
+            "8",
+        ]
+    )
     sharp8 = io.imread(tmp_path / "o8" / "sharp" / "toy.png")
     assert rc == 0 and sharp8.dtype == np.uint8
     assert np.abs(sharp8 / 255.0 - sharp / 65535.0).max() <= 0.5 / 255 + 1e-6  # the same image
@@ -193,8 +221,25 @@ def test_gamma_linearises_the_frame_and_writes_what_it_used(tmp_path, capsys):
     np.savez(npz, t=ev.t, x=ev.x, y=ev.y, p=ev.p, width=ev.width, height=ev.height)
     ex = [str(v) for v in s.exposures[0]]
     out = tmp_path / "o"
-    assert main(["deblur", str(png), "--events", str(npz), "--exposure", *ex, "--c", "0.2", "--gamma", "0.8",
-                 "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "deblur",
+                str(png),
+                "--events",
+                str(npz),
+                "--exposure",
+                *ex,
+                "--c",
+                "0.2",
+                "--gamma",
+                "0.8",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     meta = json.loads((out / "c.json").read_text())
     assert meta["gamma"] == 0.8 and meta["gamma_source"] == "given (--gamma)"
     want = edi.deblur(read_image(png, "frame"), s.exposures[0], s.events, c=0.2, gamma=0.8)

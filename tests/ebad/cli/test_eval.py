@@ -1,4 +1,5 @@
 """``ebad eval``: scores before and after pose refinement, the renders and the JSON it writes."""
+
 from __future__ import annotations
 
 import json
@@ -8,8 +9,23 @@ from ebad.cli import main
 
 def test_eval_cli_reports_before_and_after_and_writes_renders(tiny_run, tmp_path, capsys):
     out = tmp_path / "renders"
-    assert main(["eval", str(tiny_run.run), str(tiny_run.capture), "--refine-poses", "--refine-iters", "30",
-                 "--renders", str(out), "--out", str(tmp_path / "e.json")]) == 0
+    assert (
+        main(
+            [
+                "eval",
+                str(tiny_run.run),
+                str(tiny_run.capture),
+                "--refine-poses",
+                "--refine-iters",
+                "30",
+                "--renders",
+                str(out),
+                "--out",
+                str(tmp_path / "e.json"),
+            ]
+        )
+        == 0
+    )
     text = capsys.readouterr().out
     assert "test views, poses refined" in text and "deblurred training frames" in text
     res = json.loads((tmp_path / "e.json").read_text())

@@ -1,4 +1,5 @@
 """The ``ebad`` dispatcher: user mistakes are one line and exit 2; bugs are not disguised."""
+
 from __future__ import annotations
 
 import dataclasses
@@ -28,8 +29,10 @@ def test_os_error_names_the_path(tmp_path, capsys, monkeypatch):
     assert f"{tmp_path / 'locked'}: Permission denied" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("exc", [ValueError("operands could not be broadcast together"), KeyError("x"),
-                                 IndexError("index 3 is out of bounds")])
+@pytest.mark.parametrize(
+    "exc",
+    [ValueError("operands could not be broadcast together"), KeyError("x"), IndexError("index 3 is out of bounds")],
+)
 def test_internal_error_is_not_disguised(monkeypatch, exc):
     def fail(args):
         raise exc
@@ -58,8 +61,11 @@ def test_every_module_is_a_subcommand():
     assert set(NAMES) == {"deblur", "demo", "eval", "reconstruct", "render", "synth", "video", "view"}
 
 
-@pytest.mark.parametrize("argv", [["--help"], *([n, "--help"] for n in NAMES), ["reconstruct", "--preset", "bad", "-h"]],
-                         ids=lambda a: " ".join(a))
+@pytest.mark.parametrize(
+    "argv",
+    [["--help"], *([n, "--help"] for n in NAMES), ["reconstruct", "--preset", "bad", "-h"]],
+    ids=lambda a: " ".join(a),
+)
 def test_help_is_one_usage_block_and_exits_0(argv, capsys, monkeypatch):
     monkeypatch.setenv("COLUMNS", "100")
     assert main(argv) == 0
@@ -68,8 +74,16 @@ def test_help_is_one_usage_block_and_exits_0(argv, capsys, monkeypatch):
     assert err == ""
 
 
-REQUIRED = {"deblur": ["INPUT", "--out"], "demo": [], "eval": ["RUN", "CAPTURE"], "reconstruct": ["CAPTURE", "--out"],
-            "render": ["RUN", "--out"], "synth": ["NAME", "--out"], "video": ["RUN", "--out"], "view": ["RUN"]}
+REQUIRED = {
+    "deblur": ["INPUT", "--out"],
+    "demo": [],
+    "eval": ["RUN", "CAPTURE"],
+    "reconstruct": ["CAPTURE", "--out"],
+    "render": ["RUN", "--out"],
+    "synth": ["NAME", "--out"],
+    "video": ["RUN", "--out"],
+    "view": ["RUN"],
+}
 
 
 @pytest.mark.parametrize("name", NAMES)
@@ -82,26 +96,35 @@ def test_required_options_show_as_required(name, capsys, monkeypatch):
     for option in REQUIRED[name]:
         if option.startswith("--"):  # not [--option] in the usage line, and its help says required
             assert f"[{option}" not in text.splitlines()[0]
-            entry = text[text.index(f"{option} "):]
-            assert "(required)" in entry[:entry.find("│ --", 1)], option
+            entry = text[text.index(f"{option} ") :]
+            assert "(required)" in entry[: entry.find("│ --", 1)], option
     mod = next(m for m in _commands() if m.NAME == name)
-    assert len(REQUIRED[name]) == sum(f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING
-                                      for f in dataclasses.fields(mod.Args))
+    assert len(REQUIRED[name]) == sum(
+        f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING
+        for f in dataclasses.fields(mod.Args)
+    )
 
 
 # --------------------------------------------------------------------------- mistakes on the command line
 
-@pytest.mark.parametrize("argv, expected", [
-    (["render", "RUN", "--out", "o", "--splt", "train"], "unrecognized argument(s): --splt (did you mean --split?)"),
-    (["reconstruct", "CAP", "--out", "o", "--trian.iters", "3"], "--trian.iters (did you mean --train.iters?)"),
-    (["render", "RUN"], "missing required argument(s): --out"),
-    (["eval", "RUN"], "missing required argument(s): CAPTURE"),
-    (["render", "RUN", "--out", "o", "--bits", "12"], "--bits: invalid choice '12', choose one of 8, 16"),
-    (["reconstruct", "CAP", "--out", "o", "--train.iters", "x"], "--train.iters: invalid literal for int()"),
-    (["reconstruct", "CAP", "--out", "o", "--preset", "nope"], "unknown preset 'nope'"),
-    (["frobnicate"], "unknown command frobnicate; choose one of deblur,"),
-    ([], "choose a command: deblur,"),
-])
+
+@pytest.mark.parametrize(
+    "argv, expected",
+    [
+        (
+            ["render", "RUN", "--out", "o", "--splt", "train"],
+            "unrecognized argument(s): --splt (did you mean --split?)",
+        ),
+        (["reconstruct", "CAP", "--out", "o", "--trian.iters", "3"], "--trian.iters (did you mean --train.iters?)"),
+        (["render", "RUN"], "missing required argument(s): --out"),
+        (["eval", "RUN"], "missing required argument(s): CAPTURE"),
+        (["render", "RUN", "--out", "o", "--bits", "12"], "--bits: invalid choice '12', choose one of 8, 16"),
+        (["reconstruct", "CAP", "--out", "o", "--train.iters", "x"], "--train.iters: invalid literal for int()"),
+        (["reconstruct", "CAP", "--out", "o", "--preset", "nope"], "unknown preset 'nope'"),
+        (["frobnicate"], "unknown command frobnicate; choose one of deblur,"),
+        ([], "choose a command: deblur,"),
+    ],
+)
 def test_a_bad_command_line_is_one_line_and_exits_2(argv, expected, capsys):
     assert main(argv) == 2
     out, err = capsys.readouterr()
@@ -129,4 +152,8 @@ def test_parse_runs_nothing_and_names_the_command(monkeypatch):
     parsed = parse(["eval", "RUN", "CAP", "--refine-poses", "--refine_iters", "7"])  # hyphens or underscores
     assert parsed.command is eval_cmd and not parsed.traceback
     assert (parsed.args.run, parsed.args.capture, parsed.args.refine_poses, parsed.args.refine_iters) == (
-        "RUN", "CAP", True, 7)
+        "RUN",
+        "CAP",
+        True,
+        7,
+    )

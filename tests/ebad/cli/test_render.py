@@ -1,4 +1,5 @@
 """``ebad render``: 8-bit sRGB PNGs by default (read by Pillow), 16-bit linear on request."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -48,16 +49,20 @@ def test_render_test_views_and_path(tiny_run, tmp_path):
         assert im.size == (64, 48) and im.mode == "L"
 
 
-@pytest.mark.parametrize("argv, needle", [
-    (["--split", "test"], "--capture is required"),
-    (["--path", "1"], "--path needs at least 2"),
-])
+@pytest.mark.parametrize(
+    "argv, needle",
+    [
+        (["--split", "test"], "--capture is required"),
+        (["--path", "1"], "--path needs at least 2"),
+    ],
+)
 def test_render_user_errors_exit_2_naming_the_option(tiny_run, tmp_path, capsys, argv, needle):
     assert main(["render", str(tiny_run.run), "--out", str(tmp_path / "x"), *argv]) == 2
     assert needle in capsys.readouterr().err
 
 
 # --------------------------------------------------------------------------- the smooth camera path
+
 
 def _cameras(F: int, seed: int = 0) -> np.ndarray:  # -> [F, 4, 4]
     rng = np.random.default_rng(seed)

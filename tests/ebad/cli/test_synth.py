@@ -1,4 +1,5 @@
 """``ebad synth``: a synthetic capture and its ground truth written from the command line."""
+
 import json
 import typing
 
@@ -13,8 +14,10 @@ REALISTIC = SENSORS["realistic"]
 def test_the_choices_are_the_registries_of_scenes_synth():
     # written out in ebad.cli.synth so that ``ebad --help`` does not import the scene builder
     hints = typing.get_type_hints(Args, include_extras=True)
-    literal = {name: set(typing.get_args(typing.get_args(hints[name])[0]) if name == "name" else
-                         typing.get_args(hints[name])) for name in ("name", "size", "sensor")}
+    literal = {
+        name: set(typing.get_args(typing.get_args(hints[name])[0]) if name == "name" else typing.get_args(hints[name]))
+        for name in ("name", "size", "sensor")
+    }
     assert literal == {"name": set(SCENES), "size": set(SIZES), "sensor": set(SENSORS)}
 
 
@@ -29,8 +32,25 @@ def test_cli_synth(tmp_path, capsys):
     rc = main(["synth", "spheres", "--out", str(tmp_path / "o")])
     assert rc == 2
     assert "out_dir" in capsys.readouterr().err
-    rc = main(["synth", "boxes", "--out", str(tmp_path / "i"), "--frames", "2", "--test-views", "1", "--sensor", "ideal",
-               "--poses", "none", "--c", "0.3", "0.25"])
+    rc = main(
+        [
+            "synth",
+            "boxes",
+            "--out",
+            str(tmp_path / "i"),
+            "--frames",
+            "2",
+            "--test-views",
+            "1",
+            "--sensor",
+            "ideal",
+            "--poses",
+            "none",
+            "--c",
+            "0.3",
+            "0.25",
+        ]
+    )
     assert rc == 0
     cap = load(tmp_path / "i" / "capture")
     assert cap.c2w is None and cap.test_views[0].c2w is None and cap.test_views[0].image is not None

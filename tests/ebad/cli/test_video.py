@@ -1,4 +1,5 @@
 """``ebad video``: files read back (frame count, size), camera paths, the exposure video."""
+
 from __future__ import annotations
 
 import sys
@@ -9,8 +10,14 @@ from PIL import Image
 
 import scenes
 from ebad.cli import main
-from ebad.cli.video import (PANEL_GAP, exposure_frames, exposure_instants, read_camera_path, render_views,
-                            write_camera_path)
+from ebad.cli.video import (
+    PANEL_GAP,
+    exposure_frames,
+    exposure_instants,
+    read_camera_path,
+    render_views,
+    write_camera_path,
+)
 from ebad.errors import EbadError
 from ebad.runfolder import load_run
 
@@ -85,8 +92,8 @@ def test_exposure_video_panels(tiny_run, tmp_path):
         panels, what = exposure_frames(run, name, N_INSTANTS, cap, progress=False)
         assert panels.shape == (N_INSTANTS, run.height, 3 * W + 2 * PANEL_GAP, 1) and "EDI" in what
         blurry = panels[:, :, :W]
-        edi_lat = panels[:, :, W + PANEL_GAP:2 * W + PANEL_GAP]
-        renders = panels[:, :, 2 * W + 2 * PANEL_GAP:]
+        edi_lat = panels[:, :, W + PANEL_GAP : 2 * W + PANEL_GAP]
+        renders = panels[:, :, 2 * W + 2 * PANEL_GAP :]
         np.testing.assert_allclose(blurry[0], cap.frames[cap.names.index(name)], atol=1e-6)
         # the middle instant is mid-exposure: the render is the frame's sharp mid-exposure render
         np.testing.assert_allclose(renders[N_INSTANTS // 2], run.deblurred_frames()[f], atol=1e-5)
@@ -100,8 +107,19 @@ def test_exposure_video_panels(tiny_run, tmp_path):
 def test_exposure_video_cli_and_errors(tiny_run, tmp_path, capsys):
     gif = tmp_path / "exp.gif"
     name = load_run(tiny_run.run).names[1]
-    argv = ["video", str(tiny_run.run), "--out", str(gif), "--exposure", name, "--instants", "6",
-            "--capture", str(tiny_run.capture), "--no-progress"]
+    argv = [
+        "video",
+        str(tiny_run.run),
+        "--out",
+        str(gif),
+        "--exposure",
+        name,
+        "--instants",
+        "6",
+        "--capture",
+        str(tiny_run.capture),
+        "--no-progress",
+    ]
     assert main(argv) == 0
     assert _gif(gif) == (6, (3 * 64 + 2 * PANEL_GAP, 48))
     assert "10 fps" in capsys.readouterr().out

@@ -1,4 +1,5 @@
 """``ebad view``: the viser scene, checked in a real browser (headless Chromium)."""
+
 from __future__ import annotations
 
 import shutil
@@ -22,9 +23,17 @@ MIN_SPLAT_EFFECT = 2.0  # mean |difference| in grey levels between the scene wit
 VIRTUAL_TIME_MS = 6000  # page time for the client to connect and draw (doubled on each retry)
 ATTEMPTS = 4  # a loaded machine can take longer to send the scene over the websocket: wait longer
 BROWSER_TIMEOUT_S = 120
-CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-                  "--disable-background-networking", "--disable-component-update", "--disable-sync",
-                  "--enable-unsafe-swiftshader"]  # software WebGL for this trusted local page
+CHROMIUM_FLAGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--enable-unsafe-swiftshader",
+]  # software WebGL for this trusted local page
 
 
 def _chromium() -> str | None:
@@ -47,7 +56,7 @@ def _drawn(browser: str, url: str, out, profile) -> np.ndarray:  # -> [H, W] gre
     in 13 s) is killed after ``BROWSER_TIMEOUT_S`` and counts as a failed attempt."""
     img, hung = None, 0
     for attempt in range(ATTEMPTS):
-        shot = _screenshot(browser, url, out, profile, VIRTUAL_TIME_MS * 2 ** attempt)
+        shot = _screenshot(browser, url, out, profile, VIRTUAL_TIME_MS * 2**attempt)
         if shot is None:
             hung += 1
             continue
@@ -62,8 +71,15 @@ def _screenshot(browser: str, url: str, out, profile, budget_ms: int = VIRTUAL_T
     """The page as a grey image, or None when the browser did not exit within ``BROWSER_TIMEOUT_S``."""
     from PIL import Image
 
-    cmd = [browser, *CHROMIUM_FLAGS, f"--user-data-dir={profile}", f"--screenshot={out}",
-           f"--window-size={WINDOW[0]},{WINDOW[1]}", f"--virtual-time-budget={budget_ms}", url]
+    cmd = [
+        browser,
+        *CHROMIUM_FLAGS,
+        f"--user-data-dir={profile}",
+        f"--screenshot={out}",
+        f"--window-size={WINDOW[0]},{WINDOW[1]}",
+        f"--virtual-time-budget={budget_ms}",
+        url,
+    ]
     try:
         res = subprocess.run(cmd, capture_output=True, text=True, timeout=BROWSER_TIMEOUT_S)
     except subprocess.TimeoutExpired:
@@ -89,8 +105,9 @@ def test_splat_arrays_match_the_model(tiny_run):
     # covariance = R diag(s^2) R^T: symmetric, eigenvalues the squared scales
     np.testing.assert_allclose(a["covariances"], np.swapaxes(a["covariances"], 1, 2), atol=1e-9)
     ev = np.sort(np.linalg.eigvalsh(a["covariances"].astype(np.float64)), 1)
-    np.testing.assert_allclose(ev, np.sort(act["scales"].detach().numpy().astype(np.float64) ** 2, 1),
-                               rtol=1e-3, atol=1e-9)
+    np.testing.assert_allclose(
+        ev, np.sort(act["scales"].detach().numpy().astype(np.float64) ** 2, 1), rtol=1e-3, atol=1e-9
+    )
     R = quat_to_rotmat(act["quats"][:1].detach().double())[0].numpy()
     axis_var = R[:, 0] @ a["covariances"][0].astype(np.float64) @ R[:, 0]
     assert axis_var == pytest.approx(float(act["scales"][0, 0].detach()) ** 2, rel=1e-3)
@@ -121,9 +138,13 @@ def test_view_draws_the_scene_in_a_real_browser(tiny_run, tmp_path):
         url = f"http://127.0.0.1:{server.get_port()}/"
         full = _drawn(browser, url, tmp_path / "view_scene.png", tmp_path / "profile1")
         region = full[CANVAS_ONLY]
-        assert region.std() > MIN_CANVAS_STD, f"blank canvas (std {region.std():.2f}); see {tmp_path / 'view_scene.png'}"
+        assert region.std() > MIN_CANVAS_STD, (
+            f"blank canvas (std {region.std():.2f}); see {tmp_path / 'view_scene.png'}"
+        )
         handles["splats"].visible = False
-        bare = _drawn(browser, url, tmp_path / "view_no_gaussians.png", tmp_path / "profile2")  # boxes and cameras still draw
+        bare = _drawn(
+            browser, url, tmp_path / "view_no_gaussians.png", tmp_path / "profile2"
+        )  # boxes and cameras still draw
         effect = np.abs(region - bare[CANVAS_ONLY]).mean()
         assert effect > MIN_SPLAT_EFFECT, f"the Gaussians changed the canvas by only {effect:.2f} grey levels"
         print(f"canvas std {region.std():.1f}, Gaussians' effect {effect:.1f} grey levels")

@@ -4,6 +4,7 @@ The public losses of ``ebad.losses`` run the kernels on CPU tensors (``test_the_
 checks that the dispatch takes them); each is compared here with a reference that shares none of
 its code: kornia's SSIM, L_ev written out in torch, the three losses composed.
 """
+
 from __future__ import annotations
 
 import math
@@ -14,11 +15,21 @@ import torch
 from ebad.losses import blur_loss, edi_loss, event_loss, l1_ssim, luminance, ssim_map
 
 
-@pytest.mark.parametrize("shape,window", [((2, 20, 24, 1), 7), ((1, 12, 9, 3), 11), ((1, 5, 6, 1), 11),
-                                          ((1, 61, 30, 1), 7), ((2, 49, 8, 3), 11),  # several bands of rows
-                                          ((1, 3, 8, 1), 7), ((1, 40, 33, 1), 9)])  # windows 5 and 9 inside blocks of 7 taps
+@pytest.mark.parametrize(
+    "shape,window",
+    [
+        ((2, 20, 24, 1), 7),
+        ((1, 12, 9, 3), 11),
+        ((1, 5, 6, 1), 11),
+        ((1, 61, 30, 1), 7),
+        ((2, 49, 8, 3), 11),  # several bands of rows
+        ((1, 3, 8, 1), 7),
+        ((1, 40, 33, 1), 9),
+    ],
+)  # windows 5 and 9 inside blocks of 7 taps
 def test_ssim_matches_kornia_reference(shape, window):
     from ebad.losses import ssim_map, ssim_map_kornia
+
     g = torch.Generator().manual_seed(0)
     a = torch.rand(shape, generator=g, dtype=torch.float64)
     b = (a + 0.2 * torch.rand(shape, generator=g, dtype=torch.float64)).clamp(0, 1)
@@ -27,6 +38,7 @@ def test_ssim_matches_kornia_reference(shape, window):
 
 def test_ssim_gradcheck():
     from ebad.losses import ssim_map
+
     g = torch.Generator().manual_seed(1)
     a = torch.rand(1, 6, 7, 1, generator=g, dtype=torch.float64, requires_grad=True)
     b = torch.rand(1, 6, 7, 1, generator=g, dtype=torch.float64)
@@ -38,6 +50,7 @@ def test_ssim_gradcheck_both_inputs_any_upstream_gradient():
     # against finite differences for both inputs at once, several channels, a non-uniform
     # upstream gradient (gradcheck draws it), and a window as wide as the padding allows
     from ebad.losses import ssim_map
+
     g = torch.Generator().manual_seed(2)
     a = torch.rand(2, 6, 9, 3, generator=g, dtype=torch.float64, requires_grad=True)
     b = torch.rand(2, 6, 9, 3, generator=g, dtype=torch.float64, requires_grad=True)
@@ -47,6 +60,7 @@ def test_ssim_gradcheck_both_inputs_any_upstream_gradient():
 
 def test_ssim_float32_close_to_the_float64_reference_and_gradient_matches_kornia():
     from ebad.losses import ssim_map, ssim_map_kornia
+
     g = torch.Generator().manual_seed(3)
     a64 = torch.rand(3, 40, 52, 1, generator=g, dtype=torch.float64)
     b64 = (a64 + 0.3 * torch.rand(3, 40, 52, 1, generator=g, dtype=torch.float64)).clamp(0, 1)
@@ -65,6 +79,7 @@ def test_ssim_dark_and_saturated_images_give_finite_values_and_gradients():
     # denominators stay at c1 c2 > 0, so the map and its gradient are finite, and the values
     # match a float64 evaluation
     from ebad.losses import ssim_map, ssim_map_kornia
+
     black, white = torch.zeros(1, 12, 14, 1), torch.ones(1, 12, 14, 1)
     patchy = white.clone()
     patchy[:, 3:8, 4:9] = 0.0
@@ -83,11 +98,14 @@ def test_ssim_dark_and_saturated_images_give_finite_values_and_gradients():
 
 def _l1_ssim_reference(pred, target, w, window):
     from ebad.losses import ssim_map_kornia
+
     return (1 - w) * (pred - target).abs().mean() + w * (1 - ssim_map_kornia(pred, target, window).mean())
 
 
-@pytest.mark.parametrize("shape,window,w", [((1, 20, 24, 1), 7, 0.2), ((2, 53, 17, 1), 7, 0.5),
-                                            ((1, 30, 26, 3), 11, 0.8), ((3, 4, 5, 1), 7, 0.2)])
+@pytest.mark.parametrize(
+    "shape,window,w",
+    [((1, 20, 24, 1), 7, 0.2), ((2, 53, 17, 1), 7, 0.5), ((1, 30, 26, 3), 11, 0.8), ((3, 4, 5, 1), 7, 0.2)],
+)
 def test_l1_ssim_in_one_kernel_equals_l1_plus_kornia_ssim_in_value_and_gradient(shape, window, w):
     # the fused loss (no SSIM map, the L1 term inside the kernel, a constant upstream gradient in
     # the adjoint) against torch's L1 plus kornia's SSIM, for both inputs, across several bands of
@@ -126,6 +144,7 @@ def test_float32_images_run_the_float32_ssim_backward_only():
     # a float64 array among a float32 call's arguments makes numba compute the float32 loops in
     # float64 (the loss's per-image gradient constants once made the backward 1.5x slower)
     from ebad.kernels import _numba_ssim as K
+
     a = torch.rand(2, 20, 24, 1, requires_grad=True)
     l1_ssim(a, torch.rand(2, 20, 24, 1)).backward()
     ssim_map(a, torch.rand(2, 20, 24, 1)).sum().backward()
@@ -138,6 +157,7 @@ def test_l1_ssim_each_in_one_call_equals_each_pair_alone():
     # the trainer's L_blur and L_EDI come from one kernel call: each loss and its gradients must be
     # what the pair gives alone (colour, [H, W, D] and [B, H, W, D] pairs, different weights)
     from ebad.losses import l1_ssim_each
+
     g = torch.Generator().manual_seed(7)
     shapes = [(30, 26, 3), (4, 30, 26, 3), (2, 30, 26, 3)]
     preds = [torch.rand(sh, generator=g, dtype=torch.float64, requires_grad=True) for sh in shapes]
@@ -158,6 +178,7 @@ def test_l1_ssim_each_in_one_call_equals_each_pair_alone():
 
 def test_ssim_takes_non_contiguous_views_and_refuses_shape_mismatch():
     from ebad.losses import ssim_map, ssim_map_kornia
+
     g = torch.Generator().manual_seed(4)
     a = torch.rand(2, 3, 20, 16, generator=g, dtype=torch.float64).permute(0, 2, 3, 1)  # [2, 20, 16, 3] strided
     b = torch.rand(2, 20, 16, 3, generator=g, dtype=torch.float64)
@@ -238,8 +259,11 @@ def test_exposure_losses_in_one_node_equal_the_three_losses_composed(D, dtype, e
     Vp = V + 1 if edi == "mid" else V  # an even V renders its mid-exposure view last
     img = (torch.rand(Vp, H, W, D, generator=gen, dtype=dtype) * 0.9 + 0.05).requires_grad_()
     blurry = torch.rand(H, W, D, generator=gen, dtype=dtype)
-    lat = {"views": torch.rand(V, H, W, D, generator=gen, dtype=dtype),
-           "mid": torch.rand(H, W, D, generator=gen, dtype=dtype), "none": None}[edi]
+    lat = {
+        "views": torch.rand(V, H, W, D, generator=gen, dtype=dtype),
+        "mid": torch.rand(H, W, D, generator=gen, dtype=dtype),
+        "none": None,
+    }[edi]
     ev = {"consecutive": list(range(V)), "pair": [1, 3], "none": []}[windows]
     counts = torch.randint(0, 3, (len(ev) - 1, 2, H, W), generator=gen).to(dtype) if ev else None
     c = torch.tensor([0.21, 0.17], dtype=dtype, requires_grad=True)
@@ -277,8 +301,9 @@ def test_the_kernels_run_on_cpu_tensors_and_the_reference_inside_torch_reference
             "l1_ssim": l1_ssim(a, b).grad_fn,
             "l1_ssim_each": l1_ssim_each([(a, b), (a, b)])[1].grad_fn,
             "event_loss": event_loss(torch.cat([a, b]), counts, 0.2).grad_fn,
-            "exposure_losses": exposure_losses(torch.cat([a, b]), 2, b[0], counts=counts,
-                                               event_views=[0, 1])[0].grad_fn,
+            "exposure_losses": exposure_losses(torch.cat([a, b]), 2, b[0], counts=counts, event_views=[0, 1])[
+                0
+            ].grad_fn,
         }
 
     def kernel_node(fn) -> bool:  # a node of ebad.kernels.losses' autograd Functions (or a view of one)
@@ -325,9 +350,11 @@ def test_the_ssim_reference_of_ebad_losses_equals_the_kernels(shape, window):
     a = torch.rand(shape, generator=g, dtype=torch.float64)
     b = (a + 0.3 * torch.randn(shape, generator=g, dtype=torch.float64)).clamp(0, 1)
     c = torch.rand(shape, generator=g, dtype=torch.float64)
-    cases = [(lambda x, y: ssim_map(x, y, window), a, b),
-             (lambda x, y: l1_ssim(x, y, 0.3, window), a, b),
-             (lambda x, y, z: l1_ssim_each([(x, y), (z[:1], y[:1])], 0.2, window), a, b, c)]
+    cases = [
+        (lambda x, y: ssim_map(x, y, window), a, b),
+        (lambda x, y: l1_ssim(x, y, 0.3, window), a, b),
+        (lambda x, y, z: l1_ssim_each([(x, y), (z[:1], y[:1])], 0.2, window), a, b, c),
+    ]
     for fn, *inputs in cases:
         (v_fast, g_fast), (v_ref, g_ref) = _kernels_and_reference(fn, *inputs)
         for x, y in zip(v_fast, v_ref):
@@ -345,7 +372,8 @@ def test_the_event_loss_reference_of_ebad_losses_equals_the_kernel(norm, D):
     counts = torch.randint(0, 4, (3, 2, 19, 11), generator=g).double()
     c = torch.tensor([0.23, 0.17], dtype=torch.float64)
     (v_fast, g_fast), (v_ref, g_ref) = _kernels_and_reference(
-        lambda x, cc: event_loss(x, counts, cc, 1e-3, norm), renders, c)
+        lambda x, cc: event_loss(x, counts, cc, 1e-3, norm), renders, c
+    )
     assert torch.allclose(v_fast[0], v_ref[0], rtol=1e-12, atol=0)
     for x, y in zip(g_fast, g_ref):
         assert torch.allclose(x, y, rtol=1e-10, atol=1e-14)
@@ -362,8 +390,11 @@ def test_the_exposure_losses_reference_is_the_three_losses_composed_and_equals_t
     Vp = V + 1 if edi == "mid" else V
     img = torch.rand(Vp, H, W, D, generator=gen, dtype=torch.float64) * 0.9 + 0.05
     blurry = torch.rand(H, W, D, generator=gen, dtype=torch.float64)
-    lat = {"views": torch.rand(V, H, W, D, generator=gen, dtype=torch.float64),
-           "mid": torch.rand(H, W, D, generator=gen, dtype=torch.float64), "none": None}[edi]
+    lat = {
+        "views": torch.rand(V, H, W, D, generator=gen, dtype=torch.float64),
+        "mid": torch.rand(H, W, D, generator=gen, dtype=torch.float64),
+        "none": None,
+    }[edi]
     ev = {"consecutive": list(range(V)), "pair": [0, 2], "none": []}[windows]
     counts = torch.randint(0, 3, (len(ev) - 1, 2, H, W), generator=gen).double() if ev else None
     c = torch.tensor([0.21, 0.17], dtype=torch.float64)

@@ -1,4 +1,5 @@
 """ebad.kernels.poses (the trajectories' poses in closed form) against ebad.trajectory's torch functions."""
+
 from __future__ import annotations
 
 import pytest
@@ -52,12 +53,13 @@ def test_closed_form_poses_equal_the_torch_composition_in_value_and_gradient(kin
 def test_closed_form_poses_gradcheck():
     from ebad.kernels.poses import TrajectoryPoses
 
-    knots = (torch.randn(2, 2, 6, generator=torch.Generator().manual_seed(1), dtype=torch.float64) * 0.3)
+    knots = torch.randn(2, 2, 6, generator=torch.Generator().manual_seed(1), dtype=torch.float64) * 0.3
     mid = _rigid64(2)
     u = torch.tensor([0.1, 0.5, 0.9], dtype=torch.float64)
     for kind, k in (("linear", knots), ("cubic", torch.cat([knots, -knots], 1)), ("offset", knots[:, :1])):
-        assert torch.autograd.gradcheck(lambda x: TrajectoryPoses.apply(x, mid, u, kind, 1.3, True),
-                                        (k.clone().requires_grad_(),))
+        assert torch.autograd.gradcheck(
+            lambda x: TrajectoryPoses.apply(x, mid, u, kind, 1.3, True), (k.clone().requires_grad_(),)
+        )
 
 
 def test_trajectories_near_pi_take_the_torch_path():
@@ -93,7 +95,7 @@ def test_trajectory_poses_dispatch_the_closed_form_on_the_cpu_and_the_torch_comp
 
     K = TRAJECTORIES[kind].num_knots
     mid = _rigid64(2)
-    knots = (torch.randn(2, K, 6, generator=torch.Generator().manual_seed(3), dtype=torch.float64) * 0.2)
+    knots = torch.randn(2, K, 6, generator=torch.Generator().manual_seed(3), dtype=torch.float64) * 0.2
     u = virtual_instants(5, dtype=torch.float64)
     fast = trajectory_poses(kind, mid, knots.requires_grad_(), u, 0.8, anchored)
     assert (type(fast.grad_fn).__name__ == "TrajectoryPosesBackward") == (kind != "fixed")
