@@ -36,8 +36,6 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
-
 from ._common import RESULTS, config_spec, seed_all, write_json
 
 OLD_DRIVER = r"""
@@ -203,8 +201,9 @@ def run_baseline(scene, checkout: str, steps: int, marks: int) -> dict:
     import subprocess
     import tempfile
 
-    import scenes
     import torch
+
+    import scenes
 
     with tempfile.TemporaryDirectory() as tmp:
         scenes.save(scene.capture, f"{tmp}/capture")

@@ -15,9 +15,10 @@ import dataclasses
 import json
 import math
 import typing
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Literal
+from typing import Any, Literal
 
 from .errors import ConfigError
 
@@ -378,7 +379,7 @@ class Config:
     strategy: StrategyConfig = field(default_factory=StrategyConfig)
     train: TrainConfig = field(default_factory=TrainConfig)
 
-    def check(self) -> "Config":
+    def check(self) -> Config:
         """Raise ``ConfigError`` naming the first option whose value cannot work; return self."""
         for section in (self.model, self.trajectory, self.loss, self.strategy, self.train):
             section.check()

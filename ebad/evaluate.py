@@ -20,7 +20,8 @@ The protocol (``evaluate``), as in BAD-Gaussians / EBAD-NeRF:
 from __future__ import annotations
 
 import copy
-from typing import TYPE_CHECKING, Callable
+from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch

@@ -14,11 +14,11 @@ compare both).
 from __future__ import annotations
 
 import typing
-from typing import Sequence
+from collections.abc import Sequence
 
 import torch
-from torch import Tensor
 from kornia.metrics import ssim as _kornia_ssim
+from torch import Tensor
 
 from edi import LOG_EPS
 

@@ -10,9 +10,10 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
@@ -77,7 +78,7 @@ class RunMetrics:
         return dataclasses.asdict(self)
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "RunMetrics":
+    def from_dict(cls, d: dict[str, Any]) -> RunMetrics:
         """Inverse of ``to_dict`` (``metrics.json`` read back)."""
         d = dict(d)
         for key in ("test", "test_initial"):

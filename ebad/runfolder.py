@@ -38,7 +38,7 @@ from scenes._atomic import atomic_path, write_text_atomic
 from .config import load_config, save_config
 from .errors import UserError
 from .export import write_exports
-from .io import plot_trajectories, read_ply, write_png16, write_ply, write_trajectories
+from .io import plot_trajectories, read_ply, write_ply, write_png16, write_trajectories
 from .response import Response
 from .run import Run, RunMetrics
 from .trajectory import ExposureTrajectories
@@ -99,7 +99,7 @@ class RunLock:
         except (OSError, ValueError):
             return None
 
-    def acquire(self) -> "RunLock":
+    def acquire(self) -> RunLock:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         me = f"{os.getpid()} {socket.gethostname()}\n"
         for _ in range(2):
@@ -130,7 +130,7 @@ class RunLock:
             self.path.unlink(missing_ok=True)
             self.held = False
 
-    def __enter__(self) -> "RunLock":
+    def __enter__(self) -> RunLock:
         return self.acquire()
 
     def __exit__(self, *exc) -> bool:

@@ -59,7 +59,7 @@ class Schedule:
     @classmethod
     def from_config(
         cls, cfg: Config, scale: float, coarse: bool = True, choose_views: bool = True, averaging: bool = True
-    ) -> "Schedule":
+    ) -> Schedule:
         """The schedule of ``cfg`` for a scene of ``scale``. ``coarse``: a coarse problem exists
         (frames large enough, ``ebad.loop.coarse_data``); ``choose_views``: some frame is blurry;
         ``averaging``: the knots are optimised."""

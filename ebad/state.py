@@ -26,8 +26,8 @@ from .config import Config
 from .data import TrainingData
 from .errors import UserError
 from .gaussians import init_params, num_gaussians, plane_sweep_points, points_from_frames
-from .strategy import PARAM_NAMES, RefineReport, StrategyState
 from .response import Response
+from .strategy import PARAM_NAMES, RefineReport, StrategyState
 from .trajectory import ExposureTrajectories
 
 if TYPE_CHECKING:
@@ -77,7 +77,7 @@ class StepStats:
         return dataclasses.asdict(self)
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> "StepStats":
+    def from_dict(cls, d: dict[str, Any]) -> StepStats:
         d = dict(d)
         d["refine"] = RefineReport(**d.get("refine", {}))
         return cls(**d)
@@ -207,7 +207,7 @@ class TrainState:
         return num_gaussians(self.params)
 
     @classmethod
-    def create(cls, data: TrainingData, cfg: Config, strategy_state: StrategyState | None = None) -> "TrainState":
+    def create(cls, data: TrainingData, cfg: Config, strategy_state: StrategyState | None = None) -> TrainState:
         """A fresh run: initial Gaussians, trajectories, optimisers and generators seeded by ``train.seed``."""
         seed = cfg.train.seed
         generator = torch.Generator().manual_seed(seed)
@@ -277,7 +277,7 @@ class TrainState:
     @classmethod
     def load(
         cls, path: str | Path, data: TrainingData, cfg: Config, fingerprint: dict[str, Any] | None = None
-    ) -> "TrainState":
+    ) -> TrainState:
         """The state ``save`` wrote, for the same training data and config.
 
         Raises ``UserError`` naming the file when it is not a readable checkpoint, and naming

@@ -18,8 +18,9 @@ keep each Adam optimizer's moments aligned with its parameter.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable, Protocol
+from typing import Protocol
 
 import torch
 from numba import njit
@@ -73,7 +74,7 @@ class StrategyState:
         return {"grad2d": self.grad2d, "count": self.count}
 
     @classmethod
-    def from_dict(cls, d: dict[str, Tensor]) -> "StrategyState":
+    def from_dict(cls, d: dict[str, Tensor]) -> StrategyState:
         return cls(grad2d=d["grad2d"], count=d["count"])
 
 

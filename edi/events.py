@@ -145,7 +145,7 @@ class EventStream:
         object.__setattr__(self, "_checked", True)
 
     @classmethod
-    def empty(cls, width: int, height: int) -> "EventStream":
+    def empty(cls, width: int, height: int) -> EventStream:
         z = np.zeros(0, np.int64)
         return cls(z, z, z, z, width, height)
 
@@ -168,12 +168,12 @@ class EventStream:
         seconds: the project's one window rule (see ``events_in_window``)."""
         return self.index_range(seconds_to_us(t_start), seconds_to_us(t_end))
 
-    def slice_time(self, t_start: float, t_end: float) -> "EventStream":
+    def slice_time(self, t_start: float, t_end: float) -> EventStream:
         """Events with t_start <= t < t_end, both in seconds (relative to the stream's t0)."""
         i0, i1 = self.window(t_start, t_end)
         return self[i0:i1]
 
-    def __getitem__(self, sl: slice) -> "EventStream":
+    def __getitem__(self, sl: slice) -> EventStream:
         if not isinstance(sl, slice):
             raise TypeError("EventStream supports slicing by index ranges only")
         out = object.__new__(EventStream)
@@ -218,7 +218,7 @@ def seconds_to_us(t: Any) -> Any:
     return int(us) if us.ndim == 0 else us
 
 
-def events_in_window(events: "EventStream", t_start: float, t_end: float) -> tuple[int, int]:
+def events_in_window(events: EventStream, t_start: float, t_end: float) -> tuple[int, int]:
     """Index bounds [i0, i1) of the events in the exposure window, by binary search.
 
     The project's one window rule: an event belongs to [t_start, t_end) (seconds, on the

@@ -23,6 +23,7 @@ import numpy.typing as npt
 
 from .contrast import estimate_c
 from .errors import InputError
+from .events import EventStream, events_in_window
 from .model import (
     LOG_EPS,
     SATURATION,
@@ -33,7 +34,6 @@ from .model import (
     latent_from_ratio,
     parse_c,
 )
-from .events import EventStream, events_in_window
 
 if TYPE_CHECKING:
     import torch

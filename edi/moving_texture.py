@@ -15,8 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import InputError
-from .model import LOG_EPS
 from .events import EventStream, seconds_to_us
+from .model import LOG_EPS
 
 __all__ = ["SyntheticSequence", "moving_texture"]
 
@@ -28,7 +28,7 @@ class SyntheticSequence:
     events: EventStream
     c: tuple[float, float]  # (c_pos, c_neg) of the simulated sensor
     velocity: tuple[float, float]  # px / s (x, y)
-    texture: "Texture"
+    texture: Texture
 
     def sharp(self, t: float) -> np.ndarray:
         """[H, W, D] the sharp image at time t (seconds)."""

@@ -14,6 +14,7 @@ Public API::
     scenes.colmap.estimate_poses(capture) -> PoseEstimate   # pycolmap SfM, K fixed, test views registered too
 """
 
+from . import colmap  # noqa: E402  (pycolmap itself is imported when estimate_poses runs)
 from .capture import Capture, TestView
 from .errors import CaptureError
 from .format import read_ground_truth, save
@@ -22,7 +23,6 @@ from .readers import detect_layout, load
 from .render import Quad, RayScene, Sphere, project_points, render
 from .simulate import simulate_events
 from .synth import SCENES, SENSORS, SIZES, Sensor, SynthScene, make_scene, write_scene
-from . import colmap  # noqa: E402  (pycolmap itself is imported when estimate_poses runs)
 
 __all__ = [
     "Capture",

@@ -32,8 +32,8 @@ from edi import estimate_c
 from edi.errors import EbadError
 
 from .capture import Capture, TestView
-from .poses import interpolate_poses
 from .errors import CaptureError
+from .poses import interpolate_poses
 
 __all__ = [
     "ColmapConfig",

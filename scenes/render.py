@@ -13,7 +13,6 @@ use longitude/latitude in the sphere's own frame.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-
 from typing import Literal, overload
 
 import numpy as np

@@ -45,9 +45,10 @@ import math
 import os
 import shutil
 import tempfile
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Callable, Literal
+from typing import Literal
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -148,7 +149,7 @@ class Sensor:
     pose_rot_deg: float = 0.5  # RMS rotation error of "noisy" poses, degrees
     pose_trans: float = 0.01  # RMS position error of "noisy" poses, world units (orbit radius 4: ~1 cm at 4 m)
 
-    def validate(self) -> "Sensor":
+    def validate(self) -> Sensor:
         """Raise CaptureError naming the field of a setting that cannot work; return self."""
         for name in ("gamma", "gain", "c_pos", "c_neg", "log_eps"):
             v = getattr(self, name)

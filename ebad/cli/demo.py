@@ -69,8 +69,8 @@ def run(args: Args) -> int:
     from ..errors import ConfigError
     from ..evaluate import evaluate, score_frames
     from ..export import write_render
-    from ..runfolder import json_safe, write_run
     from ..run import reconstruct, warm_up
+    from ..runfolder import json_safe, write_run
 
     if args.iters < 1:
         raise ConfigError(f"--iters must be >= 1, got {args.iters}")

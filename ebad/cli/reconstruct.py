@@ -125,9 +125,9 @@ def run(args: Args) -> int:
 
     from ..config import save_config
     from ..errors import UserError
+    from ..run import reconstruct
     from ..runfolder import RunLock, check_out_dir, write_run
     from ..state import capture_fingerprint, read_checkpoint
-    from ..run import reconstruct
 
     cfg, applied = resolve(args)
     out = Path(args.out)

@@ -377,7 +377,7 @@ def gauss_taps(win: int, sigma: float = 1.5) -> np.ndarray:
     return g / g.sum()
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def window_taps(win: int) -> np.ndarray:
     """``gauss_taps(win)`` centred in a multiple of ``TAPS`` taps, zeros around it: what the kernels
     take (seven taps, the default window, have no zeros; five become 0, g0 .. g4, 0). Computed once

@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
+import pytest
+
 from ebad import config as C
 from ebad.errors import ConfigError
-
-import pytest
 
 
 def test_presets_registry_and_json_roundtrip(tmp_path):

@@ -10,10 +10,8 @@ import pytest
 import torch
 
 import scenes
-from ebad import reconstruct
 from ebad.cli import main
-from ebad.config import preset
-from ebad.evaluate import eval_poses, evaluate, refine_pose
+from ebad.evaluate import eval_poses, refine_pose
 from ebad.lie import compose_pose, so3_exp
 from ebad.runfolder import load_run
 from scenes.colmap import apply_similarity

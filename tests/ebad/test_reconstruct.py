@@ -10,10 +10,10 @@ import torch
 import scenes
 from ebad import reconstruct
 from ebad.config import preset
-from ebad.errors import ConfigError, UserError
-from scenes import CaptureError
-from ebad.metrics import psnr
 from ebad.data import prepare
+from ebad.errors import ConfigError, UserError
+from ebad.metrics import psnr
+from scenes import CaptureError
 
 
 @pytest.fixture(scope="module")

@@ -11,9 +11,9 @@ import scenes
 from ebad.config import preset
 from ebad.data import prepare
 from ebad.errors import UserError
+from ebad.loop import train_step
 from ebad.state import TrainState, capture_fingerprint, max_gaussians
 from ebad.strategy import make_strategy
-from ebad.loop import train_step
 
 
 @pytest.fixture(scope="module")

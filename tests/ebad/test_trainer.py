@@ -13,9 +13,9 @@ import scenes
 from ebad.config import preset
 from ebad.data import _train_indices, prepare
 from ebad.gaussians import render
+from ebad.loop import frame_losses
 from ebad.losses import event_loss
 from ebad.state import TrainState
-from ebad.loop import frame_losses
 from ebad.trajectory import virtual_instants
 from ebad.virtual_views import random_window, window_counts
 

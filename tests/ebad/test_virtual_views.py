@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from edi import EventStream
 import torch
 
 from ebad.virtual_views import (
@@ -16,6 +14,7 @@ from ebad.virtual_views import (
     views_from_blur,
     window_counts,
 )
+from edi import EventStream
 
 
 def _stream(n_per_frame, W=8, H=6, exposures=((0.0, 0.04), (0.1, 0.14))):

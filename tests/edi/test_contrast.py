@@ -11,11 +11,11 @@ import pytest
 import torch
 
 from edi import (
+    LOG_EPS,
     Contrast,
     EbadError,
     EventStream,
     InputError,
-    LOG_EPS,
     deblur_with_report,
     estimate_c,
     estimate_contrast,

@@ -6,7 +6,6 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-import edi
 from scenes import CaptureError, load, save
 from scenes.readers import detect_layout, interpolate_poses
 from scenes.undistort import distort_normalized, undistort_normalized

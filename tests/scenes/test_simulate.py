@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from scenes import simulate_events
 from edi import LOG_EPS
+from scenes import simulate_events
 from scenes.simulate import HOT_PIXEL_HZ
 
 
@@ -139,7 +139,8 @@ def test_bad_inputs_name_the_argument(kwargs, word):
         simulate_events(**kwargs)
 
 
-from hypothesis import given, settings, strategies as st  # noqa: E402
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st
 
 
 @settings(max_examples=25, deadline=None)

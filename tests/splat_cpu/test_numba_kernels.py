@@ -12,12 +12,12 @@ from numba import njit
 
 from splat_cpu import _numba_kernels as K
 from splat_cpu._numba_impl import _np, rasterize_numba
-from splat_cpu._torch_impl import rasterize_reference
 from splat_cpu._numba_project import project_forward
+from splat_cpu._torch_impl import rasterize_reference
 from splat_cpu.constants import ALPHA_MIN, TILE
 
 from .conftest import make_scene
-from .test_rasterize import _close, _grads, NAMES
+from .test_rasterize import NAMES, _close, _grads
 
 
 @njit(cache=True, fastmath=K._FASTMATH)  # as in the kernels

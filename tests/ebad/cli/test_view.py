@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from ebad.cli import main
-from ebad.cli.view import build_scene, serve, splat_arrays
+from ebad.cli.view import serve, splat_arrays
 from ebad.runfolder import load_run
 
 WINDOW = (1024, 768)  # width, height of the headless browser window
