@@ -17,9 +17,12 @@ from typing import Any
 
 import numpy as np
 
-import ebad  # noqa: F401  (before torch: OMP_WAIT_POLICY=PASSIVE for torch's threads, see ebad's docstring)
+import ebad.threads
 
 __all__ = ["RESULTS", "commit", "environment", "seed_all", "write_json", "config_spec"]
+
+# Every benchmark imports this module first, before torch: OpenMP's idle threads sleep (ebad.threads).
+ebad.threads.configure()
 
 #: Where every benchmark writes its JSON.
 RESULTS = Path(__file__).resolve().parent / "results"

@@ -60,7 +60,7 @@ def make_config(name: str, iters: int, seconds: float | None, seed: int):
 
 def run_one(scene, name: str, iters: int, seconds: float | None, seed: int, refine_iters: int) -> dict:
     from ebad.evaluate import evaluate, sharp_capture
-    from ebad.trainer import reconstruct
+    from ebad.run import reconstruct
 
     cfg = make_config(name, iters, seconds, seed)
     cap = sharp_capture(scene) if name == "3dgs-sharp" else scene.capture
@@ -142,7 +142,7 @@ def main(argv=None) -> int:
     for name in presets:
         make_config(name, iters, seconds, 0).check()  # a typo fails before any training
     seed_all(0)
-    from ebad.trainer import warm_up
+    from ebad.run import warm_up
 
     warm_up()  # numba compiles once, outside every preset's budget
     rows = []

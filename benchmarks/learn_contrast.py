@@ -24,7 +24,7 @@ def main() -> None:
     import scenes
     from ebad import preset, reconstruct
     from ebad.evaluate import evaluate
-    from ebad.trainer import warm_up
+    from ebad.run import warm_up
 
     warm_up()  # numba compiles outside the runs' budgets
     scene = scenes.make_scene("boxes", args.size, seed=args.seed, sensor=args.sensor)

@@ -73,7 +73,7 @@ def prior_psnr(scene, c: tuple[float, float], kind: str) -> float:
 
 def run_one(scene, spec: str, iters: int, seed: int, refine: bool, refine_iters: int) -> dict:
     from ebad.evaluate import evaluate
-    from ebad.trainer import reconstruct
+    from ebad.run import reconstruct
 
     cfg = config_spec(spec)
     cfg.train.iters, cfg.train.max_seconds = iters, None
@@ -198,7 +198,7 @@ def main(argv=None) -> int:
         config_spec(spec).check()  # a typo fails before any training
     name = args.name or ("paper_departures_quick" if args.quick else "paper_departures")
     seed_all(0)
-    from ebad.trainer import warm_up
+    from ebad.run import warm_up
 
     warm_up()  # numba compiles once, outside every spec's budget
     rows: list[dict] = []

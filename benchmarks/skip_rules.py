@@ -36,7 +36,7 @@ def _cfg(name: str, iters: int):
 
 
 def _timed(cap, cfg) -> tuple:
-    from ebad.trainer import reconstruct
+    from ebad.run import reconstruct
 
     t0 = time.perf_counter()
     run = reconstruct(cap, cfg)

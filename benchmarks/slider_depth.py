@@ -71,7 +71,7 @@ def main(argv=None) -> int:
 
     import scenes
     from ebad.evaluate import evaluate
-    from ebad.trainer import reconstruct, warm_up
+    from ebad.run import reconstruct, warm_up
 
     from .ablation import make_config
 

@@ -6,7 +6,7 @@
 Each preset trains ``--iters`` steps on ``scenes.make_scene("boxes", SIZE)`` (settings of
 ``benchmarks.time_to_quality``: ``ideal`` linear sensor, exact poses held; ``realistic`` the
 realistic sensor, noisy given poses optimised), and every step records where its time went
-(``StepStats.profile``, averaged by ``ebad.trainer.step_profile``): the forward, and inside it
+(``StepStats.profile``, averaged by ``ebad.loop.step_profile``): the forward, and inside it
 the trajectory poses, the rasteriser's own forward (project, bin, composite) and the losses
 (response, L1 + SSIM, L_ev); the backward and the rasteriser's backward inside it; Adam;
 densification. The share outside the rasteriser is 1 - (rasteriser forward + backward) / step.
@@ -29,7 +29,8 @@ LEVELS = ("coarse", "full", "run")
 
 
 def profile_run(scene, spec: str, iters: int, seed: int) -> dict:
-    from ebad.trainer import reconstruct, step_profile
+    from ebad.loop import step_profile
+    from ebad.run import reconstruct
 
     cfg = config_spec(spec)
     cfg.train.iters, cfg.train.max_seconds = iters, None

@@ -13,7 +13,7 @@ afterwards with the evaluation protocol (``ebad.evaluate``: test poses refined a
 images where the capture's poses are not exact; deblurred frames against the truth). Prints a
 table, writes JSON and a plot (PSNR against seconds and against steps). Also records the start-up
 (prepare) time, the mean step time, the Gaussian count, the process's peak resident memory and
-the mean profile of the full-resolution steps (``ebad.trainer.step_profile``: the rasteriser
+the mean profile of the full-resolution steps (``ebad.loop.step_profile``: the rasteriser
 against everything else). Timings are noisy on a shared machine: compare within one
 run.
 
@@ -120,11 +120,11 @@ PLATEAU_PATIENCES = (2, 3, 5)
 
 
 def plateau_points(history, cfg, points: list[dict]) -> list[dict]:
-    """Where the plateau rule (``ebad.trainer.should_stop``, ``train.plateau_every`` and
+    """Where the plateau rule (``ebad.loop.should_stop``, ``train.plateau_every`` and
     ``plateau_tol`` of ``cfg``) would have stopped this run for each patience in
     ``PLATEAU_PATIENCES``, replayed over its loss history, and the test PSNR of the last
     snapshot at or before that step (None: the rule never fired within the run)."""
-    from ebad.trainer import should_stop
+    from ebad.loop import should_stop
 
     out = []
     for patience in PLATEAU_PATIENCES:
@@ -145,7 +145,8 @@ def plateau_points(history, cfg, points: list[dict]) -> list[dict]:
 
 def run_one(scene, name: str, seconds: float, marks: int, exact: bool, refine_iters: int) -> dict:
     from ebad.evaluate import evaluate
-    from ebad.trainer import reconstruct, step_profile
+    from ebad.loop import step_profile
+    from ebad.run import reconstruct
 
     cfg = config_spec(name)
     cfg.train.iters = 1_000_000
@@ -344,7 +345,7 @@ def main(argv=None) -> int:
         baselines = torch.load(args.baseline_file, weights_only=False)
     results: dict[str, list[dict]] = {}
     if not args.baseline_only:
-        from ebad.trainer import warm_up
+        from ebad.run import warm_up
 
         warm_up()  # numba compiles outside every run's budget
     for mode in parse_modes(ap, args.modes):

@@ -71,7 +71,7 @@ class StepStats:
     test_psnr: float | None = None  # mean test-view PSNR, on evaluation steps
     width: int | None = None  # width of the frames the step trained on (smaller in the coarse phase)
     refine: RefineReport = field(default_factory=RefineReport)  # what densification did
-    profile: dict[str, float] | None = None  # ms of each part of the step (ebad.trainer.train_step, step_profile)
+    profile: dict[str, float] | None = None  # ms of each part of the step (ebad.loop.train_step, step_profile)
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)

@@ -1,7 +1,7 @@
 import subprocess
 import sys
 
-HEAVY = ("torch", "scenes", "trimesh", "ebad.trainer")  # not needed to show the help
+HEAVY = ("torch", "scenes", "trimesh", "ebad.run")  # not needed to show the help
 
 
 def test_cli_help_lists_commands():

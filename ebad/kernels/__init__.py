@@ -15,7 +15,7 @@ the same values and gradients faster on the CPU, and is tested equal to that ref
 Which path runs is decided in one place, ``use_kernels``: the kernels for CPU tensors, the torch
 reference for any other device or inside ``torch_reference()``. ``losses`` imports its numba
 modules on a loss's first call, and numba compiles each kernel on its first call, or loads it from
-its cache (``ebad.trainer.warm_up`` does both before timed work).
+its cache (``ebad.run.warm_up`` does both before timed work).
 """
 
 from __future__ import annotations

@@ -19,7 +19,6 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-import splat_cpu._numba_impl  # noqa: F401  (chooses numba's threading layer before any kernel here launches)
 
 _FASTMATH = {"contract", "arcp", "nsz", "reassoc"}  # vectorised sums and divisions; no nan/inf assumptions
 BAND = 16  # image rows per task

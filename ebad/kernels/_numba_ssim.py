@@ -37,7 +37,6 @@ import functools
 import numpy as np
 from numba import njit, prange
 
-import splat_cpu._numba_impl  # noqa: F401  (chooses numba's threading layer before any kernel here launches)
 
 _FASTMATH = {"contract", "arcp", "nsz", "reassoc"}  # FMA and reassociation; no nan/inf assumptions
 C1, C2 = 0.01**2, 0.03**2  # kornia's constants for a data range of 1

@@ -18,6 +18,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from splat_cpu._omp import choose_threading_layer
+
 from . import LUMA
 
 __all__ = ["event_loss", "exposure_losses", "l1_ssim_each", "ssim_map"]
@@ -175,6 +177,7 @@ def _run(kernel, *args) -> None:
     than with numba's static split)."""
     import numba
 
+    choose_threading_layer()  # before numba's first parallel launch, unless chosen already (splat_cpu._omp)
     with numba.parallel_chunksize(1):
         kernel(*args)
 

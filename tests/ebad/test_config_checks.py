@@ -165,7 +165,7 @@ def test_pose_warmup_holds_the_trajectories_for_exactly_that_many_steps(warmup):
     from ebad.data import prepare
     from ebad.state import TrainState, max_gaussians
     from ebad.strategy import make_strategy
-    from ebad.trainer import train_step
+    from ebad.loop import train_step
 
     sc = scenes.make_scene("boxes", size="tiny", seed=0, n_frames=3, n_test=1)
     cfg = C.preset("ebad")

@@ -15,7 +15,7 @@ import torch
 
 import scenes
 from ebad.config import preset
-from ebad.trainer import reconstruct
+from ebad.run import reconstruct
 
 ITERS = 11  # 4 training frames: passes end at steps 4 and 8, and the run stops inside the third
 
