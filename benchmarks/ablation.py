@@ -159,7 +159,8 @@ def main(argv=None) -> int:
                 r.update({"setting": setting, "size": size, "blurry_psnr": blurry})
                 rows.append(r)
                 print(
-                    f"{setting:6s} seed {seed} {name:10s} novel (refined) {r['test_refined_psnr'] or float('nan'):6.2f} dB"
+                    f"{setting:6s} seed {seed} {name:10s} "
+                    f"novel (refined) {r['test_refined_psnr'] or float('nan'):6.2f} dB"
                     f"  deblurred {r['deblur_psnr']:6.2f} dB  {r['steps']:5d} steps  {r['train_seconds']:6.1f} s"
                     f"  poses {r['pose_source']}{' (held)' if r['anchored'] else ''}",
                     flush=True,

@@ -525,13 +525,13 @@ def frame_blur_against_events(B: np.ndarray, ev: edi.EventStream) -> dict:
         return float((x * y).sum() / math.sqrt((x * x).sum() * (y * y).sum()))
 
     fits = {
-        (l, a): ncc(fftconvolve(ev_edges, _line_kernel(l, a), mode="same")) for l in BLUR_LENGTHS for a in BLUR_ANGLES
+        (n, a): ncc(fftconvolve(ev_edges, _line_kernel(n, a), mode="same")) for n in BLUR_LENGTHS for a in BLUR_ANGLES
     }
-    (l, a) = max(fits, key=fits.get)
+    (length, a) = max(fits, key=fits.get)
     return {
-        "length_px": float(l),
+        "length_px": float(length),
         "angle_deg": float(a),
-        "ncc": fits[(l, a)],
+        "ncc": fits[(length, a)],
         "ncc_unblurred": max(v for (ll, _), v in fits.items() if ll == BLUR_LENGTHS[0]),
     }
 
@@ -699,7 +699,8 @@ def main(argv: list[str] | None = None) -> None:
         for r in ni:
             m, b = r["events_motion"], r["frame_blur"]
             print(
-                f"  {r['name']:18s} window {r['window_ms']:5.1f} ms, {r['events']:6d} events, {100 * r['positive_fraction']:.0f}% "
+                f"  {r['name']:18s} window {r['window_ms']:5.1f} ms, {r['events']:6d} events, "
+                f"{100 * r['positive_fraction']:.0f}% "
                 f"positive, {r['events_per_fired_pixel']:.2f} per fired pixel (max {r['max_events_per_pixel']}); "
                 f"events moved ({m['dx']:+.1f}, {m['dy']:+.1f}) px (warp variance gain {m['variance_gain']:.3f}); "
                 f"frame blur {b['length_px']:.0f} px at {b['angle_deg']:.0f} deg (ncc {b['ncc']:.2f}, unblurred "
@@ -707,7 +708,8 @@ def main(argv: list[str] | None = None) -> None:
             )
             ev_f = r["flow"]["evals"]
             print(
-                f"  {'':18s} flow energy {ev_f[0][1]:.4f} at c {ev_f[0][0]:.3f} .. {ev_f[-1][1]:.4f} at c {ev_f[-1][0]:.3f}, "
+                f"  {'':18s} flow energy {ev_f[0][1]:.4f} at c {ev_f[0][0]:.3f} .. "
+                f"{ev_f[-1][1]:.4f} at c {ev_f[-1][0]:.3f}, "
                 f"increasing: {all(b2 >= a2 for (_, a2), (_, b2) in zip(ev_f, ev_f[1:]))}"
             )
     partial = partial_window()

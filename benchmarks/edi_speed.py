@@ -48,9 +48,9 @@ def throughput(sizes, repeats):
         ev = EventStream(t, rng.integers(0, W, m), rng.integers(0, H, m), rng.integers(0, 2, m), W, H)
         for n_inst in (1, 8):
             times = None if n_inst == 1 else np.linspace(0.0, 0.04, n_inst)
-            fast = best_time(lambda: edi.deblur(B, ex, ev, times=times, c=0.2), repeats)
+            fast = best_time(lambda ev=ev, times=times: edi.deblur(B, ex, ev, times=times, c=0.2), repeats)
             naive = best_time(
-                lambda: edi.deblur(B, ex, ev, times=times, c=0.2, impl="binned", n_bins=100),
+                lambda ev=ev, times=times: edi.deblur(B, ex, ev, times=times, c=0.2, impl="binned", n_bins=100),
                 1 if m >= 10**7 else repeats,
             )
             rows.append(
@@ -84,7 +84,10 @@ def estimate_c_timing(repeats):
     for method, frames, exps in (("single", s.frames[0], s.exposures[0]), ("consistency", s.frames, s.exposures)):
         rep = edi.estimate_contrast(frames, exps, s.events, method=method)
         c = rep.c.mean
-        t = best_time(lambda: edi.estimate_c(frames, exps, s.events, method=method), repeats)
+        t = best_time(
+            lambda frames=frames, exps=exps, method=method: edi.estimate_c(frames, exps, s.events, method=method),
+            repeats,
+        )
         out[method] = dict(seconds=t, c=c, evals=rep.num_evals, bracket=list(rep.bracket), rel_error=abs(c - 0.2) / 0.2)
     return out
 
@@ -114,7 +117,8 @@ def main(argv=None) -> int:
     print(f"\nestimate_c on {ec['scene']}")
     for m in ("single", "consistency"):
         print(
-            f"  {m:12s} {ec[m]['seconds']:.3f} s, c = {ec[m]['c']:.4f} ({ec[m]['rel_error']:.1%} off), {ec[m]['evals']} evaluations"
+            f"  {m:12s} {ec[m]['seconds']:.3f} s, c = {ec[m]['c']:.4f} ({ec[m]['rel_error']:.1%} off), "
+            f"{ec[m]['evals']} evaluations"
         )
     out = write_json("edi_speed_quick" if args.quick else "edi_speed", res)
     print(f"\nwritten {out}")

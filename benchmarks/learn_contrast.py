@@ -48,13 +48,16 @@ def main() -> None:
             }
         )
     print(
-        f"| c | novel PSNR dB (refined) | deblurred PSNR dB | steps | c_pos/c_neg start -> end (true {rows[0]['c_true']}) |"
+        "| c | novel PSNR dB (refined) | deblurred PSNR dB | steps | "
+        f"c_pos/c_neg start -> end (true {rows[0]['c_true']}) |"
     )
     print("|---|---|---|---|---|")
     for r in rows:
         print(
-            f"| {'learnt' if r['learn_contrast'] else 'fixed'} | {r['test_refined_psnr']:.2f} | {r['deblur_psnr']:.2f} | "
-            f"{r['steps']} | {r['c_start'][0]:.3f}/{r['c_start'][1]:.3f} -> {r['c_final'][0]:.3f}/{r['c_final'][1]:.3f} |"
+            f"| {'learnt' if r['learn_contrast'] else 'fixed'} | {r['test_refined_psnr']:.2f} | "
+            f"{r['deblur_psnr']:.2f} | "
+            f"{r['steps']} | {r['c_start'][0]:.3f}/{r['c_start'][1]:.3f} -> "
+            f"{r['c_final'][0]:.3f}/{r['c_final'][1]:.3f} |"
         )
     print(f"wrote {write_json('learn_contrast', {'args': vars(args), 'rows': rows})}")
 

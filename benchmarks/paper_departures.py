@@ -142,9 +142,13 @@ def print_table(summary: dict) -> None:
     for setting, by in summary.items():
         for i, (spec, s) in enumerate(by.items()):
             dn, dd = s["delta_test_refined_psnr"], s["delta_deblur_psnr"]
-            fd = lambda d: "-" if i == 0 or d[0] is None else f"{d[0]:+.2f} ± {d[1]:.2f} ({d[2]}/{d[3]})"
+
+            def fd(d, first=i == 0):
+                return "-" if first or d[0] is None else f"{d[0]:+.2f} ± {d[1]:.2f} ({d[2]}/{d[3]})"
+
             print(
-                f"| {setting} | `{spec}` | {_fmt(s['test_refined_psnr'])} | {fd(dn)} | {_fmt(s['test_refined_ssim'], 3)} | "
+                f"| {setting} | `{spec}` | {_fmt(s['test_refined_psnr'])} | {fd(dn)} | "
+                f"{_fmt(s['test_refined_ssim'], 3)} | "
                 f"{_fmt(s['deblur_psnr'])} | {fd(dd)} | {_fmt(s['deblur_ssim'], 3)} | {_fmt(s['prior_psnr'])} | "
                 f"{_fmt(s['ms_per_step'], 0)} | {_fmt(s['prepare_seconds'], 1)} |"
             )
@@ -182,7 +186,8 @@ def main(argv=None) -> int:
         d["summarised_from_run_of"] = d.pop("environment", None)  # the environment of the run that trained
         print(
             f"{d['size']} boxes, {d['iters']} steps per run, seeds {d['seeds']}; mean ± std over seeds "
-            f"(novel views at refined poses in settings without exact poses; Δ: paired per seed against {d['specs'][0]})"
+            "(novel views at refined poses in settings without exact poses; "
+            f"Δ: paired per seed against {d['specs'][0]})"
         )
         print_table(d["summary"])
         print(f"\nwrote {write_json(Path(args.summarise).stem, d)}")

@@ -354,7 +354,7 @@ def main(argv: list[str] | None = None) -> int:
             f"{_cell(fast, 'fwd_ms')} {_cell(fast, 'fwd_bwd_ms')} {_cell(fast, 'fwd_bwd_units', '{:6.2f}')} "
             f"{_cell(fast, 'peak_rss_mb', '{:5.0f}')} | {_cell(base, 'fwd_bwd_ms')} "
             f"{_cell(base, 'fwd_bwd_units', '{:6.2f}')} | {_cell(ref, 'fwd_bwd_ms')} "
-            f"{_cell(ref, 'fwd_bwd_units', '{:6.2f}')} | {('%8.1f' % ratio) if ratio else '       -'}",
+            f"{_cell(ref, 'fwd_bwd_units', '{:6.2f}')} | {f'{ratio:8.1f}' if ratio else '       -'}",
             flush=True,
         )
     _print_phases(rows)

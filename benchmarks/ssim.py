@@ -86,7 +86,7 @@ def main(argv=None) -> int:
         b = (a.detach() + 0.2 * torch.rand(shape, generator=g)).clamp(0, 1)
         times = {k: [] for k in impls}
 
-        def call(fn):
+        def call(fn, a=a, b=b):
             a.grad = None
             t0 = time.perf_counter()
             fn(a, b, 7).mean().backward()

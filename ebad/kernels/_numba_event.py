@@ -19,7 +19,6 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-
 _FASTMATH = {"contract", "arcp", "nsz", "reassoc"}  # vectorised sums and divisions; no nan/inf assumptions
 BAND = 16  # image rows per task
 

@@ -37,7 +37,6 @@ import functools
 import numpy as np
 from numba import njit, prange
 
-
 _FASTMATH = {"contract", "arcp", "nsz", "reassoc"}  # FMA and reassociation; no nan/inf assumptions
 C1, C2 = 0.01**2, 0.03**2  # kornia's constants for a data range of 1
 DEN_EPS = 1e-12  # kornia's: added to the denominator

@@ -163,9 +163,9 @@ def test_the_cross_checks_name_the_option():
 def test_pose_warmup_holds_the_trajectories_for_exactly_that_many_steps(warmup):
     import scenes
     from ebad.data import prepare
+    from ebad.loop import train_step
     from ebad.state import TrainState, max_gaussians
     from ebad.strategy import make_strategy
-    from ebad.loop import train_step
 
     sc = scenes.make_scene("boxes", size="tiny", seed=0, n_frames=3, n_test=1)
     cfg = C.preset("ebad")

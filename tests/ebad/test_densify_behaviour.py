@@ -126,7 +126,10 @@ def test_the_cap_ranks_by_the_mean_gradient_over_the_cameras_that_saw_each_gauss
 def test_pruning_removes_exactly_the_gaussians_below_the_opacity_threshold():
     cfg = C.StrategyConfig(grad_threshold=1.0, refine_start=0, refine_every=1, reset_every=0, prune_opacity=0.05)
     params = _params(5)
-    logit = lambda o: math.log(o / (1 - o))
+
+    def logit(o):
+        return math.log(o / (1 - o))
+
     with torch.no_grad():
         for i, o in enumerate((0.049, 0.051, 0.5, 0.01, 0.9)):
             params["opacities"][i] = logit(o)

@@ -65,7 +65,10 @@ def test_ssim_equals_kornia_called_directly_with_its_11_pixel_window(D):
     import kornia
 
     a, b = _pair(shape=(32, 40, D))
-    to_bchw = lambda x: torch.from_numpy(x).permute(2, 0, 1)[None].double()
+
+    def to_bchw(x):
+        return torch.from_numpy(x).permute(2, 0, 1)[None].double()
+
     expected = float(kornia.metrics.ssim(to_bchw(a), to_bchw(b), 11).mean())
     assert 0.3 < expected < 0.95  # an informative pair
     assert ssim(a, b) == pytest.approx(expected, abs=1e-5)

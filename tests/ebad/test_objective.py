@@ -15,8 +15,8 @@ import torch
 import scenes
 from ebad.config import preset
 from ebad.data import prepare
-from ebad.state import TrainState
 from ebad.loop import frame_losses
+from ebad.state import TrainState
 
 WEIGHTS = (0.7, 0.3, 1.9)  # w_blur, w_event, w_edi: none is a preset's, so no term can hide behind a 1
 

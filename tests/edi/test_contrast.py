@@ -216,7 +216,6 @@ def test_auto_falls_back_to_one_frame_when_the_frames_contradict_the_events():
     with pytest.raises(InputError, match="do not follow the frames' changes"):
         estimate_c(shuffled, s.exposures, s.events, method="consistency")
     rep = estimate_contrast(shuffled, s.exposures, s.events)
-    c = rep.c.mean
     assert rep.method == "single" and "used the single-frame energy" in rep.message
 
 

@@ -4,13 +4,17 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from edi import LOG_EPS
 from scenes import simulate_events
 from scenes.simulate import HOT_PIXEL_HZ
 
+L0_DEFAULT = math.log(0.1)
 
-def _ramp(slopes, t, l0=math.log(0.1), eps=1e-3):
+
+def _ramp(slopes, t, l0=L0_DEFAULT, eps=1e-3):
     """Images whose log(I + eps) is l0 + slope * t exactly, per pixel."""
     logi = l0 + slopes[None] * t[:, None, None]
     return np.exp(logi) - eps
@@ -137,10 +141,6 @@ def test_colour_is_averaged_to_grey():
 def test_bad_inputs_name_the_argument(kwargs, word):
     with pytest.raises(ValueError, match=word):
         simulate_events(**kwargs)
-
-
-from hypothesis import given, settings  # noqa: E402
-from hypothesis import strategies as st
 
 
 @settings(max_examples=25, deadline=None)

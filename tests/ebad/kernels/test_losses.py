@@ -55,7 +55,7 @@ def test_ssim_gradcheck_both_inputs_any_upstream_gradient():
     a = torch.rand(2, 6, 9, 3, generator=g, dtype=torch.float64, requires_grad=True)
     b = torch.rand(2, 6, 9, 3, generator=g, dtype=torch.float64, requires_grad=True)
     for win in (1, 3, 11):
-        torch.autograd.gradcheck(lambda x, y: ssim_map(x, y, win), (a, b))
+        torch.autograd.gradcheck(lambda x, y, win=win: ssim_map(x, y, win), (a, b))
 
 
 def test_ssim_float32_close_to_the_float64_reference_and_gradient_matches_kornia():

@@ -58,7 +58,7 @@ def test_closed_form_poses_gradcheck():
     u = torch.tensor([0.1, 0.5, 0.9], dtype=torch.float64)
     for kind, k in (("linear", knots), ("cubic", torch.cat([knots, -knots], 1)), ("offset", knots[:, :1])):
         assert torch.autograd.gradcheck(
-            lambda x: TrajectoryPoses.apply(x, mid, u, kind, 1.3, True), (k.clone().requires_grad_(),)
+            lambda x, kind=kind: TrajectoryPoses.apply(x, mid, u, kind, 1.3, True), (k.clone().requires_grad_(),)
         )
 
 
