@@ -52,7 +52,7 @@ class Evaluator:
     def on_step(self, state: TrainState, stats: StepStats) -> None:
         if self.views and self.every and (state.step % self.every == 0 or state.step == self.last):
             self.latest, self.latest_step = self.scores(state), state.step
-            stats.test_psnr = self.latest.psnr
+            stats.test_psnr = None if self.latest is None else self.latest.psnr  # None: no scorable view
 
     def final(self, state: TrainState) -> ViewScores | None:
         """The scores at the state's step: the last evaluation's when it was made there."""
@@ -74,7 +74,7 @@ class ProgressBar:
         self.psnr: float | None = None
 
     def on_step(self, state: TrainState, stats: StepStats) -> None:
-        post = {"loss": f"{stats.loss:.4f}", "blur": f"{stats.blur:.4f}"}
+        post: dict[str, str | int] = {"loss": f"{stats.loss:.4f}", "blur": f"{stats.blur:.4f}"}
         for k in ("ev", "edi"):
             if getattr(stats, k) is not None:
                 post[k] = f"{getattr(stats, k):.4f}"

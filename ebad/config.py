@@ -18,9 +18,12 @@ import typing
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 from .errors import ConfigError
+
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
 
 __all__ = [
     "ModelConfig",
@@ -54,7 +57,7 @@ def _require(ok: bool, option: str, problem: str) -> None:
         raise ConfigError(f"--{option}: {problem}")
 
 
-def _finite(section: object, prefix: str) -> None:
+def _finite(section: DataclassInstance, prefix: str) -> None:
     """Every float field of ``section`` is finite (``--train.lr_means nan`` names the option)."""
     for f in dataclasses.fields(section):
         v = getattr(section, f.name)

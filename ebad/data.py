@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, Literal, cast, get_args
 
 import numpy as np
 import torch
@@ -124,8 +124,11 @@ class TrainingData:
         views = None if self.view_latents is None else list(self.view_latents)
         for f in changed:
             if counts[f] is not None:
+                assert self.events is not None  # needs_events, checked above
                 counts[f] = event_counts(self.events, self.exposures[f], int(V[f]))
             if views is not None and views[f] is not None:
+                assert self.events is not None  # needs_events, checked above
+                assert self.c is not None  # view latents are made from events, and c with them (prepare)
                 views[f] = view_latents(self.frames[f].numpy(), self.exposures[f], self.events, int(V[f]), self.c)
         self.V, self.ev_counts, self.view_latents = V, counts, views
         self.report.views, self.report.renders_per_pass = V.tolist(), int(V.sum())
@@ -179,6 +182,13 @@ def downscale(data: TrainingData, factor: int) -> TrainingData:
         else [None if v is None else _pool_hwd(v, factor) for v in data.view_latents],
         ev_counts=[None if e is None else _pool(e, factor) for e in data.ev_counts],
     )
+
+
+def _pose_trust(trust: str) -> PoseTrust:
+    """``Capture.effective_pose_trust`` (a capture checks it is one of ``PoseTrust``) as the report's type."""
+    if trust not in get_args(PoseTrust):
+        raise ValueError(f"pose trust must be one of {get_args(PoseTrust)}, got {trust!r}")
+    return cast(PoseTrust, trust)
 
 
 def _edi_at(
@@ -262,14 +272,14 @@ def _poses(capture: Capture, cfg: Config, idx: list[int]):
             "(for a camera that did not move, use --trajectory.pose_source static)"
         )
     pts = torch.from_numpy(np.asarray(est.points, dtype=np.float32)) if len(est.points) else None
-    cols = None
+    cols: Tensor | None = None
     if pts is not None:
-        cols = np.asarray(est.colors, dtype=np.float32)
-        if cols.max() > 1.0:
-            cols = cols / 255.0
-        if capture.channels == 1 and cols.shape[1] == 3:
-            cols = cols.mean(1, keepdims=True)
-        cols = torch.from_numpy(cols)
+        rgb = np.asarray(est.colors, dtype=np.float32)
+        if rgb.max() > 1.0:
+            rgb = rgb / 255.0
+        if capture.channels == 1 and rgb.shape[1] == 3:
+            rgb = rgb.mean(1, keepdims=True)
+        cols = torch.from_numpy(rgb)
     return np.asarray(est.c2w, dtype=np.float64)[keep], pts, cols, "colmap", keep, dict(est.test_c2w)
 
 
@@ -316,7 +326,8 @@ def depth_range(
     of SfM point depths, else ``FOCUS_DEPTH_RANGE`` x the focus depth, else ``SPREAD_DEPTH_RANGE``
     x the camera-spread scale. (A synthetic scene's true depth range is never read.)"""
     if cfg.model.init_depth is not None:
-        return tuple(float(v) for v in cfg.model.init_depth)
+        near, far = cfg.model.init_depth
+        return float(near), float(far)
     if points is not None and len(points) > 0:
         R, t = c2w[:, :3, :3], c2w[:, :3, 3]
         z = np.einsum("fji,fnj->fni", R, points.numpy()[None] - t[:, None])[..., 2]
@@ -366,7 +377,8 @@ def prepare(capture: Capture, cfg: Config) -> TrainingData:
     wants_events = lc.w_event > 0 or lc.w_edi > 0 or lc.target == "edi"
     use_events = wants_events and has_events
 
-    c, c_source = None, None
+    c: tuple[float, float] | None = None
+    c_source: ContrastSource | None = None
     if use_events:
         if lc.contrast is not None:
             c, c_source = (float(lc.contrast[0]), float(lc.contrast[1])), "config"
@@ -383,7 +395,7 @@ def prepare(capture: Capture, cfg: Config) -> TrainingData:
         V[:] = 1
     report = PrepareReport(
         pose_source=pose_src,
-        pose_trust=capture.effective_pose_trust
+        pose_trust=_pose_trust(capture.effective_pose_trust)
         if pose_src == "capture"
         else ("exact" if pose_src == "static" else "approximate"),
         train_frames=len(idx),
@@ -397,9 +409,12 @@ def prepare(capture: Capture, cfg: Config) -> TrainingData:
         events_per_pixel=([round(float(v), 4) for v in events_per_pixel(events, exposures)] if has_events else None),
     )
 
-    latents = views = None
+    latents: Tensor | None = None
+    views: list[Tensor | None] | None = None
     if use_events and (lc.w_edi > 0 or lc.target == "edi"):
         import edi
+
+        assert c is not None  # set above whenever use_events
 
         if lc.edi_prior == "medi":  # all training frames jointly, at their exposure centres
             lat = np.asarray(edi.medi(frames_np, exposures, events, c=c), dtype=np.float32).reshape(frames_np.shape)

@@ -32,10 +32,10 @@ from .gaussians import render
 from .lie import compose_pose, so3_exp
 from .losses import l1_ssim
 from .run import Run
-from .scoring import ViewScores, score_frames, score_views, with_poses
+from .scoring import ViewScores, score_frames, score_views, view_pose, with_poses
 
 if TYPE_CHECKING:
-    from scenes import Capture, SynthScene
+    from scenes import Capture, SynthScene, TestView
 
 __all__ = [
     "refine_pose",
@@ -53,6 +53,13 @@ __all__ = [
 REFINE_TOL = 1e-4  # refinement stops when the loss improved by less than this fraction ...
 REFINE_WINDOW = 20  # ... over this many steps
 REFINE_LR = 2e-3  # Adam step of the correction (radians; translation in units of the run's scene scale)
+
+
+def _image(view: TestView) -> np.ndarray:  # [H, W, D]
+    """The sharp image of a view that has one (``evaluate`` keeps only those)."""
+    if view.image is None:
+        raise ValueError(f"test view {view.name!r} has no image")
+    return view.image
 
 
 def refine_pose(
@@ -133,10 +140,10 @@ def evaluate(
         views = [v for v in with_poses(capture.test_views, poses) if v.image is not None and v.name in poses]
         out["poses"] = how
         if views:
-            images = run.render(np.stack([v.c2w for v in views]))
+            images = run.render(np.stack([view_pose(v) for v in views]))
             out["test"] = score_views(images, views)
             if refine:
-                refined = [refine_pose(run, v.c2w, v.image, refine_iters) for v in views]
+                refined = [refine_pose(run, view_pose(v), _image(v), refine_iters) for v in views]
                 out["refine_steps"] = {v.name: steps for v, (_, steps) in zip(views, refined)}
                 images = run.render(np.stack([pose for pose, _ in refined]))
                 out["test_refined"] = score_views(images, views)

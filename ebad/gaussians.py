@@ -14,6 +14,7 @@ densification strategy can replace them together with their Adam state:
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 
 import numpy as np
 import torch
@@ -128,7 +129,7 @@ def scene_scale(c2w: np.ndarray, depth_range: tuple[float, float] | None = None)
     return max(spread, 1e-3)
 
 
-def num_gaussians(params: dict[str, Tensor]) -> int:
+def num_gaussians(params: Mapping[str, Tensor]) -> int:
     return int(params["means"].shape[0])
 
 
@@ -154,7 +155,7 @@ def normalise_quats_(quats: Tensor) -> None:  # [N, 4], in place, no gradient
             quats.data = quats.data / quats.data.norm(dim=-1, keepdim=True).clamp_min(1e-12)
 
 
-def activate(params: dict[str, Tensor]) -> dict[str, Tensor]:
+def activate(params: Mapping[str, Tensor]) -> dict[str, Tensor]:
     """The rasteriser's inputs: exp scales, sigmoid opacities, colours from SH DC."""
     return {
         "means": params["means"],
@@ -166,7 +167,7 @@ def activate(params: dict[str, Tensor]) -> dict[str, Tensor]:
 
 
 def render(
-    params: dict[str, Tensor],
+    params: Mapping[str, Tensor],
     c2w: Tensor,  # [C, 4, 4]
     K: Tensor,  # [3, 3] or [C, 3, 3]
     width: int,
@@ -237,7 +238,7 @@ def plane_sweep_points(
         dist = (centres - centres[f]).norm(dim=1)
         dist[f] = float("inf")
         nb = torch.argsort(dist)[: min(neighbours, F - 1)]
-        costs = []
+        cost_maps = []
         for d in depths:
             pw = c2w_t[f, :3, :3] @ (rays * d) + c2w_t[f, :3, 3:]  # [3, HW]
             cost = torch.zeros(1, 1, H, W)
@@ -250,8 +251,8 @@ def plane_sweep_points(
                 diff = (warped - img[f : f + 1]).abs().mean(1, keepdim=True)
                 outside = ((grid.abs() > 1).any(-1) | (pc[2] <= 0).reshape(1, H, W))[:, None]
                 cost = cost + torch.where(outside, torch.full_like(diff, 0.25), diff)
-            costs.append(tF.avg_pool2d(cost, patch, 1, patch // 2, count_include_pad=False))
-        costs = torch.cat(costs, 1)[0]  # [n_depths, H, W]
+            cost_maps.append(tF.avg_pool2d(cost, patch, 1, patch // 2, count_include_pad=False))
+        costs = torch.cat(cost_maps, 1)[0]  # [n_depths, H, W]
         best, arg = costs.min(0)
         conf = costs.mean(0) / best.clamp_min(1e-4)
         gy, gx = torch.gradient(img[f].mean(0))

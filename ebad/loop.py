@@ -86,14 +86,17 @@ def frame_losses(data: TrainingData, state: TrainState, f: int, cfg: Config) -> 
     edi_target = None
     if lc.w_edi > 0:
         edi_target = views if views is not None else data.latents[f] if data.latents is not None else None
-    counts, event_views, c = None, (), None
-    if lc.w_event > 0 and data.ev_counts[f] is not None:
+    counts: Tensor | None = None
+    event_views: tuple[int, ...] = ()
+    c = None
+    frame_counts = data.ev_counts[f]
+    if lc.w_event > 0 and frame_counts is not None:
         c = torch.exp(state.log_c) if state.log_c is not None else data.c
         if lc.event_windows == "random":  # one random pair of virtual instants (virtual_views docstring)
             i, j = random_window(V, state.generator)
-            counts, event_views = window_counts(data.ev_counts[f], i, j), (i, j)
+            counts, event_views = window_counts(frame_counts, i, j), (i, j)
         else:
-            counts, event_views = data.ev_counts[f], tuple(range(V))
+            counts, event_views = frame_counts, tuple(range(V))
     if state.response.learnable:
         blur, edi, ev, mean_render = _losses_through_response(
             images, V, data.targets[f], edi_target, mid, counts, event_views, c, state.response, cfg
@@ -153,7 +156,10 @@ def _losses_through_response(
     if edi_target is not None:
         pairs.append((response(renders if edi_target.ndim == 4 else images[mid]), edi_target))
     blur, *edi = l1_ssim_each(pairs, lc.ssim_weight, lc.ssim_window)
-    ev = event_loss(images[list(event_views)], counts, c, norm=lc.event_norm) if event_views else None
+    ev = None
+    if event_views:
+        assert counts is not None  # given with event_views (frame_losses)
+        ev = event_loss(images[list(event_views)], counts, c, norm=lc.event_norm)
     return blur, (edi[0] if edi else None), ev, recorded_blur.detach()[0]
 
 
@@ -270,7 +276,7 @@ class _Interrupts:
     """SIGINT / SIGTERM set a flag the loop checks after each step (so the state stays whole and
     is checkpointed); a second Ctrl-C raises KeyboardInterrupt at once."""
 
-    def __init__(self):
+    def __init__(self) -> None:
         self.received: str | None = None
         self._old: dict[int, Any] = {}
 

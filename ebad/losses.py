@@ -262,5 +262,8 @@ def exposure_losses(
         )
     blur = blur_loss(images[:V], blurry, ssim_weight, window)
     edi = None if latents is None else edi_loss(images[:V] if views else images[mid], latents, ssim_weight, window)
-    ev = event_loss(images[list(event_views)], counts, cc, eps, norm) if len(event_views) >= 2 else None
+    ev = None
+    if len(event_views) >= 2:
+        assert counts is not None  # checked above
+        ev = event_loss(images[list(event_views)], counts, cc, eps, norm)
     return blur, edi, ev, images[:V].mean(0).detach()

@@ -225,7 +225,7 @@ def reconstruct(
         with torch.no_grad():
             state.trajectories.knots.copy_(mean)
     run = Run(
-        params=state.params,
+        params=dict(state.params),  # a dict[str, Tensor] of the same Parameters
         trajectories=state.trajectories,
         config=cfg,
         K=data.K.double().numpy(),

@@ -28,10 +28,11 @@ import json
 import os
 import socket
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 import torch
-from torch import nn
+from torch import Tensor, nn
 
 from scenes._atomic import atomic_path, write_text_atomic
 
@@ -133,7 +134,7 @@ class RunLock:
     def __enter__(self) -> RunLock:
         return self.acquire()
 
-    def __exit__(self, *exc) -> bool:
+    def __exit__(self, *exc) -> Literal[False]:
         self.release()
         return False
 
@@ -208,7 +209,7 @@ def load_run(path: str | Path) -> Run:
             raise UserError(f"{path} is not a complete run folder: {name} is missing")
     cfg = load_config(path / "config.json")
     model = json.loads((path / "model.json").read_text())
-    params = {k: nn.Parameter(v) for k, v in read_ply(path / "point_cloud.ply").items()}
+    params: dict[str, Tensor] = {k: nn.Parameter(v) for k, v in read_ply(path / "point_cloud.ply").items()}
     if params["colors"].shape[1] != model["channels"]:
         params["colors"] = nn.Parameter(params["colors"][:, : model["channels"]].contiguous())
     traj = ExposureTrajectories(

@@ -9,7 +9,7 @@
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -30,6 +30,7 @@ __all__ = [
     "score_frames",
     "with_poses",
     "scorable_views",
+    "view_pose",
     "evaluate_views",
 ]
 
@@ -45,7 +46,7 @@ class ViewScores:
 
 
 def render_images(
-    params: dict[str, Tensor],
+    params: Mapping[str, Tensor],
     c2w,
     K,
     width: int,
@@ -97,10 +98,17 @@ def scorable_views(views: Sequence[TestView]) -> list[TestView]:
     return [v for v in views if getattr(v, "image", None) is not None and getattr(v, "c2w", None) is not None]
 
 
+def view_pose(view: TestView) -> np.ndarray:  # [4, 4]
+    """The pose of a view that has one (a scorable view's, or one given by ``with_poses``)."""
+    if view.c2w is None:
+        raise ValueError(f"test view {view.name!r} has no pose")
+    return view.c2w
+
+
 def evaluate_views(render_fn: Callable[[np.ndarray], np.ndarray], views: Sequence[TestView]) -> ViewScores | None:
     """Mean PSNR / SSIM of the views that carry an image and a pose (None when none does);
     ``render_fn(c2w [C, 4, 4]) -> [C, H, W, D]``."""
     views = scorable_views(views)
     if not views:
         return None
-    return score_views(render_fn(np.stack([v.c2w for v in views])), views)
+    return score_views(render_fn(np.stack([view_pose(v) for v in views])), views)

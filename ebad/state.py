@@ -143,7 +143,7 @@ def make_optimizers(
         "opacities": tc.lr_opacities,
         "colors": tc.lr_colors,
     }
-    opts = {k: _adam([params[k]], lr=lrs[k], eps=1e-15) for k in lrs}
+    opts: dict[str, torch.optim.Optimizer] = {k: _adam([params[k]], lr=lrs[k], eps=1e-15) for k in lrs}
     if traj.knots.numel() > 0 and bool(traj.moving.any()):
         opts["poses"] = _adam([traj.knots], lr=cfg.trajectory.lr)
     if log_c is not None and log_c.requires_grad:
@@ -167,7 +167,7 @@ def _trajectories(
     one (``fixed`` becomes ``offset``), as BAD-Gaussians and gsplat's pose_opt do."""
     anchor = anchored(data, cfg)
     moving = torch.from_numpy(data.V > 1) if anchor else torch.ones(data.num_frames, dtype=torch.bool)
-    kind = cfg.trajectory.kind if bool((torch.from_numpy(data.V > 1)).any()) else "fixed"
+    kind: str = cfg.trajectory.kind if bool((torch.from_numpy(data.V > 1)).any()) else "fixed"
     if not anchor and data.report.pose_source != "static" and kind == "fixed":
         kind = "offset"
     if kind == "fixed" or data.report.pose_source == "static":
@@ -361,7 +361,11 @@ def fingerprint_diff(saved: dict[str, Any], now: dict[str, Any]) -> str:
         if a == b:
             continue
         if key == "frames":
-            out.append(f"{len(a)} frames then, {len(b)} now" if len(a) != len(b) else "other frame names")
+            # a fingerprint without frames (None) reads as other frame names, not a TypeError
+            if a is not None and b is not None and len(a) != len(b):
+                out.append(f"{len(a)} frames then, {len(b)} now")
+            else:
+                out.append("other frame names")
         elif key in ("size", "events"):
             out.append(f"{key} {a} then, {b} now")
         else:

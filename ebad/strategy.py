@@ -203,9 +203,16 @@ def screen_grads(info: RenderInfo) -> tuple[Tensor, Tensor] | None:
     g = m2d.grad.detach().clone()
     g[..., 0] *= info.width / 2.0
     g[..., 1] *= info.height / 2.0
-    radii = info.radii
+    radii = _radii(info)
     visible = (radii > 0).all(-1) if radii.ndim == 3 else radii > 0
     return g.norm(dim=-1) * visible, visible
+
+
+def _radii(info: RenderInfo) -> Tensor:
+    """``info.radii``, which a rasteriser hands with the means2d whose gradient is accumulated."""
+    if info.radii is None:
+        raise ValueError("RenderInfo.radii is None: the screen radii are needed with the means2d gradient")
+    return info.radii
 
 
 @njit(cache=True)
@@ -269,7 +276,8 @@ class DefaultStrategy:
             state.grad2d += norms.sum(0)
             state.count += visible.sum(0).float()
             return
-        radii = info.radii.numpy()
+        assert m2d is not None and m2d.grad is not None  # fast
+        radii = _radii(info).numpy()
         _add_screen_grads(
             m2d.grad.detach().numpy(),
             radii if radii.ndim == 3 else radii[..., None],

@@ -183,6 +183,9 @@ class ExposureTrajectories(nn.Module):
             exposure is learnt and the scene cannot drift away from the trusted cameras.
     """
 
+    c2w_mid: Tensor  # registered buffers (nn.Module's __getattr__ types them Tensor | Module)
+    moving: Tensor
+
     def __init__(
         self,
         c2w_mid: Tensor,

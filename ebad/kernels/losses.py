@@ -83,9 +83,13 @@ def exposure_losses(
     L_EDI (None without latents), L_ev (None with fewer than two event views) and the mean of the
     V renders [H, W, D], detached."""
     views = latents is not None and latents.ndim == 4
+    mid_index = None
+    if latents is not None and not views:
+        assert mid is not None  # ebad.losses.exposure_losses checks mid with a [H, W, D] latent
+        mid_index = int(mid)
     spec = _ExposureSpec(
         V=V,
-        mid=None if latents is None or views else int(mid),
+        mid=mid_index,
         views=views,
         event_views=event_views if len(event_views) >= 2 else (),
         win=win,
@@ -232,7 +236,7 @@ def _group_l1_ssim(sums: np.ndarray, group: np.ndarray, P: int, pixels: int, w: 
 
 
 def _event_pass(
-    Ln: np.ndarray, counts: np.ndarray, c_pos: float, c_neg: float, eps: float, l2: bool
+    Ln: np.ndarray, counts: np.ndarray, c_pos: float | Tensor, c_neg: float | Tensor, eps: float, l2: bool
 ) -> tuple[float, np.ndarray, float, float]:
     """``_numba_event.event_forward`` on luminances [V, H, W] and counts [V - 1, 2, H, W] of
     one dtype -> the loss (mean over windows and pixels), dloss/dr per window and pixel g
@@ -344,6 +348,7 @@ class _ExposureLosses(torch.autograd.Function):
         image_losses, ctx.inv_count = _group_l1_ssim(sums, group, len(preds), H * W, spec.w)
         ev = 0.0
         if spec.event_views:
+            assert counts is not None  # ebad.losses.exposure_losses checks counts with two or more event views
             Xe = X[list(spec.event_views)]
             Ln = np.ascontiguousarray(Xe[..., 0] if D == 1 else Xe @ np.asarray(LUMA, dt))  # [E, H, W] luminance
             ev, ctx.g, ctx.s_on, ctx.s_off = _event_pass(
@@ -368,6 +373,7 @@ class _ExposureLosses(torch.autograd.Function):
             ga, _ = _ssim_adjoint(
                 ctx.ssim, np.empty(_EMPTY, ctx.ssim.A.dtype), -spec.w * per_image, (1 - spec.w) * per_image, True, False
             )
+            assert ga is not None  # want_a
             ga = ga.reshape(-1, D, H, W).transpose(0, 2, 3, 1)  # [P images, H, W, D]
             blur_share = ga[0] / ga.dtype.type(spec.V)  # the mean's gradient, to each of the V renders
             if spec.views and Vp == spec.V:  # each render's own L_EDI gradient plus its share: one pass
