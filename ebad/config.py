@@ -406,7 +406,8 @@ def _bad() -> Config:
     c.loss.w_event = 0.0
     c.loss.w_edi = 0.0
     c.trajectory.adaptive_views = False
-    c.trajectory.kind = "linear"  # BAD-Gaussians' default; with the blur alone cubic measured lower (benchmarks/results/ablation_noisy.json)
+    # BAD-Gaussians' default; with the blur alone cubic measured lower (benchmarks/results/ablation_noisy.json)
+    c.trajectory.kind = "linear"
     return c
 
 

@@ -101,9 +101,9 @@ class TrainingData:
     events: EventStream | None = (
         None  # the events of L_ev and of the views' latents (kept to count them again when V changes)
     )
-    view_latents: list[Tensor | None] | None = (
-        None  # per frame [V, H, W, D] EDI latents at its virtual instants (loss.edi_instants views; None for a sharp frame), else None
-    )
+    # per frame [V, H, W, D] EDI latents at its virtual instants (loss.edi_instants views; None for a sharp
+    # frame), else None
+    view_latents: list[Tensor | None] | None = None
 
     def set_views(self, V: np.ndarray) -> None:
         """New V per frame, in place: the event counts between the new virtual instants are

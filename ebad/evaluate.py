@@ -83,7 +83,7 @@ def refine_pose(
     K = torch.as_tensor(run.K, dtype=torch.float32)
     best, best_loss, losses = base.clone(), float("inf"), []
     step = 0
-    for step in range(1, iters + 1):
+    for step in range(1, iters + 1):  # noqa: B007  (the steps taken are returned)
         pose = base @ compose_pose(so3_exp(xi[:3]), scale * xi[3:])
         img, _, _ = render(params, pose[None], K, run.width, run.height, run.config.model.background)
         loss = l1_ssim(run.response(img[0]), target)  # in the camera's domain, like the image

@@ -119,7 +119,7 @@ class RunLock:
                 raise UserError(
                     f"{self.path.parent} is in use by {who} (lock file {self.path}); wait for it to "
                     "finish or choose another --out"
-                )
+                ) from None
             with os.fdopen(fd, "w") as fh:
                 fh.write(me)
             self.held = True

@@ -127,7 +127,7 @@ def _rot_tangent(R, J, col, scale, out):  # pragma: no cover - jit
 
 
 @njit(cache=True)
-def _frame(kind, Rm, tm, knots, u, scale, R, t, dR, dt):  # pragma: no cover - jit
+def _frame(kind, Rm, tm, knots, u, scale, R, t, dR, dt):  # noqa: C901  (one numba pass for speed)  # pragma: no cover - jit
     """One frame's poses R [V, 3, 3], t [V, 3] at the instants u [V] and their tangents dR
     [P, V, 3, 3], dt [P, V, 3] (written; zero where a coordinate does not move them). False when a
     logarithm is near pi."""
@@ -233,7 +233,7 @@ def _frame(kind, Rm, tm, knots, u, scale, R, t, dR, dt):  # pragma: no cover - j
 
 
 @njit(cache=True)
-def _poses(kind, c2w_mid, knots, u, scale, anchored, c2w, dC):  # pragma: no cover - jit
+def _poses(kind, c2w_mid, knots, u, scale, anchored, c2w, dC):  # noqa: C901  (one numba pass)  # pragma: no cover - jit
     """c2w [B, V, 4, 4] and dC [B, P, V, 3, 4] written (see ``ebad.kernels.poses.poses_with_tangents``);
     False when a logarithm is near pi."""
     B = knots.shape[0]

@@ -211,7 +211,7 @@ def ssim_forward(a, b, g, s_map, coef, want_grad, sums):  # pragma: no cover - j
 
 
 @njit(cache=True, parallel=True, fastmath=_FASTMATH)
-def ssim_backward(a, b, g, coef, grad_s, gs_const, l1_coef, grad_a, grad_b, want_a, want_b):  # pragma: no cover - jit
+def ssim_backward(a, b, g, coef, grad_s, gs_const, l1_coef, grad_a, grad_b, want_a, want_b):  # noqa: C901  # pragma: no cover - jit (one fused numba pass, for speed)
     """The gradients of sum(G * S) + sum_n l1_coef[n] * sum(|a_n - b_n|) with respect to ``a`` and
     ``b``, into ``grad_a`` and ``grad_b`` [N, H, W] (each written when wanted), with G the map
     ``grad_s`` [N, H, W], or, when ``grad_s`` is empty, ``gs_const[n]`` [N] over all of image n.
