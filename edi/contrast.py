@@ -199,7 +199,7 @@ def _valid_mask(b: np.ndarray, border: int) -> np.ndarray:
     valid = (b < SATURATION).all(axis=-1)
     if border:
         valid = ndimage.binary_erosion(valid, iterations=border, border_value=0)
-    return valid
+    return valid  # type: ignore[return-value]  # numpy stubs: all(axis=...) may be a scalar
 
 
 def _tiles(n: int, patch: int) -> np.ndarray:
@@ -541,7 +541,8 @@ def _consistency_pairs(fr: np.ndarray, ex: np.ndarray, events: EventStream) -> t
     relation's small errors then moved the estimate by 2-11% on ``moving_texture`` (40 ms
     exposures every 50 ms)."""
     centres = ex.mean(axis=1)
-    valid = (fr < SATURATION).all(axis=-1) & (fr > 0.0).all(axis=-1)  # [F, H, W]
+    # [F, H, W] (numpy's stubs type all(axis=...) as a scalar or an array)
+    valid: np.ndarray = (fr < SATURATION).all(axis=-1) & (fr > 0.0).all(axis=-1)  # type: ignore[assignment]
     resid = _mean_residual(events, ex)  # [F, 2, H, W]
     pairs = []
     for i in range(fr.shape[0] - 1):

@@ -365,12 +365,10 @@ def read_aedat4(path: str | Path) -> AedatRecording:
     if not path.exists():
         raise FileNotFoundError(f"AEDAT4 file not found: {path}")
     try:
-        import aedat  # type: ignore
+        import aedat
     except ImportError:
-        aedat = None
-    if aedat is None:
         try:
-            import dv_processing as dv  # type: ignore  # noqa: F401
+            import dv_processing as dv  # noqa: F401
         except ImportError:
             raise ImportError(_MISSING) from None
         return _read_aedat4_dv(path)
@@ -401,7 +399,9 @@ def read_aedat4(path: str | Path) -> AedatRecording:
     t0 = min(candidates) if candidates else 0
     if evs is not None:
         order = np.argsort(t_raw, kind="stable")  # packets may interleave slightly
-        pol = evs[evs.dtype.names[3]]
+        names = evs.dtype.names
+        assert names is not None  # a structured array: its fields "t", "x", "y" were read above
+        pol = evs[names[3]]
         events = EventStream(
             t_raw[order], evs["x"][order], evs["y"][order], pol[order].astype(np.int8), size[0], size[1], t0=t0
         )
@@ -417,7 +417,7 @@ def read_aedat4(path: str | Path) -> AedatRecording:
 
 
 def _read_aedat4_dv(path: Path) -> AedatRecording:  # pragma: no cover - needs dv-processing
-    import dv_processing as dv  # type: ignore
+    import dv_processing as dv
 
     rec = dv.io.MonoCameraRecording(str(path))
     evs, frames, exps = [], [], []

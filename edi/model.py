@@ -262,6 +262,7 @@ def edi_log_ratio(
         float(c[1]),
     )
     if impl == "binned":
+        assert n_bins is not None  # checked above for impl="binned"
         logmean, Ef = edi_pass_binned(*args, n_bins=int(n_bins))
     else:
         logmean, Ef = _IMPLS[impl](*args)
@@ -285,7 +286,7 @@ def latent_from_ratio(
     sat = (b >= saturation).any(axis=-1)  # [H, W]
     if sat.any():
         lat[:, sat, :] = b[sat][None]
-    return np.clip(lat, 0.0, 1.0), sat
+    return np.clip(lat, 0.0, 1.0), sat  # type: ignore[return-value]  # numpy stubs: any(axis=...) may be a scalar
 
 
 def check_gamma(gamma: Any, name: str = "gamma") -> float:

@@ -11,6 +11,7 @@ benchmark; small and fast (numpy only).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 
@@ -93,8 +94,13 @@ def moving_texture(
     freqs = np.stack([radius * np.cos(ang), radius * np.sin(ang)], axis=1)
     phases = rng.uniform(0, 2 * np.pi, (K, channels))
     amps = rng.uniform(0.5, 1.0, K) / np.sqrt(K) * 2.0
-    tex = Texture(height, width, channels, freqs, phases, amps, tuple(velocity), lo, hi, gain)
-    c_pos, c_neg = (float(c), float(c)) if np.isscalar(c) else (float(c[0]), float(c[1]))
+    vx, vy = velocity
+    tex = Texture(height, width, channels, freqs, phases, amps, (vx, vy), lo, hi, gain)
+    if np.isscalar(c):
+        c_pos = c_neg = float(cast(float, c))  # np.isscalar does not narrow the type
+    else:
+        pair = cast("tuple[float, float]", c)
+        c_pos, c_neg = float(pair[0]), float(pair[1])
     c_pos_px = np.full((height, width), c_pos)
     c_neg_px = np.full((height, width), c_neg)
     if sigma_c > 0:
@@ -136,4 +142,4 @@ def moving_texture(
         a, b = seconds_to_us(t0), seconds_to_us(t1)
         sel = [images[int(tj)] for tj in steps if a <= tj < b]
         frames.append(np.mean(sel, axis=0))
-    return SyntheticSequence(np.stack(frames), exposures, ev, (c_pos, c_neg), tuple(velocity), tex)
+    return SyntheticSequence(np.stack(frames), exposures, ev, (c_pos, c_neg), (vx, vy), tex)

@@ -132,7 +132,7 @@ def _write_png(path: Path, img: np.ndarray, scale: int) -> None:
     a = np.round(a * 255).astype(np.uint8)
     im = Image.fromarray(a[..., 0] if a.shape[2] == 1 else a)
     if scale != 1:
-        im = im.resize((im.width * scale, im.height * scale), Image.BICUBIC)
+        im = im.resize((im.width * scale, im.height * scale), Image.Resampling.BICUBIC)
     im.save(path)
 
 
@@ -224,6 +224,7 @@ def estimate_poses(
         for name, im in zip(names, imgs):
             _write_png(img_dir / name, im, scale)
         for name, tv in zip(test_names, tests):
+            assert tv.image is not None  # _sfm_inputs keeps only the test views with an image
             _write_png(img_dir / name, tv.image, scale)
         db = root / "database.db"
         if db.exists():

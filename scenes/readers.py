@@ -225,8 +225,8 @@ def load_ecd(root: str | os.PathLike) -> Capture:
         meta["dropped_frames"] = [lines[i][1] for i in np.flatnonzero(~keep)]
         meta["pose_source"] = "groundtruth.txt (interpolated to frame times)"
     frames = []
-    for i in np.flatnonzero(keep):
-        frames.append(read_image(root / lines[i][1], f"images.txt line {i + 1}"))
+    for j in np.flatnonzero(keep):
+        frames.append(read_image(root / lines[j][1], f"images.txt line {j + 1}"))
     shapes = {f.shape for f in frames}
     if len(shapes) != 1:
         raise CaptureError(str(itxt), "images", f"frames differ in size/channels: {sorted(shapes)}")

@@ -85,7 +85,9 @@ class RayScene:
             raise ValueError(f"primitives: textures must share a channel count, got {sorted(d)}")
         meshes = [p.mesh() for p in self.primitives]
         self.tri_prim = np.concatenate([np.full(len(m.faces), i) for i, m in enumerate(meshes)])
-        self.mesh = trimesh.util.concatenate(meshes)
+        mesh = trimesh.util.concatenate(meshes)
+        assert isinstance(mesh, trimesh.Trimesh)  # typed as any Geometry; meshes concatenate to a Trimesh
+        self.mesh = mesh
 
     @property
     def channels(self) -> int:
@@ -179,8 +181,8 @@ def render(
         raise ValueError("c2w: non-finite pose")
     npx = width * height
     d_ch = scene.channels
-    img = np.full((len(c2ws), npx, d_ch), scene.background, np.float32)
-    depth = np.zeros((len(c2ws), npx), np.float32)
+    img: np.ndarray = np.full((len(c2ws), npx, d_ch), scene.background, np.float32)
+    depth: np.ndarray = np.zeros((len(c2ws), npx), np.float32)
     per = max(1, batch_rays // npx)
     for b0 in range(0, len(c2ws), per):
         cams = c2ws[b0 : b0 + per]

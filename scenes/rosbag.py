@@ -27,7 +27,7 @@ import os
 import struct
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -65,7 +65,7 @@ DVS_EVENT_MSG = "uint16 x\nuint16 y\ntime ts\nbool polarity\n"
 DVS_EVENT_ARRAY_MSG = "Header header\nuint32 height\nuint32 width\nEvent[] events\n"
 EVENT_DTYPE = np.dtype([("x", "<u2"), ("y", "<u2"), ("sec", "<u4"), ("nsec", "<u4"), ("p", "u1")])  # 13 bytes, packed
 NS_PER_US = 1000
-IMAGE_ENCODINGS = {
+IMAGE_ENCODINGS: dict[str, tuple[int, type[np.unsignedinteger], bool]] = {
     "mono8": (1, np.uint8, False),
     "mono16": (1, np.uint16, False),
     "rgb8": (3, np.uint8, False),
@@ -162,7 +162,7 @@ def _image(msg: Any, path: Path, k: int) -> np.ndarray:  # -> [H, W, D] float32
             str(path), f"image[{k}].data", f"{len(data)} bytes for {w}x{h} {msg.encoding} with step {step}"
         )
     rows = data[: h * step].reshape(h, step)[:, : w * d * itemsize]
-    order = ">" if msg.is_bigendian else "<"
+    order: Literal[">", "<"] = ">" if msg.is_bigendian else "<"
     a = np.ascontiguousarray(rows).view(np.dtype(dtype).newbyteorder(order) if itemsize > 1 else dtype).reshape(h, w, d)
     if bgr:
         a = a[..., ::-1]

@@ -21,7 +21,7 @@ tested against each other.
 from __future__ import annotations
 
 import math
-from typing import Literal, overload
+from typing import Literal, cast, overload
 
 import numba
 import numpy as np
@@ -213,9 +213,13 @@ def simulate_events(
     """
     eps = LOG_EPS if eps is None else float(eps)
     try:
-        cp, cn = (float(c), float(c)) if np.ndim(c) == 0 else (float(c[0]), float(c[1]))
-        if np.ndim(c) == 1 and len(c) != 2:
-            raise TypeError
+        if np.ndim(c) == 0:
+            cp = cn = float(cast(float, c))  # np.ndim does not narrow the type
+        else:
+            pair = cast("tuple[float, float]", c)
+            cp, cn = float(pair[0]), float(pair[1])
+            if np.ndim(c) == 1 and len(pair) != 2:
+                raise TypeError
     except (TypeError, ValueError, IndexError):
         raise ValueError(f"c: must be a float or a pair (c_pos, c_neg), got {c!r}") from None
     imgs, t = _check(

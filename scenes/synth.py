@@ -391,6 +391,8 @@ class Trajectory:
         t = np.atleast_1d(np.asarray(t, np.float64))
         if self.tremor_amp is None:
             return np.zeros((len(t), 6))
+        if self.tremor_freq is None or self.tremor_phase is None:
+            raise ValueError("tremor_amp needs tremor_freq and tremor_phase")
         arg = 2 * np.pi * self.tremor_freq[None] * t[:, None, None] + self.tremor_phase[None]
         return (self.tremor_amp[None] * np.sin(arg)).sum(axis=1)
 
@@ -689,7 +691,8 @@ def make_scene(
     test_irr = render(scene, test_c2w, K, width, height) if len(gaps) else np.zeros((0, height, width, scene.channels))
     gt_test = aps_response(test_irr, sen).astype(np.float32)
     test_rec = aps_record(test_irr, sen, rng_aps) if sen.record_test_views else gt_test
-    given, given_test = c2w_mid, test_c2w
+    given: np.ndarray | None = c2w_mid
+    given_test: np.ndarray | list[None] = test_c2w
     if sen.poses == "noisy":
         given, given_test = (_perturb(m, rng_pose, sen.pose_rot_deg, sen.pose_trans) for m in (c2w_mid, test_c2w))
     if sen.poses == "none":
@@ -766,6 +769,8 @@ def write_scene(
     views' images (recorded by the camera) and the poses the sensor gives (exact, noisy or
     none): they are held out, never trained on; the training frames' sharp renders exist only
     under gt/."""
+    if scene.gt_c2w is None or scene.gt_test_c2w is None or scene.gt_test_images is None:
+        raise CaptureError(None, "scene", "needs its gt_c2w, gt_test_c2w and gt_test_images (make_scene sets them)")
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise CaptureError(None, "out_dir", f"{out} exists and is not a folder")
@@ -802,7 +807,7 @@ def write_scene(
             for j, tv in enumerate(cap.test_views)
         ]
         np.save(gt / "depths.npy", scene.gt_depths)
-        if scene.c_pos is not None:
+        if scene.c_pos is not None and scene.c_neg is not None:
             np.savez(gt / "thresholds.npz", c_pos=scene.c_pos, c_neg=scene.c_neg)
         doc = {
             "scene": scene.name,
@@ -816,7 +821,7 @@ def write_scene(
                     "t_end": float(cap.exposures[k, 1]),
                     "c2w_mid": scene.gt_c2w[k].tolist(),
                     "trajectory": {
-                        "t": np.linspace(*cap.exposures[k], trajectory_samples).tolist(),
+                        "t": np.linspace(cap.exposures[k, 0], cap.exposures[k, 1], trajectory_samples).tolist(),
                         "c2w": scene.gt_trajectory(k, trajectory_samples).tolist(),
                     },
                 }

@@ -76,7 +76,7 @@ class _Project(torch.autograd.Function):
     @staticmethod
     def forward(ctx, means, quats, scales, opacities, viewmats, ks, width: int, height: int, out: dict, timings: dict):
         n, n_cam = means.shape[0], viewmats.shape[0]
-        arrs = [_np(x) for x in (means, quats, scales, opacities, viewmats, ks)]
+        arrs = (_np(means), _np(quats), _np(scales), _np(opacities), _np(viewmats), _np(ks))
         means2d = np.empty((n_cam, n, 2))
         conics = np.empty((n_cam, n, 3))
         depths = np.empty((n_cam, n))

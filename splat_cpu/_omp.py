@@ -92,14 +92,15 @@ def choose_threading_layer() -> NumbaLayer:
     import numba
     from numba.np.ufunc import parallel
 
-    if "NUMBA_THREADING_LAYER" in os.environ or numba.config.THREADING_LAYER != "default":
+    user_layer = numba.config.THREADING_LAYER  # type: ignore[attr-defined]  # numba.config sets it at import time
+    if "NUMBA_THREADING_LAYER" in os.environ or user_layer != "default":
         return "user"
     if getattr(parallel, "_is_initialized", False):
         return "launched"
     if openmp_threads_sleep():
-        numba.config.THREADING_LAYER_PRIORITY = ["omp", WORKQUEUE, "tbb"]
+        numba.config.THREADING_LAYER_PRIORITY = ["omp", WORKQUEUE, "tbb"]  # type: ignore[attr-defined]  # as above
         _chosen.append("omp")
     else:
-        numba.config.THREADING_LAYER = WORKQUEUE
+        numba.config.THREADING_LAYER = WORKQUEUE  # type: ignore[attr-defined]  # as above
         _chosen.append(WORKQUEUE)
     return _chosen[0]

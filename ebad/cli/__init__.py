@@ -87,7 +87,7 @@ def _root_type(mods: list[ModuleType], selected: str | None, argv: list[str]) ->
     root = dataclasses.make_dataclass(
         "Ebad",
         [
-            ("command", Annotated[Union[tuple(options)], tyro.conf.arg(name="")]),  # type: ignore[misc]  # noqa: UP007
+            ("command", Annotated[Union[tuple(options)], tyro.conf.arg(name="")]),  # noqa: UP007
             (
                 "traceback",
                 Annotated[bool, tyro.conf.arg(help="show the full traceback of a user mistake too")],

@@ -101,6 +101,7 @@ def run(args: Args) -> int:
         cfg.train.eval_every = 0
         print(f"  reconstructing with '{name}' for {args.seconds:g} s ...", flush=True)
         r = reconstruct(cap, cfg)
+        assert r.metrics is not None  # reconstruct() always sets the metrics
         runs[name] = r
         renders: dict[str, np.ndarray] = {}
         ev = evaluate(
@@ -121,6 +122,7 @@ def run(args: Args) -> int:
             write_render(out / "renders" / name / f"{view_name}.png", img, 8)
         gt_traj = np.stack([scene.gt_trajectory(k, 9) for k in range(cap.num_frames)])
         write_run(r, out / f"run_{name}", gt_trajectories=gt_traj)
+    assert scene.gt_test_images is not None  # make_scene always sets it
     truth = {v.name: scene.gt_test_images[j] for j, v in enumerate(cap.test_views)}  # noise-free, for display
     rows = [[truth[n]] + [results[m]["renders"][n] for m, _ in METHODS] for n in results["ebad"]["renders"]]
     db = {n: runs[n].deblurred_frames() for n, _ in METHODS}

@@ -150,6 +150,7 @@ def run(args: Args) -> int:
         gt = _gt_trajectories(Path(args.capture), run_.names)
         write_run(run_, out, gt_trajectories=gt)
     m = run_.metrics
+    assert m is not None  # reconstruct() always sets the metrics
     test = m.test
     print(
         f"ebad reconstruct [{cfg.name}]: {m.steps} steps ({m.stop_reason}), {m.gaussians} Gaussians, "

@@ -68,8 +68,8 @@ def run(args: Args) -> int:
     if args.path:
         if args.path < 2:
             raise UserError(f"--path needs at least 2 frames, got {args.path}")
-        poses = smooth_path(run_.trajectories.mid_poses().numpy().astype(np.float64), args.path)
-        imgs = run_.render(poses)
+        path_poses = smooth_path(run_.trajectories.mid_poses().numpy().astype(np.float64), args.path)
+        imgs = run_.render(path_poses)
         for i, img in enumerate(imgs):
             write_render(out / f"path_{i:04d}.png", img, args.bits)
         print(f"ebad render: {len(imgs)} path frames ({kind} PNG) -> {out}")
