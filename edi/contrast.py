@@ -18,7 +18,8 @@ Two estimators (each an energy of c, every evaluation one EDI pass per frame use
   own threshold error does not enter squared (``_flow_setup`` says what each removed).
   ``"paper"`` is the EDI paper's energy as it states it: total variation of the mid-exposure
   latent (relative to the blurry frame's) minus ``paper_weight`` times the normalised
-  cross-correlation of the Sobel magnitudes of the latent and of the event integral (integral over the exposure of E(t)). It is kept for
+  cross-correlation of the Sobel magnitudes of the latent and of the event integral (integral
+  over the exposure of E(t)). It is kept for
   comparison: measured on ``moving_texture`` and the ray-cast scenes its minimum lies at
   the low end of the bracket (the latent's TV grows with c faster than the correlation),
   see ``benchmarks/calibration.py``.
@@ -556,7 +557,7 @@ def _consistency_pairs(fr: np.ndarray, ex: np.ndarray, events: EventStream) -> t
         k0, k1 = events_in_window(events, *sorted((ex[first, 0], ex[second, 0])))
         between = events[k0:k1]
         z = []
-        for row, pol in enumerate((1, -1)):
+        for pol in (1, -1):
             k = (
                 between.count_image(pol) * (1.0 if ex[second, 0] >= ex[first, 0] else -1.0)
                 + _exposure_tails(events, ex[second], pol)

@@ -228,7 +228,8 @@ class Capture:
             )
 
     def _check_camera(self, source: str | None) -> None:
-        """K: a finite pinhole [[fx, 0, cx], [0, fy, cy], [0, 0, 1]], fx, fy > 0; distortion: 5 finite numbers or None."""
+        """K: a finite pinhole [[fx, 0, cx], [0, fy, cy], [0, 0, 1]], fx, fy > 0; distortion: 5 finite
+        numbers or None."""
         k = np.asarray(self.K, dtype=np.float64)
         if k.shape != (3, 3) or not np.isfinite(k).all():
             raise CaptureError(source, "K", f"must be a finite 3x3 matrix, got shape {k.shape}")

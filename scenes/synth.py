@@ -235,7 +235,10 @@ def aps_record(
     return quantize(v, sensor.bits)
 
 
-def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = np.array([0.0, -1.0, 0.0])) -> np.ndarray:
+WORLD_UP = np.array([0.0, -1.0, 0.0])  # world up of the synthetic scenes: -y (OpenCV axes)
+
+
+def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = WORLD_UP) -> np.ndarray:
     """OpenCV c2w [4, 4] at ``eye`` looking at ``target`` (``up`` is world up, -y here)."""
     z = target - eye
     z = z / np.linalg.norm(z)

@@ -418,7 +418,7 @@ def forward_tiles(
 
 
 @njit(cache=True, parallel=True, fastmath=_FASTMATH, error_model="numpy")
-def backward_tiles(
+def backward_tiles(  # noqa: C901  (one fused numba pass over each tile, for speed)
     means2d,  # [C, N, 2]
     conics,  # [C, N, 3]
     opacities,  # [N]

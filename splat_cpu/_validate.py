@@ -48,7 +48,7 @@ def _check_tensor(name: str, x: object, ndim: int, tail: tuple[int | None, ...],
     return x
 
 
-def validate_inputs(
+def validate_inputs(  # noqa: C901  (one check per argument, in the signature's order)
     means: Tensor,  # [N, 3]
     quats: Tensor,  # [N, 4]
     scales: Tensor,  # [N, 3]

@@ -104,9 +104,7 @@ def run(args: Args) -> int:
         assert r.metrics is not None  # reconstruct() always sets the metrics
         runs[name] = r
         renders: dict[str, np.ndarray] = {}
-        ev = evaluate(
-            r, cap, refine=refine, gt_frames=scene.gt_frames, renders_to=lambda n, img: renders.__setitem__(n, img)
-        )
+        ev = evaluate(r, cap, refine=refine, gt_frames=scene.gt_frames, renders_to=renders.__setitem__)
         test = ev["test_refined" if refine else "test"]
         results[name] = {
             "test_psnr": test.psnr,
