@@ -33,8 +33,8 @@ _GENERATORS = torch.tensor(
 def so3_exp(w: Tensor) -> Tensor:  # [..., 3] -> [..., 3, 3]
     """Rotation matrices from rotation vectors: ``torch.linalg.matrix_exp`` of the skew matrix
     [w]x. The same map as kornia's ``So3.exp`` in two operations, where that one takes over a
-    hundred small ones (through quaternions): six rotations forward and backward took 0.33
-    against 1.07 ms on one thread, most of a training step's trajectory cost."""
+    hundred small ones (through quaternions), which made most of a training step's trajectory
+    cost."""
     lead = w.shape[:-1]
     skew = w.reshape(-1, 3) @ _GENERATORS.to(w.dtype)
     return torch.linalg.matrix_exp(skew.reshape(-1, 3, 3)).reshape(*lead, 3, 3)
@@ -50,8 +50,8 @@ def so3_log(R: Tensor) -> Tensor:  # [..., 3, 3] -> [..., 3]
     w = v angle / sin(angle), the angle from atan2 (no arccos, whose slope is infinite at the
     identity) and angle / sin(angle) from its series where sin(angle)^2 is below the dtype's
     epsilon, so that values and gradients stay finite at the identity. About fifteen
-    operations, where kornia's ``So3.log`` (through quaternions) takes over a hundred: bad's
-    linear trajectory spent 1.1 to 1.5 ms a step in it. Near pi, where v loses its digits,
+    operations, where kornia's ``So3.log`` (through quaternions) takes over a hundred. Near pi,
+    where v loses its digits,
     the rotations take kornia's path."""
     lead = R.shape[:-2]
     M = R.reshape(-1, 3, 3)

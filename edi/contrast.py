@@ -32,8 +32,8 @@ Two estimators (each an energy of c, every evaluation one EDI pass per frame use
   instruments (``_consistency_pairs``, ``_consistency_update``), and the latents are
   recomputed with the new pair until it stops moving (the root of update(c) = c). The least
   squares on c N it replaces weighted each pixel by N^2, which favours the low-threshold
-  pixels (they fire more), and read 0.67-0.89x the true mean c under a per-pixel mismatch
-  of 0.03 (issue 11).
+  pixels (they fire more), and read c well below the true mean under a per-pixel mismatch
+  (issue 11; figures in docs/results.md).
 
 The 1-D searches use ``scipy.optimize.minimize_scalar(method="bounded")`` on log c. When
 the minimum sits at an end of the bracket the energy has no interior minimum: the report's
@@ -257,22 +257,20 @@ def _flow_setup(
     * the events include the crossings the pixels' hysteresis hid (``_with_hidden_crossings``):
       a DVS pixel needs a change of 2c to fire after a reversal, so its events miss one step at
       every turn of its intensity and the latent's changes come out short, by more for larger
-      c; the energy made that up with a larger c (1.02-1.09x at c 0.15-0.3 with every threshold
-      exactly c, where a sensor firing at fixed levels, which has no hysteresis, reads 0.997-
-      1.001x: ``test_the_bias_rising_with_c_was_the_sensors_hysteresis``);
+      c; the energy made that up with a larger c, where a sensor firing at fixed levels, which
+      has no hysteresis, reads c (``test_the_bias_rising_with_c_was_the_sensors_hysteresis``);
     * the gradient is the exact derivative of the Gaussian-smoothed latent (derivative-of-
       Gaussian filters, the change smoothed by the same Gaussian), not central differences of
-      it, which flatten the texture's finer periods: with them the energy read 1.02-1.04x on
-      18 of 20 frames (0.99x on 2) even with unquantised events (0.9997-1.0005x on 12 with the
-      exact derivative);
+      it, which flatten the texture's finer periods and read c high even with unquantised
+      events;
     * every product in the fit's normal equations (sum g g^T and sum g d) takes one factor from
       each half of a checkerboard of the pixels (each half's latent smoothed by normalised
       convolution): a pixel's own threshold error (per-pixel mismatch) and quantisation are noise
       in the gradients that a larger c amplifies, and squared they explained less of the change
-      at larger c (0.75-0.99x on unquantised events with mismatch 0.03, 0.83-1.02x with the
-      halves); across the halves the noise is independent and drops out. What mismatch leaves
-      is that low thresholds fire more: the events see a harmonic mean of the thresholds (0.956
-      of their mean at c 0.15, sigma_c 0.03).
+      at larger c; across the halves the noise is independent and drops out. What mismatch
+      leaves is that low thresholds fire more: the events see a harmonic mean of the thresholds,
+      a little below their mean (figures of each point: docs/results.md, "Figures quoted in the
+      code").
 
     The patches tile the whole frame. Per patch, the flow solves the normal equations with the
     halves' symmetric product A: a direction where A is not positive explains nothing, and one
@@ -458,7 +456,7 @@ def _mean_residual(events: EventStream, exposures: np.ndarray) -> np.ndarray:
     * TURN_A u^2 - TURN_B u between events of opposite polarity (it turned): the parabola from
       0 to -c whose peak on the other side is c/2 high, the mean height of a peak that did not
       reach the threshold (its mean over the interval is -0.12 c, not 0: with 0 the estimate
-      read 1.04-1.06x at c = 0.3 on ``moving_texture``, where pixels turn often);
+      read c high on ``moving_texture``, where pixels turn often);
     * 0 before a pixel's first event (unknown).
 
     Row 0 is the mean over the intervals that end with a + event, row 1 with a - event, so the
@@ -539,8 +537,7 @@ def _consistency_pairs(fr: np.ndarray, ex: np.ndarray, events: EventStream) -> t
     the exposure starts, plus the later exposure's tails, minus the earlier's): what the blurry
     frames' ratio follows to first order. The neighbours' counts between the centres, used
     before, follow it less when the exposures fill most of the frame interval, and the
-    relation's small errors then moved the estimate by 2-11% on ``moving_texture`` (40 ms
-    exposures every 50 ms)."""
+    relation's small errors then moved the estimate by several percent on ``moving_texture``."""
     centres = ex.mean(axis=1)
     # [F, H, W] (numpy's stubs type all(axis=...) as a scalar or an array)
     valid: np.ndarray = (fr < SATURATION).all(axis=-1) & (fr > 0.0).all(axis=-1)  # type: ignore[assignment]
@@ -581,8 +578,8 @@ def _consistency_update(
     Per pixel D = log(L_{i+1} + eps) - log(L_i + eps) = c_pos N+ - c_neg N- + e, where e holds
     the frames' noise and the event quantisation (a pixel's count misses up to one step of its
     change). Both sides are noisy, so neither a least squares on c N (biased by the error of N,
-    and weighting each pixel by N^2, which favours the low-threshold pixels that fire more:
-    0.66-0.86x the true mean c under a mismatch of 0.03) nor a selection of pixels by D or by
+    and weighting each pixel by N^2, which favours the low-threshold pixels that fire more and
+    reads c low under mismatch) nor a selection of pixels by D or by
     N is unbiased. The instruments z+, z- (the 8 neighbours' changes of exposure-mean counts of
     each polarity, ``_consistency_pairs``) follow the true change of the pixel (motion and edges
     are smooth) but not its own noise, and over all pixels saturated in neither frame
@@ -636,8 +633,8 @@ def _consistency(
     One c: the root of log(update(c) / c) in the bracket (``scipy.optimize.brentq`` on log c;
     the plain iteration converges slowly where the latents depend on c almost as much as the
     counts, long exposures close together), then the 2-D iteration of the pair from there;
-    ``pair=False`` returns the pair's mean (one c fitted to N+ - N- reads 0.5-0.7x the mean on
-    a sensor with c_pos 0.18, c_neg 0.24, from every pixel that went up and down). Returns the
+    ``pair=False`` returns the pair's mean (one c fitted to N+ - N- reads far below the mean
+    on a sensor with c_pos != c_neg, from every pixel that went up and down). Returns the
     pair, its energy, the number of update steps and the (c, energy) of each step."""
     from scipy.optimize import brentq
 
@@ -931,10 +928,9 @@ def estimate_contrast(
             are linearised before anything else, so c is in log-irradiance units, the units of
             the events. With the wrong gamma the estimate is about gamma_true / gamma x c:
             frame-to-frame consistency and the single-frame energy only see gamma x c (c in the
-            frames' units). gamma is not estimated: measured in benchmarks/calibration.py, the
-            consistency estimate with the frames linearised by any gamma from 0.6 to 1.25 keeps
-            gamma x c within 0.3% and its residual within 1%, smallest at the low end rather
-            than at the true gamma, so the frames and events do not tell gamma; give it.
+            frames' units). gamma is not estimated: the consistency estimate keeps gamma x c and
+            its residual nearly the same for any gamma in a wide range (benchmarks/calibration.py),
+            so the frames and events do not tell gamma; give it.
 
     Returns:
         A ``ContrastReport``: ``c`` is the estimate, an ``edi.Contrast(pos, neg)`` (both equal

@@ -14,14 +14,12 @@ Pillow 13 opens a 16-bit RGB PNG as 8-bit "RGB" (the low byte dropped) and canno
 from __future__ import annotations
 
 import os
-import tempfile
 import zlib
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 
+from ._atomic import atomic_path  # re-exported: scenes.images.atomic_path
 from .errors import CaptureError
 
 __all__ = ["read_image", "write_image", "quantize", "write_png16", "read_png16", "atomic_path"]
@@ -45,23 +43,6 @@ def _exact(img: np.ndarray, bits: int) -> np.ndarray | None:  # [H, W, D] ints, 
     if np.array_equal(back, img):
         return ints.astype(np.uint8 if bits == 8 else np.uint16)
     return None
-
-
-@contextmanager
-def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
-    """Yield a unique temporary sibling of ``path``; it is renamed onto ``path`` when the block
-    succeeds and removed when it fails, so a reader never sees a half-written file and two
-    writers never share a temporary name."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
-        yield Path(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def _write_png(path: Path, ints: np.ndarray) -> None:  # ints [H, W, D] uint8 | uint16

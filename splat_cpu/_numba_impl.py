@@ -4,16 +4,16 @@ Threads (issue 8). torch loads its libgomp into the process's global symbol scop
 "omp" threading layer runs on that same OpenMP runtime, whose threads spin-wait after every
 parallel region unless OMP_WAIT_POLICY=PASSIVE was set before torch started; on a machine
 with more busy threads than cores every spin steals a core (serial work between two kernels
-took 3-5x longer). So that the library does not depend on the caller's environment, the
+took several times longer). So that the library does not depend on the caller's environment, the
 layer is chosen before the first parallel kernel (``_omp.choose_threading_layer``, called by
 ``ebad.threads.configure`` or else by the first ``rasterize_numba``), unless the user chose
 one (NUMBA_THREADING_LAYER or numba.config.THREADING_LAYER): "omp" when OMP_WAIT_POLICY=PASSIVE
 was in force when torch loaded (idle threads sleep), numba's own "workqueue" otherwise. The
 omp layer is preferred where it is
 safe because it wakes its threads sooner: after a few milliseconds of single-threaded work,
-as between the kernels of a training step, a workqueue region ran at about serial speed (the
-SSIM of six 173x130 images 1.26 ms forward against 0.67 with omp), and a half-resolution
-ebad step took 14 to 16 ms on omp against 21 to 23 on workqueue (346x260 capture, seed 0).
+as between the kernels of a training step, a workqueue region ran at about serial speed, and
+a half-resolution ebad step was clearly faster on omp (docs/results.md, "Figures quoted in the
+code").
 torch only carries tensors in and out (conversions by numpy), so no torch parallel region
 runs inside `rasterize` or its backward. Measured by `python -m benchmarks.rasterize --omp-check`.
 """

@@ -2,8 +2,8 @@
 
 ``ebad.trajectory``'s pose functions are torch compositions of a few dozen small operations
 (``so3_exp`` through ``matrix_exp``, ``so3_log``, products, the anchoring); at a training step's
-sizes (one frame, six instants) each costs a few microseconds forward and more backward, and an
-anchored linear trajectory took 1.4 ms a step, forward and backward. Here the same poses come
+sizes (one frame, six instants) each costs a few microseconds forward and more backward, which
+added up to a large part of a step's time outside the rasteriser. Here the same poses come
 from one numba function in float64, and with them their derivatives with respect to every knot
 (forward mode: each quantity carries its tangents along the P = K x 6 knot coordinates). The
 backward is then one contraction of those tangents with the upstream gradient
@@ -36,7 +36,7 @@ _KIND_ID = {"linear": 0, "cubic": 1, "offset": 2}
 
 
 # The numba functions below are written with scalar loops only: numba's array expressions, slice
-# assignments and matmul compiled for about 9 s on a cold cache (a first run), these in about 2.
+# assignments and matmul compiled several times slower on a cold cache (a first run).
 
 
 @njit(cache=True)

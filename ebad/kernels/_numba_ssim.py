@@ -8,10 +8,9 @@ of |a - b| that the losses need. The backward applies the adjoint of the same tw
 those derivatives times the upstream gradient (a map, or one constant per image for a mean),
 folds the reflect padding back onto the image and adds the L1 term's gradient.
 
-Each kernel is ONE parallel region over bands of rows: waking numba's worker threads costs
-about 0.1 ms per region on the 2-core machine on numba's workqueue layer (see
-``splat_cpu._numba_impl`` for the layers), about half of what the SSIM of one 173x130 image
-costs forward and backward. A forward band recomputes the ``win - 1`` padded rows it shares
+Each kernel is ONE parallel region over bands of rows: waking numba's worker threads costs as
+much as a good part of a small image's SSIM (see ``splat_cpu._numba_impl`` for the layers, and
+docs/results.md for the figures). A forward band recomputes the ``win - 1`` padded rows it shares
 with the next one (about a fifth more row sums); the backward's bands share nothing, because
 each padded row belongs to one image row. The reflect padding (torch's "reflect": the edge
 pixel is not repeated) is an index map, so no padded copy is made.
@@ -20,9 +19,7 @@ The window's loops take seven taps at a time, written out (``TAPS``, ``window_ta
 other sizes is centred in a multiple of seven taps, zeros around it), and every pixel loop indexes
 from its own counter, so that numba's loops over a row vectorise: each tap of a loop over taps
 had loaded and stored every row sum again, and an index below the loop counter kept its negative-
-index check. Six 173x130 images, 2 threads: forward 0.60 -> 0.45 ms, backward 0.73 -> 0.36 ms;
-at 346x260 2.12 -> 1.49 and 2.56 -> 1.05 (scratch timing against the previous kernels, medians
-of 300 calls).
+index check (measured: docs/results.md, "Figures quoted in the code").
 ``ebad.kernels.losses`` wraps the kernels in autograd Functions; ``ebad.losses.ssim_map_kornia`` is the
 reference they are tested against.
 
@@ -225,7 +222,7 @@ def ssim_backward(a, b, g, coef, grad_s, gs_const, l1_coef, grad_a, grad_b, want
     const = grad_s.shape[0] == 0
     nb = (H + BAND - 1) // BAND
     # constants (and gs_const, l1_coef) in the images' dtype: a float64 factor makes numba compute
-    # a float32 loop in float64 (it promotes float32 x float64), which made this backward 1.5x
+    # a float32 loop in float64 (it promotes float32 x float64), which made this backward markedly
     # slower (the forward's per-pixel map is float64 on purpose: see there)
     two = a.dtype.type(2.0)
     one = a.dtype.type(1.0)

@@ -177,8 +177,7 @@ def _kernel_backward(ctx, grad_s: np.ndarray, gs_const: np.ndarray, l1_coef: np.
 def _run(kernel, *args) -> None:
     """A kernel of ``_numba_ssim`` or ``_numba_event`` with its bands handed out one
     at a time: the thread that starts first takes more of them instead of waiting for one woken
-    late (in a training step the SSIM kernels on 173x130 images ran 1.4 to 1.8 times faster
-    than with numba's static split)."""
+    late (faster than numba's static split in a training step)."""
     import numba
 
     choose_threading_layer()  # before numba's first parallel launch, unless chosen already (splat_cpu._omp)
