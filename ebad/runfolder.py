@@ -35,6 +35,7 @@ import torch
 from torch import Tensor, nn
 
 from scenes._atomic import atomic_path, write_text_atomic
+from scenes.capture import file_in
 
 from .config import load_config, save_config
 from .errors import UserError
@@ -185,7 +186,7 @@ def write_run(run: Run, out: str | Path, gt_trajectories: np.ndarray | None = No
         plot_trajectories(tmp, poses, gt_trajectories)
     write_exports(run, out)  # cameras.json, point_cloud.splat, trajectories_tum.txt
     for name, img in zip(run.names, run.deblurred_frames()):
-        write_png16(out / "deblurred" / f"{name}.png", img)  # atomic itself (scenes.images, scenes._atomic)
+        write_png16(file_in(out / "deblurred", name, ".png"), img)  # atomic itself (scenes.images, scenes._atomic)
     metrics = json_safe(run.metrics.to_dict() if run.metrics is not None else {"complete": False})
     write_text_atomic(out / "metrics.json", json.dumps(metrics, indent=2) + "\n")
     return out

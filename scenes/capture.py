@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -16,6 +18,8 @@ __all__ = [
     "Capture",
     "TestView",
     "check_rigid",
+    "check_file_name",
+    "file_in",
     "nearest_rigid",
     "guess_K",
     "POSE_TRUST",
@@ -34,6 +38,35 @@ POSE_TRUST = ("exact", "approximate", "none")
 ROTATION_REPAIR_TOL = 1e-3
 EXACT_RIGID_TOL = 1e-9  # a pose this close to rigid is kept bit for bit (float64 round trips of rigid poses)
 DAVIS_DEFAULT_HFOV_DEG = 70.0  # used only when a recording comes with no K
+
+
+def check_file_name(name: Any, file: str | None, field_name: str) -> str:
+    """``name`` if it is a plain file name (frame and test-view names become output file names:
+    ``sharp/NAME.png``, ``deblurred/NAME.png``); raise CaptureError naming ``file`` and ``field_name``
+    for a non-string, an empty name, ``.`` or ``..``, a path separator, a NUL or an absolute path."""
+    if not isinstance(name, str):
+        raise CaptureError(file, field_name, f"must be a string, got {name!r}")
+    if not name:
+        raise CaptureError(file, field_name, "must be a non-empty file name")
+    bad = next((ch for ch in ("/", "\\", "\0") if ch in name), None)
+    if bad is not None or name in (".", "..") or os.path.isabs(name):
+        what = f"contains {bad!r}" if bad is not None else f"is {name!r}"
+        raise CaptureError(
+            file, field_name, f"must be a plain file name (no folder, '..' or absolute path); {name!r} {what}"
+        )
+    return name
+
+
+def file_in(folder: str | os.PathLike, name: str, suffix: str = "", what: str = "name") -> Path:
+    """``folder / (name + suffix)``, the one way an output path is built from a name that came
+    from a capture or a run folder: refuses (CaptureError naming ``what``) a name that is not a
+    plain file name, so whose path would leave ``folder`` (through ``..`` or an absolute path)."""
+    check_file_name(name, str(folder), what)
+    folder = Path(folder)
+    path = folder / f"{name}{suffix}"
+    if path.parent != folder:
+        raise CaptureError(str(folder), what, f"{name + suffix!r} would write outside the folder")
+    return path
 
 
 def check_rigid(m: np.ndarray, file: str | None, field_name: str) -> np.ndarray:
@@ -267,10 +300,13 @@ class Capture:
             raise CaptureError(source, "names", f"needs one entry per frame ({n}), got {len(self.names)}")
         if self.names and len(set(self.names)) != n:
             raise CaptureError(source, "names", "frame names must be unique")
+        for i, name in enumerate(self.names):
+            check_file_name(name, source, f"frames[{i}].name")
 
 
 def _check_test_view(tv: TestView, j: int, image_shape: tuple[int, ...], source: str | None) -> None:
     """Test view ``j``: a finite t, a rigid c2w and/or a float32 image of the frames' [H, W, D] in [0, 1]."""
+    check_file_name(tv.name, source, f"test_views[{j}].name")
     if not np.isfinite(float(tv.t)):
         raise CaptureError(source, f"test_views[{j}].t", "must be finite")
     if tv.c2w is None and tv.image is None:

@@ -22,7 +22,7 @@ import numpy as np
 
 from edi import CorruptFileError, EbadError, EventStream, read_events
 
-from .capture import EXACT_RIGID_TOL, ROTATION_REPAIR_TOL, Capture, TestView, nearest_rigid
+from .capture import EXACT_RIGID_TOL, ROTATION_REPAIR_TOL, Capture, TestView, check_file_name, nearest_rigid
 from .e2nerf import ground_truth_blur
 from .errors import CaptureError
 from .images import read_image, write_image
@@ -223,7 +223,8 @@ def _read_frames(
         if not isinstance(s, str):
             raise CaptureError(jf, f"{where}.split", f"must be a string, got {s!r}")
         split.append(s)
-        names.append(_str(fr.get("name", Path(file).stem), jf, f"{where}.name"))
+        # a name becomes an output file name (sharp/NAME.png): a plain file name only
+        names.append(check_file_name(_str(fr.get("name", Path(file).stem), jf, f"{where}.name"), jf, f"{where}.name"))
     return frames, exposures, c2ws, split, names
 
 
@@ -253,7 +254,7 @@ def _read_test_views(doc: dict, root: Path, jf: str, width: int, height: int) ->
         raise CaptureError(jf, "test_views", f"must be a list, got {type(tv_doc).__name__}")
     for j, tv in enumerate(tv_doc):
         where = f"test_views[{j}]"
-        name = _str(_req(tv, "name", jf, where), jf, f"{where}.name")
+        name = check_file_name(_str(_req(tv, "name", jf, where), jf, f"{where}.name"), jf, f"{where}.name")
         t = _num(_req(tv, "t", jf, where), jf, f"{where}.t")
         has_pose = tv.get("c2w") is not None or not tv.get("file")  # a test view needs a c2w, a file or both
         c2w = _matrix(_req(tv, "c2w", jf, where), jf, f"{where}.c2w") if has_pose else None

@@ -205,6 +205,7 @@ def run(args: Args) -> int:
     from tqdm import tqdm
 
     import edi
+    from scenes.capture import file_in  # output paths from frame names: never outside their folder
 
     # estimate_c logs a warning when its estimate is unreliable; this command prints that
     # message itself (with what to do), so the library's copy would repeat it
@@ -267,13 +268,13 @@ def run(args: Args) -> int:
             _say_unreliable(rep.c_report, names[i])
         if medi_lat is not None:
             lat = medi_lat[i]
-        _save(out / "sharp" / f"{names[i]}.png", lat, args.bits)
-        _save(out / "side_by_side" / f"{names[i]}.png", np.concatenate([frames[i], lat], axis=1))
+        _save(file_in(out / "sharp", names[i], ".png"), lat, args.bits)
+        _save(file_in(out / "side_by_side", names[i], ".png"), np.concatenate([frames[i], lat], axis=1))
         if args.times > 0 and not sharp_frame:
             ts = t_s + (np.arange(args.times) + 0.5) * (t_e - t_s) / args.times
             lats = edi.deblur(frames[i], (t_s, t_e), events, times=ts, c=rep.c, gamma=gamma)
             for k in range(args.times):
-                _save(out / "instants" / f"{names[i]}_{k:02d}.png", lats[k], args.bits)
+                _save(file_in(out / "instants", f"{names[i]}_{k:02d}", ".png"), lats[k], args.bits)
         c_report = rep.c_report or c_rep
         per_frame.append(
             {

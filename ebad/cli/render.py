@@ -58,6 +58,8 @@ def smooth_path(c2w: np.ndarray, n: int) -> np.ndarray:  # [F, 4, 4] -> [n, 4, 4
 
 
 def run(args: Args) -> int:
+    from scenes.capture import file_in  # output paths from names: never outside their folder
+
     from ..errors import UserError
     from ..export import write_render
     from ..runfolder import load_run
@@ -75,9 +77,10 @@ def run(args: Args) -> int:
         print(f"ebad render: {len(imgs)} path frames ({kind} PNG) -> {out}")
         return 0
     if args.split == "train":
+        files = [file_in(out, name, ".png") for name in run_.names]  # refused before any rendering
         imgs = run_.deblurred_frames()
-        for name, img in zip(run_.names, imgs):
-            write_render(out / f"{name}.png", img, args.bits)
+        for file, img in zip(files, imgs):
+            write_render(file, img, args.bits)
         print(f"ebad render: {len(imgs)} training frames (mid-exposure, {kind} PNG) -> {out}")
         return 0
     if args.capture is None:
@@ -96,8 +99,9 @@ def run(args: Args) -> int:
     views = [v for v in cap.test_views if v.name in poses]
     if not views:
         raise UserError(f"no test view of {args.capture} has a pose in the run's frame")
+    files = [file_in(out, v.name, ".png") for v in views]
     imgs = run_.render(np.stack([poses[v.name] for v in views]))
-    for v, img in zip(views, imgs):
-        write_render(out / f"{v.name}.png", img, args.bits)
+    for file, img in zip(files, imgs):
+        write_render(file, img, args.bits)
     print(f"ebad render: {len(imgs)} test views ({kind} PNG) -> {out}")
     return 0

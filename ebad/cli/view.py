@@ -12,12 +12,15 @@ SSH from your own computer and open the same address there::
     ssh -L 8080:localhost:8080 user@remote-host
 
 ``--host 0.0.0.0`` serves every network interface instead (anyone who can reach the port
-sees the scene). Needs ``viser``: ``pip install viser`` (or the ``view`` extra). Stop with Ctrl-C.
+sees the scene). viser's Share button (a public tunnel through share.viser.studio) is off, and a
+client's share request is refused. A ``--host`` this machine cannot resolve or listen on is one
+error line (exit 2). Needs ``viser``: ``pip install viser`` (or the ``view`` extra). Stop with Ctrl-C.
 """
 
 from __future__ import annotations
 
 import math
+import socket
 from dataclasses import dataclass
 from typing import Annotated
 
@@ -171,8 +174,45 @@ def serve(run, host: str = DEFAULT_HOST, port: int = DEFAULT_PORT, test_views=()
     viser = import_viser()
     if not 0 < port < 65536:
         raise UserError(f"--port must be in 1..65535, got {port}")
+    check_host(host)
     server = viser.ViserServer(host=host, port=port, label="ebad", verbose=False)
+    disable_share(server)
     return server, build_scene(server, run, test_views)
+
+
+def check_host(host: str) -> None:
+    """Raise a UserError naming ``--host`` unless this machine can listen on ``host``: it must
+    resolve (an IP address needs no lookup) and bind to a local interface (a bind fails locally,
+    without traffic, on an address the machine does not have). viser itself would print
+    "Server stopped" and wait forever."""
+    try:
+        infos = socket.getaddrinfo(host, 0, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
+    except (OSError, UnicodeError) as exc:
+        reason = getattr(exc, "strerror", None) or str(exc)
+        raise UserError(f"--host {host}: cannot resolve it ({reason}); give an address of this machine") from None
+    problem = "no address"
+    for family, kind, proto, _, addr in infos:
+        with socket.socket(family, kind, proto) as sock:
+            try:
+                sock.bind((addr[0], 0, *addr[2:]))  # any free port: only the address is in question
+                return
+            except OSError as exc:
+                problem = exc.strerror or str(exc)
+    raise UserError(
+        f"--host {host}: cannot listen on it ({problem}); give an address of this machine (127.0.0.1, 0.0.0.0)"
+    )
+
+
+def _refuse_share_url(verbose: bool = True) -> None:
+    """Stands in for ``ViserServer.request_share_url``: no public tunnel, whoever asks."""
+    return None
+
+
+def disable_share(server) -> None:
+    """No public share link: viser's Share button hidden, and a client's share request (any page
+    can send one, button or not) answered with nothing instead of a tunnel to share.viser.studio."""
+    server.gui.configure_theme(show_share_button=False)
+    server.request_share_url = _refuse_share_url  # viser's ShareUrlRequest handler looks it up per request
 
 
 def run(args: Args) -> int:
