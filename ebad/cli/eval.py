@@ -39,6 +39,7 @@ class Args:
 
 def run(args: Args) -> int:
     import scenes
+    from scenes.capture import file_in  # output paths from names: never outside their folder
 
     from ..errors import UserError
     from ..evaluate import evaluate
@@ -56,7 +57,7 @@ def run(args: Args) -> int:
     if args.renders:
 
         def renders_to(name, img, folder=Path(args.renders)):
-            scenes.write_image(folder / f"{name}.png", img, bits=16)
+            scenes.write_image(file_in(folder, name, ".png", "test view name"), img, bits=16)
 
     res = evaluate(
         run_, cap, refine=args.refine_poses, gt_frames=gt, refine_iters=args.refine_iters, renders_to=renders_to
