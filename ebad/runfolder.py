@@ -191,13 +191,27 @@ def write_run(run: Run, out: str | Path, gt_trajectories: np.ndarray | None = No
     return out
 
 
+def _complete(metrics_path: Path) -> bool:
+    """The ``complete`` field of a run's ``metrics.json`` as written (only JSON ``true`` is a finished run)."""
+    try:
+        doc = json.loads(metrics_path.read_text())
+    except json.JSONDecodeError as exc:
+        raise UserError(f"{metrics_path}: not valid JSON ({exc})") from None
+    if not isinstance(doc, dict):
+        raise UserError(f"{metrics_path}: must be a JSON object, got {type(doc).__name__}")
+    complete = doc.get("complete", False)
+    if not isinstance(complete, bool):
+        raise UserError(f"{metrics_path}: field 'complete' must be true or false, got {json.dumps(complete)}")
+    return complete
+
+
 def load_run(path: str | Path) -> Run:
     """A ``Run`` from a finished run folder (for rendering and evaluation)."""
     path = Path(path)
     if not path.is_dir():
         raise UserError(f"{path} is not a run folder (run 'ebad reconstruct CAPTURE --out {path}' first)")
     metrics_path = path / "metrics.json"
-    if not metrics_path.exists() or not json.loads(metrics_path.read_text()).get("complete", False):
+    if not metrics_path.exists() or _complete(metrics_path) is not True:
         hint = (
             f"resume it with 'ebad reconstruct CAPTURE --out {path} --resume'"
             if (path / "checkpoints" / "last.pt").exists()
@@ -209,7 +223,11 @@ def load_run(path: str | Path) -> Run:
             raise UserError(f"{path} is not a complete run folder: {name} is missing")
     cfg = load_config(path / "config.json")
     model = json.loads((path / "model.json").read_text())
-    params: dict[str, Tensor] = {k: nn.Parameter(v) for k, v in read_ply(path / "point_cloud.ply").items()}
+    try:
+        ply = read_ply(path / "point_cloud.ply")
+    except ValueError as exc:  # the message names the file
+        raise UserError(str(exc)) from None
+    params: dict[str, Tensor] = {k: nn.Parameter(v) for k, v in ply.items()}
     if params["colors"].shape[1] != model["channels"]:
         params["colors"] = nn.Parameter(params["colors"][:, : model["channels"]].contiguous())
     traj = ExposureTrajectories(

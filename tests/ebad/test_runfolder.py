@@ -239,3 +239,35 @@ def test_an_atomic_write_that_fails_leaves_the_old_file_and_no_temporary(tmp_pat
     with atomic_path(target) as tmp:
         tmp.write_text("new")
     assert target.read_text() == "new" and [p.name for p in tmp_path.iterdir()] == ["x.ply"]
+
+
+def _copy_run(tiny_run, tmp_path: Path) -> Path:
+    import shutil
+
+    run = tmp_path / "run"
+    shutil.copytree(tiny_run.run, run)
+    assert load_run(run).metrics.complete is True  # the copy loads
+    return run
+
+
+@pytest.mark.parametrize("value", ['"no"', '"false"', "1", "null", '"true"'])
+def test_complete_must_be_the_json_boolean_true(tiny_run, tmp_path, value):
+    run = _copy_run(tiny_run, tmp_path)
+    doc = json.loads((run / "metrics.json").read_text())
+    doc["complete"] = json.loads(value)
+    (run / "metrics.json").write_text(json.dumps(doc))
+    with pytest.raises(UserError, match=r"metrics\.json"):
+        load_run(run)
+
+
+def test_a_ply_without_gaussians_is_an_error_naming_it(tiny_run, tmp_path):
+    from ebad.io import read_ply, write_ply
+
+    run = _copy_run(tiny_run, tmp_path)
+    empty = {k: v[:0] for k, v in read_ply(run / "point_cloud.ply").items()}
+    write_ply(run / "point_cloud.ply", empty)
+    with pytest.raises(UserError, match=r"point_cloud\.ply: holds no Gaussians"):
+        load_run(run)
+    (run / "point_cloud.ply").write_bytes(b"not a ply")
+    with pytest.raises(UserError, match=r"point_cloud\.ply"):
+        load_run(run)
