@@ -36,7 +36,7 @@ from torch import Tensor, nn
 
 from scenes._atomic import atomic_path, write_text_atomic
 
-from .config import load_config, save_config
+from .config import Config, load_config, save_config
 from .errors import UserError
 from .export import write_exports
 from .io import plot_trajectories, read_ply, write_ply, write_png16, write_trajectories
@@ -44,7 +44,7 @@ from .response import Response
 from .run import Run, RunMetrics
 from .trajectory import ExposureTrajectories
 
-__all__ = ["write_run", "load_run", "json_safe", "write_text_atomic", "RunLock", "check_out_dir"]
+__all__ = ["write_run", "load_run", "json_safe", "write_text_atomic", "RunLock", "check_out_dir", "resume_config"]
 
 LOCK_NAME = ".lock"
 
@@ -75,6 +75,26 @@ def check_out_dir(out: Path) -> None:
     probe = out if out.exists() else next((p for p in out.parents if p.exists()), Path("."))
     if not os.access(probe, os.W_OK):
         raise UserError(f"--out {out}: {probe} is not writable")
+
+
+def resume_config(out: Path) -> Config | None:
+    """The settings of the run ``--resume`` continues in ``out`` (its ``config.json``); None when ``out``
+    holds no run yet (no checkpoint, no metrics). Checked before anything of the run is touched.
+
+    Raises:
+        UserError: ``out`` holds a run (a checkpoint or metrics.json) whose config.json is missing.
+        ConfigError: config.json is not valid JSON or not a config of this version (names the file).
+    """
+    cfg_path = out / "config.json"
+    if cfg_path.is_file():
+        return load_config(cfg_path)
+    held = [n for n in ("checkpoints/last.pt", "metrics.json") if (out / n).exists()]
+    if held or cfg_path.exists():
+        raise UserError(
+            f"--resume: {cfg_path} is missing or not a file, so the settings of the run in {out} (it holds "
+            f"{', '.join(held) or 'config.json'}) are unknown; restore it, or start a new run in another --out"
+        )
+    return None
 
 
 class RunLock:

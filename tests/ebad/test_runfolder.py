@@ -271,3 +271,32 @@ def test_a_ply_without_gaussians_is_an_error_naming_it(tiny_run, tmp_path):
     (run / "point_cloud.ply").write_bytes(b"not a ply")
     with pytest.raises(UserError, match=r"point_cloud\.ply"):
         load_run(run)
+
+
+def _snapshot(folder: Path) -> dict[str, tuple[bytes, int]]:
+    return {
+        p.relative_to(folder).as_posix(): (p.read_bytes(), p.stat().st_mtime_ns)
+        for p in sorted(folder.rglob("*"))
+        if p.is_file()
+    }
+
+
+@pytest.mark.parametrize("damage", ["missing", "invalid JSON"])
+def test_resume_without_a_readable_config_touches_nothing(tiny_run, tmp_path, capsys, damage):
+    """A finished run whose config.json is gone or unreadable: --resume is one line naming config.json, before
+    anything is deleted or rewritten (it used to delete metrics.json, write the ebad preset's config and crash)."""
+    run = tmp_path / "run"
+    common = [str(tiny_run.capture), "--out", str(run), "--no-progress", "--train.eval_every", "0"]
+    assert main(["reconstruct", *common, "--train.iters", "2"]) == 0  # a finished run with its checkpoint
+    assert (run / "checkpoints" / "last.pt").is_file() and load_run(run).metrics.complete
+    cfg = run / "config.json"
+    if damage == "missing":
+        cfg.unlink()
+    else:
+        cfg.write_text("{")
+    before = _snapshot(run)
+    capsys.readouterr()
+    assert main(["reconstruct", *common, "--resume", "--train.iters", "40"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "config.json" in err
+    assert _snapshot(run) == before  # every file unchanged, none added or removed
