@@ -68,8 +68,8 @@ def read_ply(path: str | Path) -> dict[str, torch.Tensor]:
     """Read a 3DGS ``point_cloud.ply`` (float32 properties; the layout of ``write_ply``) with ``plyfile``.
 
     Raises:
-        ValueError: not a binary little-endian PLY, no ``vertex`` element, a property that is
-            not float32, a missing property; names the file.
+        ValueError: not a binary little-endian PLY, no ``vertex`` element or one of no vertices, a
+            property that is not float32, a missing property; names the file.
     """
     path = Path(path)
     try:
@@ -81,6 +81,8 @@ def read_ply(path: str | Path) -> dict[str, torch.Tensor]:
     if "vertex" not in ply:
         raise ValueError(f"{path}: no 'element vertex' in the header")
     vertex = ply["vertex"]
+    if vertex.count == 0:
+        raise ValueError(f"{path}: holds no Gaussians (element vertex 0): a model cannot be empty")
     for prop in vertex.properties:
         if getattr(prop, "val_dtype", None) != "f4":
             raise ValueError(f"{path}: property {prop.name} must be float, got {prop}")

@@ -37,7 +37,7 @@ from torch import Tensor, nn
 from scenes._atomic import atomic_path, write_text_atomic
 from scenes.capture import file_in
 
-from .config import load_config, save_config
+from .config import Config, load_config, save_config
 from .errors import UserError
 from .export import write_exports
 from .io import plot_trajectories, read_ply, write_ply, write_png16, write_trajectories
@@ -45,7 +45,7 @@ from .response import Response
 from .run import Run, RunMetrics
 from .trajectory import ExposureTrajectories
 
-__all__ = ["write_run", "load_run", "json_safe", "write_text_atomic", "RunLock", "check_out_dir"]
+__all__ = ["write_run", "load_run", "json_safe", "write_text_atomic", "RunLock", "check_out_dir", "resume_config"]
 
 LOCK_NAME = ".lock"
 
@@ -76,6 +76,26 @@ def check_out_dir(out: Path) -> None:
     probe = out if out.exists() else next((p for p in out.parents if p.exists()), Path("."))
     if not os.access(probe, os.W_OK):
         raise UserError(f"--out {out}: {probe} is not writable")
+
+
+def resume_config(out: Path) -> Config | None:
+    """The settings of the run ``--resume`` continues in ``out`` (its ``config.json``); None when ``out``
+    holds no run yet (no checkpoint, no metrics). Checked before anything of the run is touched.
+
+    Raises:
+        UserError: ``out`` holds a run (a checkpoint or metrics.json) whose config.json is missing.
+        ConfigError: config.json is not valid JSON or not a config of this version (names the file).
+    """
+    cfg_path = out / "config.json"
+    if cfg_path.is_file():
+        return load_config(cfg_path)
+    held = [n for n in ("checkpoints/last.pt", "metrics.json") if (out / n).exists()]
+    if held or cfg_path.exists():
+        raise UserError(
+            f"--resume: {cfg_path} is missing or not a file, so the settings of the run in {out} (it holds "
+            f"{', '.join(held) or 'config.json'}) are unknown; restore it, or start a new run in another --out"
+        )
+    return None
 
 
 class RunLock:
@@ -192,13 +212,27 @@ def write_run(run: Run, out: str | Path, gt_trajectories: np.ndarray | None = No
     return out
 
 
+def _complete(metrics_path: Path) -> bool:
+    """The ``complete`` field of a run's ``metrics.json`` as written (only JSON ``true`` is a finished run)."""
+    try:
+        doc = json.loads(metrics_path.read_text())
+    except json.JSONDecodeError as exc:
+        raise UserError(f"{metrics_path}: not valid JSON ({exc})") from None
+    if not isinstance(doc, dict):
+        raise UserError(f"{metrics_path}: must be a JSON object, got {type(doc).__name__}")
+    complete = doc.get("complete", False)
+    if not isinstance(complete, bool):
+        raise UserError(f"{metrics_path}: field 'complete' must be true or false, got {json.dumps(complete)}")
+    return complete
+
+
 def load_run(path: str | Path) -> Run:
     """A ``Run`` from a finished run folder (for rendering and evaluation)."""
     path = Path(path)
     if not path.is_dir():
         raise UserError(f"{path} is not a run folder (run 'ebad reconstruct CAPTURE --out {path}' first)")
     metrics_path = path / "metrics.json"
-    if not metrics_path.exists() or not json.loads(metrics_path.read_text()).get("complete", False):
+    if not metrics_path.exists() or _complete(metrics_path) is not True:
         hint = (
             f"resume it with 'ebad reconstruct CAPTURE --out {path} --resume'"
             if (path / "checkpoints" / "last.pt").exists()
@@ -210,7 +244,11 @@ def load_run(path: str | Path) -> Run:
             raise UserError(f"{path} is not a complete run folder: {name} is missing")
     cfg = load_config(path / "config.json")
     model = json.loads((path / "model.json").read_text())
-    params: dict[str, Tensor] = {k: nn.Parameter(v) for k, v in read_ply(path / "point_cloud.ply").items()}
+    try:
+        ply = read_ply(path / "point_cloud.ply")
+    except ValueError as exc:  # the message names the file
+        raise UserError(str(exc)) from None
+    params: dict[str, Tensor] = {k: nn.Parameter(v) for k, v in ply.items()}
     if params["colors"].shape[1] != model["channels"]:
         params["colors"] = nn.Parameter(params["colors"][:, : model["channels"]].contiguous())
     traj = ExposureTrajectories(

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 import numpy as np
 
@@ -23,10 +24,12 @@ from .capture import Capture
 from .e2nerf import LLFF_HOLD
 from .format import save
 from .readers import load
+from .synth import check_replaceable
 
 __all__ = ["main", "summary"]
 
 USER_ERROR_EXIT = 2
+CAPTURE_CONTENTS = {"capture.json", "events.npz", "frames", "test"}  # what scenes.save writes in a capture folder
 
 
 def summary(cap: Capture) -> list[str]:
@@ -71,7 +74,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--llffhold", type=int, default=LLFF_HOLD, help="EBAD-NeRF: hold out every Nth view (default 8)")
     p.add_argument("--no-undistort", action="store_true", help="keep the distortion coefficients instead")
-    p.add_argument("--overwrite", action="store_true", help="replace --out if it exists")
+    p.add_argument("--overwrite", action="store_true", help="replace --out if it is an ebad-capture/1 folder")
     return p
 
 
@@ -84,6 +87,10 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.llffhold < 1:
             raise EbadError(f"--llffhold must be >= 1, got {args.llffhold}")
+        # the rule of ``ebad synth --overwrite``: never replace a folder this could not have written
+        check_replaceable(
+            Path(args.out), args.overwrite, CAPTURE_CONTENTS, "capture.json", "an ebad-capture/1 folder", "--out"
+        )
         cap = load(
             args.input, undistort=not args.no_undistort, K=K, exposure_us=args.exposure_us, llffhold=args.llffhold
         )

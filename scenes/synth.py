@@ -761,6 +761,30 @@ def _has_embree() -> bool:
     return bool(getattr(trimesh.ray, "has_embree", False))
 
 
+def check_replaceable(out: Path, overwrite: bool, contents: set[str], marker: str, what: str, field="out_dir") -> None:
+    """The rule of every writer that may replace a folder (``write_scene``, ``python -m scenes.convert``):
+    ``out`` may be written when it does not exist or is empty; otherwise only with ``overwrite``, and only
+    when it holds nothing but the names the writer itself writes (``contents``) and its ``marker`` file
+    (a path relative to ``out``), so a folder of a user's own files is never deleted.
+
+    Raises:
+        CaptureError: ``out`` is a file, or non-empty without ``overwrite``, or not ``what``; names ``field``.
+    """
+    if out.exists() and not out.is_dir():
+        raise CaptureError(None, field, f"{out} exists and is not a folder")
+    if out.exists() and any(out.iterdir()):
+        if not overwrite:
+            raise CaptureError(None, field, f"{out} already exists and is not empty (pass overwrite)")
+        held = sorted(p.name for p in out.iterdir())
+        if not (set(held) <= contents and (out / marker).is_file()):
+            raise CaptureError(
+                None,
+                field,
+                f"refusing to overwrite {out}: it is not {what} "
+                f"(it holds {', '.join(held[:5])}{' ...' if len(held) > 5 else ''})",
+            )
+
+
 def write_scene(
     scene: SynthScene, out_dir: str | os.PathLike, overwrite: bool = False, trajectory_samples: int = 9
 ) -> Path:
@@ -775,19 +799,7 @@ def write_scene(
     if scene.gt_c2w is None or scene.gt_test_c2w is None or scene.gt_test_images is None:
         raise CaptureError(None, "scene", "needs its gt_c2w, gt_test_c2w and gt_test_images (make_scene sets them)")
     out = Path(out_dir)
-    if out.exists() and not out.is_dir():
-        raise CaptureError(None, "out_dir", f"{out} exists and is not a folder")
-    if out.exists() and any(out.iterdir()):
-        if not overwrite:
-            raise CaptureError(None, "out_dir", f"{out} already exists and is not empty (pass overwrite)")
-        held = sorted(p.name for p in out.iterdir())
-        if not (set(held) <= {"capture", "gt"} and (out / "gt" / "gt.json").is_file()):
-            raise CaptureError(
-                None,
-                "out_dir",
-                f"refusing to overwrite {out}: it is not a synthetic scene written by "
-                f"write_scene (it holds {', '.join(held[:5])}{' ...' if len(held) > 5 else ''})",
-            )
+    check_replaceable(out, overwrite, {"capture", "gt"}, "gt/gt.json", "a synthetic scene written by write_scene")
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp-", dir=out.parent))
     try:

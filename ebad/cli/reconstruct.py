@@ -71,12 +71,11 @@ def _base(config: str | None, preset_name: str | None, saved: Config | None) -> 
 
 
 def _saved(out: str | None, resume: bool) -> Config | None:
-    """The config of the run being resumed (OUT/config.json), when there is one."""
-    from ..config import load_config
+    """The config of the run being resumed (OUT/config.json), when there is one; an error when OUT holds
+    a run whose config.json is missing or unreadable (raised before anything of the run is touched)."""
+    from ..runfolder import resume_config
 
-    if resume and out is not None and (Path(out) / "config.json").exists():
-        return load_config(Path(out) / "config.json")
-    return None
+    return resume_config(Path(out)) if resume and out is not None else None
 
 
 def default_args(argv: list[str]) -> Args:

@@ -86,46 +86,82 @@ class Args:
 # --------------------------------------------------------------------------- writing
 
 
+def check_out(path: str | Path) -> Path:
+    """``--out`` can take a video: a ``.mp4`` or ``.gif`` file that is not a folder, or a folder (no suffix)
+    that is not a file. Checked before rendering, and again when writing."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in ("", ".mp4", ".gif"):
+        raise UserError(f"--out {path}: use a .mp4 or .gif file, or a folder (no suffix) for PNGs")
+    if suffix and path.is_dir():
+        raise UserError(f"--out {path}: is a folder; give a {suffix} file name (or a name without suffix for PNGs)")
+    if not suffix and path.exists() and not path.is_dir():
+        raise UserError(f"--out {path}: exists and is not a folder (a name without suffix is a PNG folder)")
+    return path
+
+
 def write_video(path: str | Path, frames: np.ndarray, fps: float) -> Path:  # [T, H, W, D] uint8, D in {1, 3}
     """Write 8-bit frames as ``.mp4`` (imageio-ffmpeg), ``.gif`` (Pillow), or PNGs in a folder
-    (a path without suffix). Returns the path written."""
+    (a path without suffix). Returns the path written.
+
+    A file is written under a temporary name and renamed into place once complete (an mp4 once
+    ffmpeg's output reads back with every frame), so a failed write (a folder in the way, an
+    unwritable folder, a full disk) leaves no partial file under ``path``.
+
+    Raises:
+        UserError: ``path`` cannot take the video, or writing it failed; names ``path``."""
     frames = np.asarray(frames)
     if frames.ndim != 4 or frames.shape[3] not in (1, 3) or frames.dtype != np.uint8 or len(frames) == 0:
         raise ValueError(f"frames must be uint8 [T, H, W, 1|3] with T >= 1, got {frames.dtype} {frames.shape}")
     if not (math.isfinite(fps) and fps > 0):
         raise UserError(f"--fps must be a positive number, got {fps}")
-    path = Path(path)
+    path = check_out(path)
     suffix = path.suffix.lower()
     from PIL import Image
+
+    from scenes._atomic import atomic_path
 
     def pil(a):
         return Image.fromarray(a[..., 0] if a.shape[2] == 1 else a)
 
-    if suffix == "":
-        path.mkdir(parents=True, exist_ok=True)
-        for i, fr in enumerate(frames):
-            pil(fr).save(path / f"frame_{i:04d}.png", format="PNG")
-        return path
-    path.parent.mkdir(parents=True, exist_ok=True)
-    if suffix == ".gif":
-        ims = [pil(fr) for fr in frames]
-        ims[0].save(path, format="GIF", save_all=True, append_images=ims[1:], duration=round(1000 / fps), loop=0)
-        return path
-    if suffix == ".mp4":
-        try:
-            import imageio_ffmpeg
-        except ImportError:
-            raise UserError(
-                f"--out {path}: writing .mp4 needs imageio-ffmpeg: {_INSTALL_VIDEO}; "
-                "or write a .gif or a PNG folder instead"
-            ) from None
-        if frames.shape[3] == 1:
-            frames = np.repeat(frames, 3, axis=3)
-        H, W = frames.shape[1:3]
-        pad = ((0, 0), (0, H % 2), (0, W % 2), (0, 0))  # yuv420p needs even sizes
-        frames = np.pad(frames, pad, mode="edge")
+    try:
+        if suffix == "":
+            path.mkdir(parents=True, exist_ok=True)
+            for i, fr in enumerate(frames):
+                with atomic_path(path / f"frame_{i:04d}.png") as tmp:
+                    pil(fr).save(tmp, format="PNG")
+        elif suffix == ".gif":
+            ims = [pil(fr) for fr in frames]
+            with atomic_path(path) as tmp:
+                ims[0].save(tmp, format="GIF", save_all=True, append_images=ims[1:], duration=round(1000 / fps), loop=0)
+        else:
+            _write_mp4(path, frames, fps)
+    except OSError as exc:
+        why = exc.strerror or str(exc).splitlines()[0]
+        raise UserError(f"--out {path}: could not be written ({why})") from None
+    return path
+
+
+def _write_mp4(path: Path, frames: np.ndarray, fps: float) -> None:  # [T, H, W, D] uint8
+    """H.264 through imageio-ffmpeg into a temporary file, renamed onto ``path`` only when it reads back with
+    every frame (imageio-ffmpeg does not check ffmpeg's exit status: a full disk left a truncated file)."""
+    try:
+        import imageio_ffmpeg
+    except ImportError:
+        raise UserError(
+            f"--out {path}: writing .mp4 needs imageio-ffmpeg: {_INSTALL_VIDEO}; "
+            "or write a .gif or a PNG folder instead"
+        ) from None
+    from scenes._atomic import atomic_path
+
+    if frames.shape[3] == 1:
+        frames = np.repeat(frames, 3, axis=3)
+    H, W = frames.shape[1:3]
+    pad = ((0, 0), (0, H % 2), (0, W % 2), (0, 0))  # yuv420p needs even sizes
+    frames = np.pad(frames, pad, mode="edge")
+    with atomic_path(path) as tmp:
         writer = imageio_ffmpeg.write_frames(
-            str(path),
+            str(tmp),
             (frames.shape[2], frames.shape[1]),
             fps=fps,
             codec="libx264",
@@ -139,8 +175,15 @@ def write_video(path: str | Path, frames: np.ndarray, fps: float) -> Path:  # [T
         for fr in frames:
             writer.send(np.ascontiguousarray(fr))
         writer.close()
-        return path
-    raise UserError(f"--out {path}: use a .mp4 or .gif file, or a folder (no suffix) for PNGs")
+        try:
+            n = imageio_ffmpeg.count_frames_and_secs(str(tmp))[0] if tmp.stat().st_size else 0
+        except RuntimeError:
+            n = 0
+        if n != len(frames):
+            raise UserError(
+                f"--out {path}: ffmpeg failed to write it ({n} of {len(frames)} frames read back; "
+                f"is the disk full or the folder not writable?)"
+            )
 
 
 # --------------------------------------------------------------------------- camera paths
@@ -297,6 +340,7 @@ def run(args: Args) -> int:
     from ..export import to_display8
     from ..runfolder import load_run
 
+    check_out(args.out)  # before the renders
     run_ = load_run(args.run)
     progress = not args.no_progress
     if args.exposure is not None:

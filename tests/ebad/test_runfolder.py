@@ -239,3 +239,64 @@ def test_an_atomic_write_that_fails_leaves_the_old_file_and_no_temporary(tmp_pat
     with atomic_path(target) as tmp:
         tmp.write_text("new")
     assert target.read_text() == "new" and [p.name for p in tmp_path.iterdir()] == ["x.ply"]
+
+
+def _copy_run(tiny_run, tmp_path: Path) -> Path:
+    import shutil
+
+    run = tmp_path / "run"
+    shutil.copytree(tiny_run.run, run)
+    assert load_run(run).metrics.complete is True  # the copy loads
+    return run
+
+
+@pytest.mark.parametrize("value", ['"no"', '"false"', "1", "null", '"true"'])
+def test_complete_must_be_the_json_boolean_true(tiny_run, tmp_path, value):
+    run = _copy_run(tiny_run, tmp_path)
+    doc = json.loads((run / "metrics.json").read_text())
+    doc["complete"] = json.loads(value)
+    (run / "metrics.json").write_text(json.dumps(doc))
+    with pytest.raises(UserError, match=r"metrics\.json"):
+        load_run(run)
+
+
+def test_a_ply_without_gaussians_is_an_error_naming_it(tiny_run, tmp_path):
+    from ebad.io import read_ply, write_ply
+
+    run = _copy_run(tiny_run, tmp_path)
+    empty = {k: v[:0] for k, v in read_ply(run / "point_cloud.ply").items()}
+    write_ply(run / "point_cloud.ply", empty)
+    with pytest.raises(UserError, match=r"point_cloud\.ply: holds no Gaussians"):
+        load_run(run)
+    (run / "point_cloud.ply").write_bytes(b"not a ply")
+    with pytest.raises(UserError, match=r"point_cloud\.ply"):
+        load_run(run)
+
+
+def _snapshot(folder: Path) -> dict[str, tuple[bytes, int]]:
+    return {
+        p.relative_to(folder).as_posix(): (p.read_bytes(), p.stat().st_mtime_ns)
+        for p in sorted(folder.rglob("*"))
+        if p.is_file()
+    }
+
+
+@pytest.mark.parametrize("damage", ["missing", "invalid JSON"])
+def test_resume_without_a_readable_config_touches_nothing(tiny_run, tmp_path, capsys, damage):
+    """A finished run whose config.json is gone or unreadable: --resume is one line naming config.json, before
+    anything is deleted or rewritten (it used to delete metrics.json, write the ebad preset's config and crash)."""
+    run = tmp_path / "run"
+    common = [str(tiny_run.capture), "--out", str(run), "--no-progress", "--train.eval_every", "0"]
+    assert main(["reconstruct", *common, "--train.iters", "2"]) == 0  # a finished run with its checkpoint
+    assert (run / "checkpoints" / "last.pt").is_file() and load_run(run).metrics.complete
+    cfg = run / "config.json"
+    if damage == "missing":
+        cfg.unlink()
+    else:
+        cfg.write_text("{")
+    before = _snapshot(run)
+    capsys.readouterr()
+    assert main(["reconstruct", *common, "--resume", "--train.iters", "40"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "config.json" in err
+    assert _snapshot(run) == before  # every file unchanged, none added or removed

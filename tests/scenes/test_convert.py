@@ -94,3 +94,23 @@ def test_runs_as_a_module(tmp_path):
     )
     assert r.returncode == 0, r.stderr
     assert "wrote" in r.stdout and (tmp_path / "c" / "capture.json").is_file()
+
+
+def test_overwrite_replaces_only_a_capture_folder(tmp_path, capsys):
+    """The rule of ``ebad synth --overwrite`` (scenes.synth.check_replaceable): a folder of a user's own files is
+    refused, one line, nothing deleted; a capture written before is replaced."""
+    write_e2nerf(tmp_path / "lego")
+    assert main([str(tmp_path / "lego"), "--out", str(tmp_path / "c")]) == 0
+    assert main([str(tmp_path / "lego"), "--out", str(tmp_path / "c"), "--overwrite"]) == 0  # a capture: replaced
+    assert load(tmp_path / "c").num_frames == 3
+    (tmp_path / "f").mkdir()
+    (tmp_path / "f" / "thesis.txt").write_text("years of work")
+    capsys.readouterr()
+    assert main([str(tmp_path / "lego"), "--out", str(tmp_path / "f"), "--overwrite"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "refusing to overwrite" in err and "thesis.txt" in err and "--out" in err
+    assert sorted(p.name for p in (tmp_path / "f").iterdir()) == ["thesis.txt"]
+    assert (tmp_path / "f" / "thesis.txt").read_text() == "years of work"
+    (tmp_path / "c" / "notes.txt").write_text("mine")  # a capture with a user's file added: refused too
+    assert main([str(tmp_path / "lego"), "--out", str(tmp_path / "c"), "--overwrite"]) == 2
+    assert (tmp_path / "c" / "notes.txt").read_text() == "mine"

@@ -127,3 +127,39 @@ def test_exposure_video_cli_and_errors(tiny_run, tmp_path, capsys):
     assert "--exposure 'nope'" in capsys.readouterr().err
     assert main(["video", str(tiny_run.run), "--out", str(tmp_path / "v.avi"), "--frames", "2", "--no-progress"]) == 2
     assert "v.avi" in capsys.readouterr().err
+
+
+def _files(folder):
+    return sorted(p.relative_to(folder).as_posix() for p in folder.rglob("*"))
+
+
+def test_a_failed_mp4_write_is_exit_2_naming_the_file_and_leaves_nothing(tiny_run, tmp_path, monkeypatch, capsys):
+    """ffmpeg's failures (the output is a folder, an unwritable place, a full disk) were "4 frames -> out" with
+    exit 0 and a truncated mp4; now one line naming the file, exit 2, and no file claimed complete."""
+    ffmpeg = pytest.importorskip("imageio_ffmpeg", reason="the 'video' extra (imageio-ffmpeg) is not installed")
+    video = ["video", str(tiny_run.run), "--frames", "4", "--no-progress", "--out"]
+    (tmp_path / "dir.mp4").mkdir()  # a folder where the file goes
+    capsys.readouterr()
+    assert main([*video, str(tmp_path / "dir.mp4")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "dir.mp4" in err and "folder" in err
+    assert _files(tmp_path) == ["dir.mp4"]
+    (tmp_path / "file").write_text("x")  # a place nothing can be written under (root ignores permissions)
+    assert main([*video, str(tmp_path / "file" / "v.mp4")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "v.mp4" in err
+    real = ffmpeg.write_frames
+
+    def failing(path, size, **kw):  # ffmpeg exits at once, as on a full disk: imageio-ffmpeg does not notice
+        return real(path, size, **{**kw, "codec": "no_such_codec"})
+
+    monkeypatch.setattr(ffmpeg, "write_frames", failing)
+    assert main([*video, str(tmp_path / "v.mp4")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and str(tmp_path / "v.mp4") in err and "ffmpeg" in err
+    assert _files(tmp_path) == ["dir.mp4", "file"]  # no v.mp4, no temporary
+    (tmp_path / "dir.mp4").rmdir()
+    from ebad.cli.video import write_video
+
+    with pytest.raises(EbadError, match="v.gif"):  # a gif into a folder that is a file: the same one line
+        write_video(tmp_path / "file" / "v.gif", np.zeros((2, 4, 4, 1), np.uint8), 10.0)
