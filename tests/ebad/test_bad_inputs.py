@@ -66,3 +66,56 @@ def test_rasteriser_non_finite_is_a_divergence(monkeypatch):
     monkeypatch.setattr(loop, "train_step", step)
     with pytest.raises(loop.DivergedError, match="non-finite.*lower"):
         loop.train(data, _state(), None, cfg)
+
+
+# --------------------------------------------------------------------------- frames without events
+
+
+def _capture(ev_t_us: list[int], exposures: list[tuple[float, float]]):
+    from edi import EventStream
+    from scenes import Capture
+
+    F, H, W = len(exposures), 16, 16
+    c2w = np.repeat(np.eye(4)[None], F, 0)
+    c2w[:, 0, 3] = np.arange(F) * 0.1
+    n = len(ev_t_us)
+    events = EventStream(
+        np.array(ev_t_us, np.int64), np.arange(n) % W, np.zeros(n, np.int64), np.ones(n, np.int8), W, H
+    )
+    return Capture(
+        frames=np.full((F, H, W, 1), 0.5, np.float32),
+        exposures=np.array(exposures, np.float64),
+        events=events,
+        K=np.array([[16.0, 0, 8], [0, 16.0, 8], [0, 0, 1]]),
+        c2w=c2w,
+        names=[f"f{i}" for i in range(F)],
+    )
+
+
+def _cfg():
+    cfg = preset("ebad")
+    cfg.loss.w_event, cfg.loss.w_edi, cfg.loss.target = 0.0, 0.0, "frames"
+    return cfg
+
+
+def test_a_frame_without_events_is_a_named_warning(caplog):
+    from ebad.data import prepare
+
+    # frames 0 and 2 have events in their 10 ms exposures, frame 1 none, frame 3 is sharp (no window)
+    cap = _capture([1000, 2000, 41000], [(0.0, 0.01), (0.02, 0.03), (0.04, 0.05), (0.06, 0.06)])
+    with caplog.at_level("WARNING", logger="ebad.data"):
+        data = prepare(cap, _cfg())
+    assert data.report.frames_without_events == ["f1"]
+    assert "1 of 4 training frames hold no event" in caplog.text and "f1" in caplog.text
+
+
+def test_no_frame_with_events_is_an_error_naming_the_times():
+    from ebad.data import prepare
+    from ebad.errors import UserError
+
+    # events in nanoseconds read as microseconds: 1e3 x later than the frames' 0..50 ms
+    cap = _capture([1_000_000, 21_000_000, 41_000_000], [(0.0, 0.01), (0.02, 0.03), (0.04, 0.05)])
+    with pytest.raises(
+        UserError, match=r"none of the 3 training exposures holds an event.*\[0, 0\.01\].*from 1 to 41 s"
+    ):
+        prepare(cap, _cfg())
