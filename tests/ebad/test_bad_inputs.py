@@ -119,3 +119,42 @@ def test_no_frame_with_events_is_an_error_naming_the_times():
         UserError, match=r"none of the 3 training exposures holds an event.*\[0, 0\.01\].*from 1 to 41 s"
     ):
         prepare(cap, _cfg())
+
+
+# --------------------------------------------------------------------------- events.pt counts
+
+
+def _pt(tmp_path, t):
+    path = tmp_path / "events.pt"
+    torch.save(t, path)
+    return path
+
+
+def test_events_pt_that_cannot_be_right_is_refused_before_allocating(tmp_path):
+    from scenes import CaptureError
+    from scenes.e2nerf import read_event_bins
+
+    empty = tmp_path / "empty.pt"
+    empty.write_bytes(b"")
+    with pytest.raises(CaptureError, match="empty file"):
+        read_event_bins(empty)
+    huge = torch.zeros(1, 2, 4, dtype=torch.int64)
+    huge[0, 1, 2] = 2**62  # wrapped to 0 events in int32
+    with pytest.raises(CaptureError, match=r"count 4611686018427387904 at view 0, bin 1, pixel 2"):
+        read_event_bins(_pt(tmp_path, huge))
+    with pytest.raises(CaptureError, match="count -9223372036854775808"):
+        read_event_bins(_pt(tmp_path, torch.full((1, 1, 4), -(2**63), dtype=torch.int64)))
+    repeated = torch.ones(1, 1, 1, dtype=torch.int32).expand(1000, 100, 100_000)  # a 2 kB file, 4e7 counts
+    with pytest.raises(CaptureError, match="stride 0"):
+        read_event_bins(_pt(tmp_path, repeated))
+    ok = torch.tensor([[[1, -2, 0, 3]]], dtype=torch.int64)
+    np.testing.assert_array_equal(read_event_bins(_pt(tmp_path, ok)), ok.numpy())
+
+
+def test_events_pt_total_beyond_the_limit_is_refused(tmp_path, monkeypatch):
+    import scenes.e2nerf as e2
+    from scenes import CaptureError
+
+    monkeypatch.setattr(e2, "MAX_EVENTS", 10)
+    with pytest.raises(CaptureError, match="12 events in all: more than 10"):
+        e2.read_event_bins(_pt(tmp_path, torch.full((1, 3, 4), -1, dtype=torch.int16)))
