@@ -68,12 +68,12 @@ LR_OPTIONS = {
     "contrast": "--loss.lr_contrast",
     "response": "--model.lr_response",
 }
-DIVERGED_HINT = "the checkpoint saved before it (if any) is kept"
+DIVERGED_HINT = "the last checkpoint saved before it, if any, is kept"
 
 
 def _diverged(step: int, what: str, options: Sequence[str]) -> DivergedError:
     opts = ", ".join(options) if options else "the learning rates (--train.lr_*)"
-    return DivergedError(f"training diverged at step {step}: {what} became non-finite; lower {opts} ({DIVERGED_HINT})")
+    return DivergedError(f"training diverged at step {step}: {what} became non-finite; lower {opts}; {DIVERGED_HINT}")
 
 
 def check_finite(state: TrainState, step: int) -> None:
@@ -418,7 +418,7 @@ def train(
                     if "non-finite" not in str(exc):
                         raise
                     diverged = True
-                    raise _diverged(state.step, f"the rasteriser's input ({exc})", ["the learning rates"]) from None
+                    raise _diverged(state.step, f"the rasteriser's input ({exc})", []) from None
                 state.elapsed = stats.time = time.perf_counter() - started
                 if schedule.at(state.step, state.elapsed).averaging:  # judged where the step ended
                     state.accumulate_knots()
