@@ -10,6 +10,7 @@ three losses; ``train_step`` adds the backward, Adam and densification and retur
 
 from __future__ import annotations
 
+import logging
 import signal
 import threading
 import time
@@ -85,6 +86,28 @@ def check_finite(state: TrainState, step: int) -> None:
     ]
     if bad:
         raise _diverged(step, f"the {', '.join(bad)} parameters", [LR_OPTIONS.get(b, b) for b in bad])
+
+
+log = logging.getLogger(__name__)
+
+# A run whose loss over its last steps is this many times its first step's (the initial scene's)
+# has diverged while staying finite (a learning rate far too high: --train.lr_means 1e3 ends at 4x)
+DIVERGED_LOSS_FACTOR = 2.0
+DIVERGED_LOSS_WINDOW = 20  # the last steps averaged (at most a quarter of the run)
+
+
+def loss_rose(history: Sequence[StepStats]) -> str | None:
+    """A warning when the loss of the last steps is ``DIVERGED_LOSS_FACTOR`` x the first step's, else None."""
+    w = min(DIVERGED_LOSS_WINDOW, len(history) // 4)
+    if w < 1:
+        return None
+    first, last = history[0].loss, float(np.mean([h.loss for h in history[-w:]]))
+    if not last > DIVERGED_LOSS_FACTOR * first:
+        return None
+    return (
+        f"training diverged: the loss rose from {first:.4g} at step {history[0].step} to {last:.4g} over the "
+        f"last {w} steps; the result is worse than the start: lower the learning rates (--train.lr_means first)"
+    )
 
 
 StopReason = Literal["iters", "time", "plateau", "interrupted (SIGINT)", "interrupted (SIGTERM)"]  # why train() stopped
@@ -432,6 +455,9 @@ def train(
                 if stop:
                     reason = stop
                     break
+            warning = loss_rose(state.history)
+            if warning:
+                log.warning("%s", warning)
         finally:
             for cb in callbacks:
                 if diverged and isinstance(cb, Checkpointer):
