@@ -9,6 +9,7 @@ What it decided is the typed ``PrepareReport`` (written to ``metrics.json``).
 from __future__ import annotations
 
 import dataclasses
+import logging
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Literal, cast, get_args
 
@@ -26,6 +27,8 @@ from .virtual_views import choose_num_views, event_counts, events_per_pixel
 
 if TYPE_CHECKING:
     from scenes import Capture, TestView
+
+log = logging.getLogger(__name__)
 
 __all__ = [
     "TrainingData",
@@ -75,6 +78,8 @@ class PrepareReport:
     skipped: str | None = None  # a loss switched off for lack of data, and why
     events_per_pixel: list[float] | None = None  # events during each exposure per sensor pixel
     anchored_mid_poses: bool | None = None  # the trajectories keep the given mid-exposure poses
+    # training frames with an exposure of non-zero length but no event in it (they train as sharp frames)
+    frames_without_events: list[str] | None = None
 
 
 @dataclass
@@ -249,6 +254,24 @@ def _check_capture(capture: Capture) -> None:
         )
 
 
+def frames_without_events(events: EventStream, exposures: np.ndarray, names: list[str]) -> list[str]:
+    """The names of the frames (exposures [F, 2] seconds) whose exposure lasts but holds no event of
+    ``events`` (a stream with events). When no exposure holds any, ``UserError`` naming the
+    exposure times and the events' time span: the events' times are in another unit or offset."""
+    lasting = np.flatnonzero(exposures[:, 1] > exposures[:, 0])
+    empty = [int(f) for f in lasting if np.subtract(*events.window(exposures[f, 0], exposures[f, 1])) == 0]
+    if lasting.size and len(empty) == lasting.size:
+        ex = ", ".join(f"[{a:.6g}, {b:.6g}]" for a, b in exposures[lasting[:4]])
+        more = f" ... ({lasting.size} frames)" if lasting.size > 4 else ""
+        t = np.asarray(events.t)
+        raise UserError(
+            f"capture: none of the {lasting.size} training exposures holds an event: exposures {ex}{more} s, "
+            f"events from {t[0] * 1e-6:.6g} to {t[-1] * 1e-6:.6g} s ({len(t)} events); the events' times are "
+            "likely in another unit or offset (capture.json: events.t_unit, events.t0_us, frames[].t_start)"
+        )
+    return [names[f] for f in empty]
+
+
 def _poses(capture: Capture, cfg: Config, idx: list[int]):
     """Mid-exposure poses of the training frames, SfM points and test-view poses when SfM ran."""
     src = cfg.trajectory.pose_source
@@ -376,6 +399,18 @@ def prepare(capture: Capture, cfg: Config) -> TrainingData:
     lc, tc = cfg.loss, cfg.trajectory
     wants_events = lc.w_event > 0 or lc.w_edi > 0 or lc.target == "edi"
     use_events = wants_events and has_events
+    names = [(capture.names[i] if capture.names else f"{i:04d}") for i in idx]
+    no_events: list[str] | None = None
+    if has_events:
+        no_events = frames_without_events(events, exposures, names)
+        if no_events:
+            log.warning(
+                "capture: %d of %d training frames hold no event in their exposure window and train as sharp "
+                "frames: %s",
+                len(no_events),
+                len(idx),
+                ", ".join(no_events),
+            )
 
     c: tuple[float, float] | None = None
     c_source: ContrastSource | None = None
@@ -407,6 +442,7 @@ def prepare(capture: Capture, cfg: Config) -> TrainingData:
         c_source=c_source,
         skipped="no events: L_ev and L_EDI off, EDI target = frames" if wants_events and not has_events else None,
         events_per_pixel=([round(float(v), 4) for v in events_per_pixel(events, exposures)] if has_events else None),
+        frames_without_events=no_events,
     )
 
     latents: Tensor | None = None
@@ -440,7 +476,7 @@ def prepare(capture: Capture, cfg: Config) -> TrainingData:
         targets=targets,
         latents=latents if lc.w_edi > 0 else None,
         exposures=exposures,
-        names=[(capture.names[i] if capture.names else f"{i:04d}") for i in idx],
+        names=names,
         c2w=torch.from_numpy(c2w).float(),
         K=torch.from_numpy(np.asarray(capture.K, dtype=np.float32)),
         V=V,

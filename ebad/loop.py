@@ -10,6 +10,7 @@ three losses; ``train_step`` adds the backward, Adam and densification and retur
 
 from __future__ import annotations
 
+import logging
 import signal
 import threading
 import time
@@ -22,9 +23,10 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from .callbacks import Callback
+from .callbacks import Callback, Checkpointer
 from .config import Config
 from .data import MIN_DOWNSCALED_SIDE, TrainingData, downscale
+from .errors import UserError
 from .gaussians import normalise_quats_, num_gaussians, render
 from .losses import event_loss, exposure_losses, l1_ssim_each
 from .metrics import psnr
@@ -37,6 +39,8 @@ from .virtual_views import path_lengths_px, random_window, views_from_blur, wind
 
 __all__ = [
     "StopReason",
+    "DivergedError",
+    "LR_OPTIONS",
     "FrameLosses",
     "frame_losses",
     "train_step",
@@ -48,6 +52,62 @@ __all__ = [
     "RASTER_FORWARD",
     "RASTER_BACKWARD",
 ]
+
+
+class DivergedError(UserError):
+    """Training diverged: the loss or a parameter became non-finite (a learning rate too high)."""
+
+
+# the option that sets each optimizer's learning rate (``state.make_optimizers``), named when it diverges
+LR_OPTIONS = {
+    "means": "--train.lr_means",
+    "scales": "--train.lr_scales",
+    "quats": "--train.lr_quats",
+    "opacities": "--train.lr_opacities",
+    "colors": "--train.lr_colors",
+    "poses": "--trajectory.lr",
+    "contrast": "--loss.lr_contrast",
+    "response": "--model.lr_response",
+}
+DIVERGED_HINT = "the last checkpoint saved before it, if any, is kept"
+
+
+def _diverged(step: int, what: str, options: Sequence[str]) -> DivergedError:
+    opts = ", ".join(options) if options else "the learning rates (--train.lr_*)"
+    return DivergedError(f"training diverged at step {step}: {what} became non-finite; lower {opts}; {DIVERGED_HINT}")
+
+
+def check_finite(state: TrainState, step: int) -> None:
+    """Every optimised parameter is finite, else ``DivergedError`` naming the learning-rate option(s) to lower."""
+    bad = [
+        name
+        for name, opt in state.optimizers.items()
+        if any(not bool(torch.isfinite(p).all()) for g in opt.param_groups for p in g["params"])
+    ]
+    if bad:
+        raise _diverged(step, f"the {', '.join(bad)} parameters", [LR_OPTIONS.get(b, b) for b in bad])
+
+
+log = logging.getLogger(__name__)
+
+# A run whose loss over its last steps is this many times its first step's (the initial scene's)
+# has diverged while staying finite (a learning rate far too high: --train.lr_means 1e3 ends at 4x)
+DIVERGED_LOSS_FACTOR = 2.0
+DIVERGED_LOSS_WINDOW = 20  # the last steps averaged (at most a quarter of the run)
+
+
+def loss_rose(history: Sequence[StepStats]) -> str | None:
+    """A warning when the loss of the last steps is ``DIVERGED_LOSS_FACTOR`` x the first step's, else None."""
+    w = min(DIVERGED_LOSS_WINDOW, len(history) // 4)
+    if w < 1:
+        return None
+    first, last = history[0].loss, float(np.mean([h.loss for h in history[-w:]]))
+    if not last > DIVERGED_LOSS_FACTOR * first:
+        return None
+    return (
+        f"training diverged: the loss rose from {first:.4g} at step {history[0].step} to {last:.4g} over the "
+        f"last {w} steps; the result is worse than the start: lower the learning rates (--train.lr_means first)"
+    )
 
 
 StopReason = Literal["iters", "time", "plateau", "interrupted (SIGINT)", "interrupted (SIGTERM)"]  # why train() stopped
@@ -185,7 +245,7 @@ def train_step(
                 p.grad = None
     out = frame_losses(data, state, f, cfg)
     if not torch.isfinite(out.total):
-        raise FloatingPointError(f"non-finite loss at step {state.step} (frame {data.names[f]})")
+        raise _diverged(state.step, f"the loss (frame {data.names[f]})", [LR_OPTIONS["means"], "--train.lr_*"])
     out.info.progress, out.info.resets = phase.fraction, phase.resets
     t1 = time.perf_counter()
     strategy.step_pre_backward(state.params, state.optimizers, state.strategy_state, state.step, out.info)
@@ -200,6 +260,7 @@ def train_step(
             continue
         opt.step()
     normalise_quats_(state.params["quats"])
+    check_finite(state, state.step)
     t4 = time.perf_counter()
     refine = strategy.step_post_backward(state.params, state.optimizers, state.strategy_state, state.step, out.info)
     state.step += 1
@@ -360,6 +421,7 @@ def train(
         averaging="poses" in state.optimizers,
     )
     views_pending = schedule.views_at is not None
+    diverged = False
     with _Interrupts() as interrupts, _torch_single_threaded():
         try:
             while state.step < cfg.train.iters:
@@ -370,7 +432,16 @@ def train(
                     data.set_views(views_from_trajectories(data, state, cfg))
                     views_pending = False
                 level = coarse if phase.coarse and coarse is not None else data
-                stats = train_step(level, state, strategy, f, cfg, elapsed, phase)
+                try:
+                    stats = train_step(level, state, strategy, f, cfg, elapsed, phase)
+                except DivergedError:
+                    diverged = True
+                    raise
+                except ValueError as exc:  # the rasteriser's check of its inputs (non-finite poses or Gaussians)
+                    if "non-finite" not in str(exc):
+                        raise
+                    diverged = True
+                    raise _diverged(state.step, f"the rasteriser's input ({exc})", []) from None
                 state.elapsed = stats.time = time.perf_counter() - started
                 if schedule.at(state.step, state.elapsed).averaging:  # judged where the step ended
                     state.accumulate_knots()
@@ -384,7 +455,12 @@ def train(
                 if stop:
                     reason = stop
                     break
+            warning = loss_rose(state.history)
+            if warning:
+                log.warning("%s", warning)
         finally:
             for cb in callbacks:
+                if diverged and isinstance(cb, Checkpointer):
+                    continue  # a diverged state is not saved over the last good checkpoint
                 cb.on_end(state, reason)
     return reason

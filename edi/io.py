@@ -22,6 +22,7 @@ A file that cannot be parsed (truncated, not the format its extension says) rais
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal, overload
@@ -215,6 +216,7 @@ def read_events(
     width: int | None = None,
     height: int | None = None,
     *,
+    infer: Callable[[np.ndarray], tuple[str, str]] | None = None,
     return_unit: Literal[False] = False,
 ) -> EventStream: ...
 
@@ -226,6 +228,7 @@ def read_events(
     width: int | None = None,
     height: int | None = None,
     *,
+    infer: Callable[[np.ndarray], tuple[str, str]] | None = None,
     return_unit: Literal[True],
 ) -> tuple[EventStream, str, str]: ...
 
@@ -237,6 +240,7 @@ def read_events(
     width: int | None = None,
     height: int | None = None,
     *,
+    infer: Callable[[np.ndarray], tuple[str, str]] | None = None,
     return_unit: bool,
 ) -> EventStream | tuple[EventStream, str, str]: ...
 
@@ -247,6 +251,7 @@ def read_events(
     width: int | None = None,
     height: int | None = None,
     *,
+    infer: Callable[[np.ndarray], tuple[str, str]] | None = None,
     return_unit: bool = False,
 ) -> EventStream | tuple[EventStream, str, str]:
     """Read an event file into an ``EventStream``.
@@ -259,6 +264,8 @@ def read_events(
             ``sensor_size`` keys, an AEDAT4 stream) a different given size raises
             ``EventError`` naming both; without either the declared size is used, else
             max coordinate + 1 (logged as a warning).
+        infer: without ``t_unit``, ``infer(t_raw) -> (unit, reason)`` tells the unit from the file's
+            raw times [M] instead of ``infer_time_unit`` (a capture compares them with its frames).
         return_unit: return (events, unit, reason) instead.
 
     Raises:
@@ -284,7 +291,7 @@ def read_events(
             unit, reason = "s", "events.txt stores seconds"
         else:
             try:
-                unit, reason = infer_time_unit(t)
+                unit, reason = (infer or infer_time_unit)(t)
             except EventError as exc:
                 raise EventError(f"{path}: {exc}") from None
         log.info("read_events %s: time unit %r (inferred: %s)", path, unit, reason)

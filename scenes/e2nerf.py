@@ -77,6 +77,11 @@ __all__ = [
 BIN_S = 0.01  # nominal length of one event bin, seconds (the layouts record none)
 LLFF_HOLD = 8  # every 8th view is held out when images_gt_novel/ exists (EBAD-NeRF's llffhold)
 EVENTS_FILE = "events.pt"
+# Counts that cannot be right, refused before anything is allocated from them: more events in one
+# pixel and bin than a DAVIS pixel can fire (~1 MHz over a 10 ms bin), or more events in all than
+# fit in memory as a stream (about 33 bytes an event: 2^28 events is ~9 GB).
+MAX_BIN_COUNT = 10_000
+MAX_EVENTS = 2**28
 POSES_FILES = ("poses_bounds.npy", "pose_bounds.npy")
 TRANSFORMS = {
     "train": ("transforms_train.json", "transform_train.json"),
@@ -126,8 +131,13 @@ def read_event_bins(path: Path) -> np.ndarray:  # -> [V, B, P] int32 (P = H*W, o
     """Signed event counts from an ``events.pt`` (a tensor [V, B, H*W] or [V, B, H, W]), read
     with ``torch.load(weights_only=True)``: no code in the file runs.
 
+    Counts that cannot be right are refused before any allocation from them: a tensor that views
+    a smaller storage (stride 0: a tiny file standing for a huge array), a count beyond
+    ``MAX_BIN_COUNT`` in magnitude (which int32 would wrap), more than ``MAX_EVENTS`` in all.
+
     Raises:
-        CaptureError: unreadable file, not a tensor, wrong rank, non-integer or non-finite counts.
+        CaptureError: empty or unreadable file, not a tensor, wrong rank, non-integer, non-finite
+            or impossible counts.
     """
     import pickle
 
@@ -136,14 +146,24 @@ def read_event_bins(path: Path) -> np.ndarray:  # -> [V, B, P] int32 (P = H*W, o
     path = Path(path)
     if not path.is_file():
         raise CaptureError(str(path), "events", "file not found")
+    if path.stat().st_size == 0:
+        raise CaptureError(str(path), "events", "empty file (0 bytes)")
     try:
         obj = torch.load(path, map_location="cpu", weights_only=True)
-    except (OSError, EOFError, RuntimeError, pickle.UnpicklingError, ValueError) as exc:
+    except (OSError, EOFError, RuntimeError, pickle.UnpicklingError, ValueError, IndexError) as exc:
         raise CaptureError(
             str(path), "events", f"unreadable ({type(exc).__name__}: {str(exc).splitlines()[0]})"
         ) from None
     if not isinstance(obj, torch.Tensor):
         raise CaptureError(str(path), "events", f"must hold one tensor [views, bins, H*W], got {type(obj).__name__}")
+    stored = obj.untyped_storage().nbytes() // max(obj.element_size(), 1)
+    if obj.numel() > stored:
+        raise CaptureError(
+            str(path),
+            "events",
+            f"a tensor of shape {tuple(obj.shape)} ({obj.numel()} counts) over a storage of {stored}: "
+            "repeated counts (stride 0) cannot be event data",
+        )
     a = obj.detach().numpy()
     if a.ndim == 4:
         a = a.reshape(a.shape[0], a.shape[1], -1)
@@ -158,7 +178,23 @@ def read_event_bins(path: Path) -> np.ndarray:  # -> [V, B, P] int32 (P = H*W, o
             raise CaptureError(str(path), "events", "counts must be whole numbers of events")
     elif a.dtype.kind not in "iu":
         raise CaptureError(str(path), "events", f"counts must be numeric, got {a.dtype}")
-    return a.astype(np.int32)
+    # compared, not abs(): abs of the most negative int64 is itself
+    big = np.flatnonzero(((a > MAX_BIN_COUNT) | (a < -MAX_BIN_COUNT)).reshape(-1))
+    if big.size:
+        v, b, px = np.unravel_index(int(big[0]), a.shape)
+        raise CaptureError(
+            str(path),
+            "events",
+            f"count {a[v, b, px]} at view {v}, bin {b}, pixel {px}: more than {MAX_BIN_COUNT} events in one pixel "
+            f"and bin cannot be right ({big.size} such counts)",
+        )
+    counts = a.astype(np.int32)
+    total = int(np.abs(counts).sum(dtype=np.int64))
+    if total > MAX_EVENTS:
+        raise CaptureError(
+            str(path), "events", f"{total} events in all: more than {MAX_EVENTS} cannot be held as an event stream"
+        )
+    return counts
 
 
 def nominal_exposures(n_frames: int, n_bins: int, bin_s: float = BIN_S) -> np.ndarray:  # -> [F, 2] seconds

@@ -10,11 +10,13 @@ and float32 ``.npy`` otherwise.
 from __future__ import annotations
 
 import json
+import logging
 import math
 import os
 import shutil
 import tempfile
 import zipfile
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Final
 
@@ -45,8 +47,14 @@ __all__ = [
     "GT_FILE",
 ]
 
+log = logging.getLogger(__name__)
+
 FORMAT: Final = "ebad-capture/1"
 T_UNITS = ("us", "ns", "ms", "s")
+US_PER_UNIT = {"s": 1e6, "ms": 1e3, "us": 1.0, "ns": 1e-3}
+# Without events.t_unit, the unit whose events' span is within this factor of the frames' span wins
+# (the units are 1000x apart, so at most one can be); none within it is refused as ambiguous.
+T_UNIT_SPAN_FACTOR = 30.0
 EVENT_SUFFIXES = (".npz", ".h5", ".hdf5")
 # What numpy, zipfile and h5py raise on a truncated or corrupt file (h5py raises OSError).
 CORRUPT_FILE_ERRORS = (OSError, EOFError, ValueError, zipfile.BadZipFile)
@@ -69,11 +77,21 @@ def _num(v: Any, file: str, field: str) -> float:
     return x
 
 
-def decode_events(path: Path, t_unit: str | None, width: int, height: int, field: str) -> EventStream:
+def decode_events(
+    path: Path,
+    t_unit: str | None,
+    width: int,
+    height: int,
+    field: str,
+    infer: Callable[[np.ndarray], tuple[str, str]] | None = None,
+) -> EventStream:
     """``edi.read_events`` (the one event-file reader) with its failures as a CaptureError naming
-    the file and ``field``: an undecodable file is "unreadable", any other problem says what."""
+    the file and ``field``: an undecodable file is "unreadable", any other problem says what.
+    ``infer``: how ``edi.read_events`` tells the time unit when ``t_unit`` is None."""
     try:
-        return read_events(path, t_unit=t_unit, width=width, height=height)
+        return read_events(path, t_unit=t_unit, width=width, height=height, infer=infer)
+    except CaptureError:
+        raise
     except CorruptFileError as exc:
         raise CaptureError(str(path), field, f"unreadable: {str(exc).replace(f'{path}: ', '')}") from None
     except EbadError as exc:
@@ -82,18 +100,26 @@ def decode_events(path: Path, t_unit: str | None, width: int, height: int, field
         raise CaptureError(str(path), field, f"unreadable ({type(exc).__name__}: {exc})") from None
 
 
-def read_event_file(path: Path, t_unit: str, width: int, height: int, t0_us: int = 0) -> EventStream:
+def read_event_file(
+    path: Path,
+    t_unit: str,
+    width: int,
+    height: int,
+    t0_us: int = 0,
+    infer: Callable[[np.ndarray], tuple[str, str]] | None = None,
+) -> EventStream:
     """Read events from a .npz or .h5 file with arrays x, y, t, p (an h5 may keep them under an
     ``events/`` group) through ``edi.read_events``, the project's one event-file reader and
-    seconds-to-microseconds conversion. Raises CaptureError naming the file and the field."""
+    seconds-to-microseconds conversion. Raises CaptureError naming the file and the field.
+    ``t_unit`` "infer": the unit ``infer(t_raw) -> (unit, reason)`` gives."""
     path = Path(path)
     if not path.is_file():
         raise CaptureError(str(path), "events.file", "file not found")
     if path.suffix.lower() not in EVENT_SUFFIXES:
         raise CaptureError(str(path), "events.file", f"events must be a {' or '.join(EVENT_SUFFIXES)} file")
-    if t_unit not in T_UNITS:
+    if t_unit not in T_UNITS and not (t_unit == "infer" and infer is not None):
         raise CaptureError(str(path), "events.t_unit", f"must be one of {', '.join(T_UNITS)}; got {t_unit!r}")
-    events = decode_events(path, t_unit, width, height, "events.file")
+    events = decode_events(path, None if t_unit == "infer" else t_unit, width, height, "events.file", infer)
     if t0_us:
         object.__setattr__(events, "t0", int(t0_us))
     return events
@@ -122,13 +148,16 @@ def load_capture_folder(path: str | os.PathLike) -> Capture:
     doc = read_json_object(js)
     width, height = _read_size(doc, jf)
     K, distortion = _read_camera(doc, jf)
-    events = _read_events_entry(doc, root, jf, width, height)
     frames, exposures, c2ws, split, names = _read_frames(doc, root, jf, width, height)
+    inferred: list[str] = []
+    events = _read_events_entry(doc, root, jf, width, height, np.array(exposures, dtype=np.float64), inferred)
     test_views = _read_test_views(doc, root, jf, width, height)
     meta = doc.get("meta", {}) or {}
     if not isinstance(meta, dict):
         raise CaptureError(jf, "meta", f"must be an object, got {type(meta).__name__}")
     meta = dict(meta)
+    if inferred:
+        meta["events_t_unit_inferred"] = inferred[0]
     if len(set(names)) != len(names):
         names = [f"{i:04d}" for i in range(len(names))]
     cap = Capture(
@@ -176,18 +205,81 @@ def _read_camera(doc: dict, jf: str) -> tuple[np.ndarray, np.ndarray | None]:
     return K, distortion
 
 
-def _read_events_entry(doc: dict, root: Path, jf: str, width: int, height: int) -> EventStream:
-    """The stream the ``events`` entry names (file, t_unit, t0_us)."""
+def infer_t_unit(t: np.ndarray, exposures: np.ndarray, jf: str) -> tuple[str, str]:
+    """(unit, reason) of raw event times t [M] for a capture.json without ``events.t_unit``: the
+    unit that puts the events' time span on the frames' (exposures [F, 2] seconds, first start to
+    last end), within ``T_UNIT_SPAN_FACTOR``. Raises CaptureError (events.t_unit) when no unit
+    does or the spans cannot be compared."""
+    if len(t) == 0:
+        return "us", "no events"
+    if t.dtype.kind not in "iuf":
+        raise CaptureError(jf, "events.t_unit", f"missing, and event times of dtype {t.dtype} tell no unit")
+    frames_span = float(exposures[:, 1].max() - exposures[:, 0].min()) if len(exposures) else 0.0
+    raw_span = float(np.max(t)) - float(np.min(t))
+    ask = f'add "t_unit" (one of {", ".join(T_UNITS)}) to the events entry'
+    if not (math.isfinite(raw_span) and raw_span > 0 and frames_span > 0):
+        raise CaptureError(
+            jf,
+            "events.t_unit",
+            f"missing, and cannot be inferred: the events span {raw_span:.6g} (raw) and the frames "
+            f"{frames_span:.6g} s; {ask}",
+        )
+    ratios = {u: raw_span * US_PER_UNIT[u] * 1e-6 / frames_span for u in T_UNITS}
+    unit = min(ratios, key=lambda u: abs(math.log(ratios[u])))
+    spans = ", ".join(f"{raw_span * US_PER_UNIT[u] * 1e-6:.4g} s in {u}" for u in ("s", "ms", "us", "ns"))
+    if not 1 / T_UNIT_SPAN_FACTOR <= ratios[unit] <= T_UNIT_SPAN_FACTOR:
+        raise CaptureError(
+            jf,
+            "events.t_unit",
+            f"missing, and no unit puts the events' span ({spans}) on the frames' {frames_span:.4g} s; {ask}",
+        )
+    reason = (
+        f"events.t_unit missing: inferred {unit!r}, the unit that puts the events' span "
+        f"({raw_span * US_PER_UNIT[unit] * 1e-6:.4g} s) on the frames' ({frames_span:.4g} s)"
+    )
+    return unit, reason
+
+
+def _read_events_entry(
+    doc: dict,
+    root: Path,
+    jf: str,
+    width: int,
+    height: int,
+    exposures: np.ndarray | None = None,  # [F, 2] seconds: without t_unit, the unit is inferred against them
+    inferred: list[str] | None = None,  # receives the inferred unit
+) -> EventStream:
+    """The stream the ``events`` entry names (file, t_unit, t0_us). Without ``t_unit`` the unit is
+    ``infer_t_unit``'s (said as a warning), never assumed."""
     evd = _req(doc, "events", jf, "")
     ev_file = _str(_req(evd, "file", jf, "events"), jf, "events.file")
-    t_unit = evd.get("t_unit", "us")
+    t_unit = evd.get("t_unit")
+    if t_unit is None:
+        if exposures is None:
+            raise CaptureError(jf, "events.t_unit", f"missing (one of {', '.join(T_UNITS)})")
+        found: list[tuple[str, str]] = []
+
+        def infer(t: np.ndarray) -> tuple[str, str]:
+            found.append(infer_t_unit(t, exposures, jf))
+            return found[-1]
+
+        events = read_event_file(root / ev_file, "infer", width, height, t0_us=_t0_us(evd, jf), infer=infer)
+        if found:
+            log.warning("%s: %s", jf, found[0][1])
+            if inferred is not None:
+                inferred.append(found[0][0])
+        return events
     if t_unit not in T_UNITS:
         raise CaptureError(jf, "events.t_unit", f"must be one of {', '.join(T_UNITS)}; got {t_unit!r}")
+    return read_event_file(root / ev_file, t_unit, width, height, t0_us=_t0_us(evd, jf))
+
+
+def _t0_us(evd: dict, jf: str) -> int:
+    """``events.t0_us``, the stream's reference: stored times are relative, so t0 is re-attached, not subtracted."""
     t0_us = evd.get("t0_us", 0)
     if isinstance(t0_us, bool) or not isinstance(t0_us, int):
         raise CaptureError(jf, "events.t0_us", f"must be an integer, got {t0_us!r}")
-    # t0_us is the stream's reference: stored times are relative, so t0 is re-attached, not subtracted
-    return read_event_file(root / ev_file, t_unit, width, height, t0_us=t0_us)
+    return t0_us
 
 
 def _read_frames(
