@@ -78,7 +78,9 @@ class ModelConfig:
     """Gaussians of the fallback initialisation (no SfM points)"""
     init_depth: tuple[float, float] | None = None
     """fallback depth range (near, far) in world units; None: from the focus point of the cameras' optical axes
-    (FOCUS_DEPTH_RANGE x its depth), else SPREAD_DEPTH_RANGE x the camera-spread scale"""
+    (FOCUS_DEPTH_RANGE x its depth), else SPREAD_DEPTH_RANGE x the camera-spread scale; cameras that did not move
+    (spread < ebad.data.STATIC_SPREAD = 0.1, a tripod or pose_source static): STATIC_DEPTH_RANGE = (0.5, 2.0), scene
+    scale 1"""
     init_opacity: float = 0.3
     """activated opacity of every initial Gaussian"""
     init_scale_px: float = 1.5
@@ -315,6 +317,9 @@ class TrainConfig:
     """steps between plateau checks (mean loss over the window)"""
     plateau_tol: float = 1e-3
     """relative improvement that counts as progress"""
+    empty_render_steps: int = 50
+    """stop with an error when every render of the first this many steps is empty (alpha below 1/255 at every
+    pixel: no Gaussian in front of the cameras); 0: never check"""
     lr_means: float = 1.6e-3
     """Adam lr of means, times the scene scale (decays to lr_means_final x itself over the run)"""
     lr_means_final: float = 0.1
@@ -354,6 +359,9 @@ class TrainConfig:
         _require(self.plateau_patience >= 0, "train.plateau_patience", f"must be >= 0, got {self.plateau_patience}")
         _require(self.plateau_every >= 1, "train.plateau_every", f"must be >= 1, got {self.plateau_every}")
         _require(self.plateau_tol >= 0, "train.plateau_tol", f"must be >= 0, got {self.plateau_tol}")
+        _require(
+            self.empty_render_steps >= 0, "train.empty_render_steps", f"must be >= 0, got {self.empty_render_steps}"
+        )
         for name in ("lr_means", "lr_scales", "lr_quats", "lr_opacities", "lr_colors"):
             _require(getattr(self, name) >= 0, f"train.{name}", f"must be >= 0, got {getattr(self, name)}")
         _require(0 < self.lr_means_final <= 1, "train.lr_means_final", f"must be in (0, 1], got {self.lr_means_final}")

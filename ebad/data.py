@@ -44,6 +44,8 @@ __all__ = [
     "test_poses",
     "FOCUS_DEPTH_RANGE",
     "SPREAD_DEPTH_RANGE",
+    "STATIC_SPREAD",
+    "STATIC_DEPTH_RANGE",
 ]
 
 # Intrinsics outside this horizontal/vertical field of view (degrees) are taken for a mistake
@@ -55,6 +57,12 @@ MIN_TRAIN_FRAMES = 2
 # The initial depth range when neither the config nor SfM points give one, as factors of:
 FOCUS_DEPTH_RANGE = (0.4, 2.5)  # the depth of the point the optical axes converge on (inward-facing captures)
 SPREAD_DEPTH_RANGE = (0.5, 2.0)  # the camera-spread scene scale (forward-facing captures: no such point)
+# Cameras whose centres spread less than this (scene units, ``scene_scale``) did not move (a tripod,
+# --trajectory.pose_source static): their spread sets no depth (it would start the scene within 5x
+# the rasteriser's 0.01 near plane), so the depth range is the prior STATIC_DEPTH_RANGE instead, in
+# front of the camera, and the scene scale is 1 (the geometric mean of that range).
+STATIC_SPREAD = 0.1
+STATIC_DEPTH_RANGE = (0.5, 2.0)
 
 
 PoseSourceUsed = Literal["capture", "colmap", "static"]  # where a run's mid-exposure poses came from
@@ -347,7 +355,8 @@ def depth_range(
 ) -> tuple[float, float]:  # [P, 3]
     """The depth range of the fallback initialisation: the config's, else the 5th-95th percentile
     of SfM point depths, else ``FOCUS_DEPTH_RANGE`` x the focus depth, else ``SPREAD_DEPTH_RANGE``
-    x the camera-spread scale. (A synthetic scene's true depth range is never read.)"""
+    x the camera-spread scale, or ``STATIC_DEPTH_RANGE`` when the cameras spread less than
+    ``STATIC_SPREAD`` (they did not move). (A synthetic scene's true depth range is never read.)"""
     if cfg.model.init_depth is not None:
         near, far = cfg.model.init_depth
         return float(near), float(far)
@@ -361,6 +370,8 @@ def depth_range(
     if d0 is not None:
         return FOCUS_DEPTH_RANGE[0] * d0, FOCUS_DEPTH_RANGE[1] * d0
     s = scene_scale(c2w)
+    if s < STATIC_SPREAD:
+        return STATIC_DEPTH_RANGE
     return SPREAD_DEPTH_RANGE[0] * s, SPREAD_DEPTH_RANGE[1] * s
 
 

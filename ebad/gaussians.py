@@ -13,6 +13,7 @@ densification strategy can replace them together with their Adam state:
 
 from __future__ import annotations
 
+import logging
 import math
 from collections.abc import Mapping
 
@@ -37,6 +38,11 @@ __all__ = [
 ]
 
 SH_C0 = 0.28209479177387814
+# plane-sweep stereo needs parallax: cameras whose baseline moves a point over the depth range by less
+# than this many pixels give every depth plane the same cost, so random depths are used instead
+MIN_PARALLAX_PX = 1.0
+
+log = logging.getLogger(__name__)
 
 
 def knn_scale(points: Tensor, k: int = 3) -> Tensor:  # [P, 3] -> [P]
@@ -224,6 +230,19 @@ def plane_sweep_points(
         raise ValueError(f"depth_range must satisfy 0 < near < far, got {depth_range}")
     F, H, W, D = frames.shape
     if F < 2:
+        return points_from_frames(frames, c2w, K, n, depth_range, scale_px * 1.5, seed)
+    cam = c2w[:, :3, 3]
+    baseline = float(np.linalg.norm(cam[:, None] - cam[None], axis=-1).max())
+    parallax = float(K[0, 0]) * baseline * (1.0 / near - 1.0 / far)  # pixels, widest pair, over the depth range
+    if parallax < MIN_PARALLAX_PX:
+        log.warning(
+            "plane-sweep initialisation skipped: the cameras do not move (baseline %.3g, %.3g px of parallax over "
+            "depths %.3g..%.3g); Gaussians start at random depths in that range (--model.init_depth sets it)",
+            baseline,
+            parallax,
+            near,
+            far,
+        )
         return points_from_frames(frames, c2w, K, n, depth_range, scale_px * 1.5, seed)
     img = torch.from_numpy(np.ascontiguousarray(frames)).float().permute(0, 3, 1, 2)  # [F, D, H, W]
     c2w_t = torch.from_numpy(c2w).float()

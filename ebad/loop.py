@@ -46,6 +46,7 @@ __all__ = [
     "train_step",
     "train",
     "should_stop",
+    "check_not_empty",
     "step_profile",
     "coarse_data",
     "views_from_trajectories",
@@ -125,6 +126,7 @@ class FrameLosses:
     mean_render: Tensor  # [H, W, D] detached: what the camera would record of the exposure (response of the mean)
     raster_timings: dict = field(default_factory=dict)  # the rasteriser's ms per stage (its backward's once it ran)
     timings: dict = field(default_factory=dict)  # ms of the forward's parts outside the rasteriser: "poses", "losses"
+    alpha: float | None = None  # largest alpha of the renders (in the first train.empty_render_steps steps only)
 
 
 def frame_losses(data: TrainingData, state: TrainState, f: int, cfg: Config) -> FrameLosses:
@@ -140,7 +142,7 @@ def frame_losses(data: TrainingData, state: TrainState, f: int, cfg: Config) -> 
     t0 = time.perf_counter()
     poses = state.trajectories(torch.tensor([f]), u)[0]  # [V', 4, 4]
     t1 = time.perf_counter()
-    images, _, meta = render(state.params, poses, data.K, data.width, data.height, cfg.model.background)
+    images, alphas, meta = render(state.params, poses, data.K, data.width, data.height, cfg.model.background)
     t2 = time.perf_counter()
     mid = V if need_mid else V // 2  # the render L_EDI compares with a mid-exposure latent
     edi_target = None
@@ -190,6 +192,7 @@ def frame_losses(data: TrainingData, state: TrainState, f: int, cfg: Config) -> 
         mean_render=mean_render,
         raster_timings=meta.get("timings", {}),
         timings={"poses": 1e3 * (t1 - t0), "losses": 1e3 * (time.perf_counter() - t2)},
+        alpha=float(alphas.detach().max()) if state.step < cfg.train.empty_render_steps else None,
     )
 
 
@@ -279,6 +282,7 @@ def train_step(
         c=None if state.log_c is None or not state.log_c.requires_grad else torch.exp(state.log_c.detach()).tolist(),
         refine=refine,
         width=data.width,
+        alpha=out.alpha,
         profile={
             "forward": 1e3 * (t1 - t0),
             "raster_forward": sum(rt.get(k, 0.0) for k in RASTER_FORWARD),
@@ -313,6 +317,26 @@ def step_profile(history: Sequence[StepStats]) -> dict[str, float] | None:
     mean["outside_share"] = 1.0 - (mean["raster_forward"] + mean["raster_backward"]) / max(mean["step"], 1e-9)
     mean["steps"] = len(profiles)
     return mean
+
+
+EMPTY_ALPHA = 1.0 / 255.0  # a render whose alpha stays below this at every pixel shows nothing (splat_cpu ALPHA_MIN)
+
+
+def check_not_empty(history: Sequence[StepStats], cfg: Config) -> None:
+    """Raise ``UserError`` when the run has done its first ``train.empty_render_steps`` steps (or all
+    its steps, when fewer) and every render of them was empty: nothing is in front of the cameras
+    and no gradient can bring it there; the run would otherwise finish with a black scene."""
+    n = min(cfg.train.empty_render_steps, cfg.train.iters)
+    if n <= 0 or len(history) < n or history[-1].step != n:
+        return
+    alphas = [h.alpha for h in history[-n:]]
+    if any(a is None or a >= EMPTY_ALPHA for a in alphas):
+        return
+    raise UserError(
+        f"every render of the first {n} steps is empty (largest alpha {max(a or 0.0 for a in alphas):.2g}): no "
+        "Gaussian is in front of the cameras; check the capture's poses and intrinsics, or set the initial depth "
+        "range with --model.init_depth NEAR FAR (--train.empty_render_steps 0 turns this check off)"
+    )
 
 
 def should_stop(history: Sequence[StepStats], elapsed: float, cfg: Config) -> Literal["time", "plateau"] | None:
@@ -446,6 +470,7 @@ def train(
                 if schedule.at(state.step, state.elapsed).averaging:  # judged where the step ended
                     state.accumulate_knots()
                 state.history.append(stats)
+                check_not_empty(state.history, cfg)
                 for cb in callbacks:
                     cb.on_step(state, stats)
                 if interrupts.received:

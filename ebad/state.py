@@ -72,6 +72,7 @@ class StepStats:
     width: int | None = None  # width of the frames the step trained on (smaller in the coarse phase)
     refine: RefineReport = field(default_factory=RefineReport)  # what densification did
     profile: dict[str, float] | None = None  # ms of each part of the step (ebad.loop.train_step, step_profile)
+    alpha: float | None = None  # largest alpha of the step's renders (train.empty_render_steps' first steps only)
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)

@@ -5,6 +5,11 @@ Layouts: an ``ebad-capture/1`` folder, an ``.aedat4`` file, a ROS1 ``.bag`` (rpg
 Event Camera Dataset folder, an EvDeblurNeRF folder, an EBAD-NeRF or E2NeRF folder. Options
 that only some layouts need: ``--exposure-us`` (a bag without ``/dvs/exposure``),
 ``--intrinsics FX FY CX CY`` (AEDAT4 or a bag without camera_info), ``--llffhold`` (EBAD-NeRF).
+Options for any layout (``hold_out``; ``ebad reconstruct`` has the same three for one run):
+``--test-every N`` holds out every Nth frame (index 0, N, 2N, ...) as a test view, ``--test-frames
+NAME,NAME`` the named frames; a held-out frame leaves the training frames and becomes a test view
+with its recorded image (blurry if the frame is) and its pose (when the capture has poses).
+``--pose-trust exact|approximate|none`` states how far the capture's poses are trusted.
 
 Exit status: 0 written; 2 for a user mistake (one line naming the file and field, or the path
 of an OSError); anything else is a bug and shows its traceback.
@@ -13,6 +18,7 @@ of an OSError); anything else is a bug and shows its traceback.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 from pathlib import Path
 
@@ -20,13 +26,13 @@ import numpy as np
 
 from edi import EbadError
 
-from .capture import Capture
+from .capture import POSE_TRUST, Capture, TestView
 from .e2nerf import LLFF_HOLD
 from .format import save
 from .readers import load
 from .synth import check_replaceable
 
-__all__ = ["main", "summary"]
+__all__ = ["main", "summary", "hold_out", "parse_names"]
 
 USER_ERROR_EXIT = 2
 CAPTURE_CONTENTS = {"capture.json", "events.npz", "frames", "test"}  # what scenes.save writes in a capture folder
@@ -48,13 +54,80 @@ def summary(cap: Capture) -> list[str]:
             else ""
         ),
         f"poses: {'yes' if cap.c2w is not None else 'no (SfM will estimate them)'}",
-        f"test views: {len(cap.test_views)}",
+        f"test views: {len(cap.test_views)}"
+        + (f" ({len(m['held_out_frames'])} held-out frames)" if m.get("held_out_frames") else ""),
+        f"pose trust: {cap.effective_pose_trust}" + ("" if cap.pose_trust is not None else " (unstated)"),
     ]
     if m.get("K_guessed"):
         lines.append("intrinsics: guessed from a 70-degree field of view (pass --intrinsics FX FY CX CY)")
     if m.get("undistorted"):
         lines.append(f"undistorted on load ({m.get('events_dropped_undistort', 0)} events left the sensor)")
     return lines
+
+
+def parse_names(text: str | None) -> list[str]:
+    """``NAME,NAME`` as a list of names (blanks dropped); None or '' -> []."""
+    return [n.strip() for n in (text or "").split(",") if n.strip()]
+
+
+def hold_out(
+    cap: Capture, test_every: int = 0, test_frames: list[str] | tuple[str, ...] = (), pose_trust: str | None = None
+) -> Capture:
+    """``cap`` with frames held out as test views and its pose trust stated (``cap`` is not changed).
+
+    ``test_every`` N > 0 holds out frames 0, N, 2N, ... (the LLFF / EBAD-NeRF split), ``test_frames``
+    the frames of those names (``Capture.names``, else the index as ``%04d``). Each held-out frame
+    leaves the frames and becomes a ``TestView`` named as the frame, at its mid-exposure, with its
+    recorded image and its pose (when the capture has poses). ``pose_trust`` (one of
+    ``POSE_TRUST``) replaces the capture's; None keeps it.
+
+    Raises:
+        EbadError: naming the option (``--test-every``, ``--test-frames``, ``--pose-trust``).
+    """
+    if test_every < 0:
+        raise EbadError(f"--test-every must be >= 0 (0: none held out), got {test_every}")
+    if pose_trust is not None:
+        if pose_trust not in POSE_TRUST:
+            raise EbadError(f"--pose-trust must be one of {', '.join(POSE_TRUST)}, got {pose_trust!r}")
+        if pose_trust != "none" and cap.c2w is None:
+            raise EbadError(f"--pose-trust {pose_trust}: the capture's frames carry no poses (c2w)")
+    names = list(cap.names) if cap.names else [f"{i:04d}" for i in range(cap.num_frames)]
+    held = set(range(0, cap.num_frames, test_every)) if test_every > 0 else set()
+    unknown = [n for n in test_frames if n not in names]
+    if unknown:
+        shown = ", ".join(names[:5]) + (", ..." if len(names) > 5 else "")
+        raise EbadError(f"--test-frames: no frame named {', '.join(unknown)} (the frames are {shown})")
+    held |= {names.index(n) for n in test_frames}
+    out = dataclasses.replace(cap, pose_trust=cap.pose_trust if pose_trust is None else pose_trust)
+    if not held:
+        return out
+    keep = [i for i in range(cap.num_frames) if i not in held]
+    if not keep:
+        raise EbadError(f"--test-every / --test-frames hold out all {cap.num_frames} frames: none is left to train on")
+    taken = {v.name for v in cap.test_views} & {names[i] for i in held}
+    if taken:
+        raise EbadError(f"--test-frames: the capture already has a test view named {', '.join(sorted(taken))}")
+    c2w = None if cap.c2w is None else np.asarray(cap.c2w)
+    views = [
+        TestView(
+            name=names[i],
+            t=float(np.mean(cap.exposures[i])),
+            c2w=None if c2w is None else c2w[i].copy(),
+            image=np.asarray(cap.frames[i]).copy(),
+        )
+        for i in sorted(held)
+    ]
+    meta = {**cap.meta, "held_out_frames": [*cap.meta.get("held_out_frames", []), *(names[i] for i in sorted(held))]}
+    return dataclasses.replace(
+        out,
+        frames=cap.frames[keep],
+        exposures=np.asarray(cap.exposures)[keep],
+        c2w=None if c2w is None else c2w[keep],
+        split=[cap.split[i] for i in keep] if cap.split else [],
+        names=[names[i] for i in keep],
+        test_views=[*cap.test_views, *views],
+        meta=meta,
+    )
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -74,6 +147,22 @@ def _parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--llffhold", type=int, default=LLFF_HOLD, help="EBAD-NeRF: hold out every Nth view (default 8)")
     p.add_argument("--no-undistort", action="store_true", help="keep the distortion coefficients instead")
+    p.add_argument(
+        "--test-every",
+        type=int,
+        default=0,
+        metavar="N",
+        help="hold out frames 0, N, 2N, ... as test views (their recorded image and pose); 0: none (default)",
+    )
+    p.add_argument(
+        "--test-frames", default=None, metavar="NAME,NAME", help="hold out these frames (by name) as test views"
+    )
+    p.add_argument(
+        "--pose-trust",
+        choices=POSE_TRUST,
+        default=None,
+        help="how far the capture's poses are trusted (motion capture: exact); default: the capture's own",
+    )
     p.add_argument("--overwrite", action="store_true", help="replace --out if it is an ebad-capture/1 folder")
     return p
 
@@ -94,6 +183,7 @@ def main(argv: list[str] | None = None) -> int:
         cap = load(
             args.input, undistort=not args.no_undistort, K=K, exposure_us=args.exposure_us, llffhold=args.llffhold
         )
+        cap = hold_out(cap, args.test_every, parse_names(args.test_frames), args.pose_trust)
         save(cap, args.out, overwrite=args.overwrite)
     except EbadError as exc:
         print(f"error: {exc}", file=sys.stderr)

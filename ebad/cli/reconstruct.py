@@ -6,6 +6,12 @@ is the field's comment, and ``--help`` shows the values of the chosen ``--preset
 run being resumed). ``--resume`` continues a run folder's checkpoint; it applies the options
 that are safe to change (``config.RESUMABLE_FIELDS``: iterations, time budget, progress,
 evaluation and checkpoint intervals) and refuses the others, naming them.
+
+``--test-every N``, ``--test-frames NAME,NAME`` and ``--pose-trust`` change the capture for this run
+only, as ``python -m scenes.convert`` does on disk (``scenes.convert.hold_out``): held-out frames
+become test views (scored during and after the run), and the poses' trust is stated. The capture's
+files are not changed, so ``ebad eval`` on it sees none of these test views: convert the capture
+with the same options to keep them.
 """
 
 from __future__ import annotations
@@ -44,6 +50,12 @@ class Args:
     )
     no_progress: bool = False
     """no progress bar (same as --train.progress False)"""
+    test_every: int = 0
+    """hold out frames 0, N, 2N, ... as test views for this run (their recorded image and pose); 0: none"""
+    test_frames: Annotated[str | None, tyro.conf.arg(metavar="NAME,NAME")] = None
+    """hold out these frames (by name, comma-separated) as test views for this run"""
+    pose_trust: Literal["exact", "approximate", "none"] | None = None
+    """how far the capture's poses are trusted, for this run (motion capture: exact); None: the capture's own"""
     settings: Annotated[Config, tyro.conf.arg(name=""), tyro.conf.FlagConversionOff] = field(default_factory=Config)
     """the reconstruction settings (ebad.config.Config), one option per field"""
 
@@ -136,7 +148,9 @@ def run(args: Args) -> int:
         raise UserError(f"--out {out} already holds a run; pass --resume to continue it or choose another folder")
     if args.resume and not ckpt.exists():
         print(f"ebad reconstruct: {out} has no checkpoint; starting a new run", file=sys.stderr)
-    capture = scenes.load(args.capture)
+    from scenes.convert import hold_out, parse_names
+
+    capture = hold_out(scenes.load(args.capture), args.test_every, parse_names(args.test_frames), args.pose_trust)
     with RunLock(out, say=lambda m: print(m, file=sys.stderr)):
         if args.resume and ckpt.exists():  # refuse another capture before anything of the run is touched
             read_checkpoint(ckpt, capture_fingerprint(capture))

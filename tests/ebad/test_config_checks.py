@@ -58,6 +58,7 @@ RULES: dict[str, tuple[tuple, tuple]] = {
     "train.plateau_patience": ((-1,), (0,)),
     "train.plateau_every": ((0,), (1,)),
     "train.plateau_tol": ((-1e-6,), (0.0,)),
+    "train.empty_render_steps": ((-1,), (0,)),
     "train.lr_means": ((-1e-6,), (0.0,)),
     "train.lr_scales": ((-1e-6,), (0.0,)),
     "train.lr_quats": ((-1e-6,), (0.0,)),
