@@ -175,7 +175,7 @@ def test_a_run_whose_loss_rose_ends_with_a_warning(monkeypatch, caplog):
 
         def step(data, state, *a, losses=losses, **k):
             state.step += 1
-            return SimpleNamespace(step=state.step, loss=float(losses[state.step - 1]), time=0.0)
+            return SimpleNamespace(step=state.step, loss=float(losses[state.step - 1]), time=0.0, alpha=1.0)
 
         monkeypatch.setattr(loop, "train_step", step)
         caplog.clear()
