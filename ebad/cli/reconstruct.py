@@ -85,9 +85,11 @@ def _base(config: str | None, preset_name: str | None, saved: Config | None) -> 
 def _saved(out: str | None, resume: bool) -> Config | None:
     """The config of the run being resumed (OUT/config.json), when there is one; an error when OUT holds
     a run whose config.json is missing or unreadable (raised before anything of the run is touched)."""
-    from ..runfolder import resume_config
+    if not resume or out is None:
+        return None
+    from ..runfolder import resume_config  # heavy (torch): only when resuming, so --help stays quick
 
-    return resume_config(Path(out)) if resume and out is not None else None
+    return resume_config(Path(out))
 
 
 def default_args(argv: list[str]) -> Args:
