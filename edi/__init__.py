@@ -17,6 +17,7 @@ Public API::
     estimate_contrast(...same...) -> ContrastReport  # .c, .reliable, .message, ...
     medi(frames, exposures, events, c=None) -> [F, H, W(, D)]
     moving_texture(...) -> SyntheticSequence        # seeded synthetic ground truth
+    edi.cfa: CFA_PATTERNS, channel_map, mosaic, demosaic, transform_pattern  # colour DAVIS Bayer filter
 """
 
 from .contrast import ContrastReport, estimate_c, estimate_contrast
