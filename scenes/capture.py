@@ -182,6 +182,16 @@ class Capture:
     # how far ``c2w`` (and the test views' poses) can be trusted: "exact", "approximate" or
     # "none" (not to be used even if present); None: unstated, read as ``effective_pose_trust``
     pose_trust: str | None = None
+    # the colour filter array over the APS and event pixels of a colour DAVIS (``edi.cfa``:
+    # "RGGB" | "BGGR" | "GRBG" | "GBRG", in the frames' pixel grid), or None: a grey sensor, or a
+    # colour capture whose events are taken as luminance. With ``cfa`` frames are RGB (demosaiced
+    # by the camera's software) or raw mosaics (D = 1); events always come from the mosaic.
+    cfa: str | None = None
+
+    @property
+    def raw_mosaic(self) -> bool:
+        """True when the frames are raw Bayer mosaics (``cfa`` set and one channel)."""
+        return self.cfa is not None and self.channels == 1
 
     @property
     def effective_pose_trust(self) -> str:
@@ -215,6 +225,7 @@ class Capture:
         self._check_events(source)
         self._check_camera(source)
         self._check_poses(source)
+        self._check_cfa(source)
         self._check_per_frame_lists(source)
         seen: set[str] = set()
         for j, tv in enumerate(self.test_views):
@@ -290,6 +301,21 @@ class Capture:
             )
         if self.pose_trust in ("exact", "approximate") and self.c2w is None:
             raise CaptureError(source, "pose_trust", f"is {self.pose_trust!r} but the frames carry no c2w")
+
+    def _check_cfa(self, source: str | None) -> None:
+        """cfa: unset or a Bayer pattern of ``edi.cfa``, over frames of at least 2 x 2 pixels."""
+        if self.cfa is None:
+            return
+        from edi.cfa import check_pattern
+
+        try:
+            self.cfa = check_pattern(self.cfa)
+        except ValueError as exc:
+            raise CaptureError(source, "cfa", str(exc).split(": ", 1)[-1]) from None
+        if self.height < 2 or self.width < 2:
+            raise CaptureError(
+                source, "cfa", f"a 2x2 Bayer pattern needs frames of at least 2x2, got {self.width}x{self.height}"
+            )
 
     def _check_per_frame_lists(self, source: str | None) -> None:
         """split and names: empty or one entry per frame; names unique."""

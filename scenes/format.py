@@ -172,6 +172,7 @@ def load_capture_folder(path: str | os.PathLike) -> Capture:
         names=names,
         meta=meta,
         pose_trust=doc.get("pose_trust"),
+        cfa=doc.get("cfa"),
     )
     return cap.validate(jf)
 
@@ -466,6 +467,8 @@ def _write(cap: Capture, root: Path) -> None:
     }
     if cap.pose_trust is not None:
         doc["pose_trust"] = cap.pose_trust
+    if cap.cfa is not None:
+        doc["cfa"] = cap.cfa
     if cap.distortion is not None:
         doc["distortion"] = [float(v) for v in np.asarray(cap.distortion)]
     (root / "capture.json").write_text(json.dumps(doc, indent=1, allow_nan=False))
