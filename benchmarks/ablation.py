@@ -1,7 +1,7 @@
 """Ablation: every preset on synthetic captures, several seeds, an equal budget, the eval protocol.
 
     python -m benchmarks.ablation [--quick] [--settings ideal,noisy,sfm] [--seeds 0,1,2]
-                                  [--seconds S] [--iters N] [--size small]
+                                  [--seconds S] [--iters N] [--size small] [--colour grey,cfa]
 
 Settings (what the method is given; the truth never reaches it):
 
@@ -13,9 +13,16 @@ Settings (what the method is given; the truth never reaches it):
 - ``sfm``: the realistic sensor and no poses at all: pycolmap SfM on EDI-deblurred frames
   registers the frames and the test images; every preset optimises its poses.
 
+Colour (``--colour``, several allowed, each run on the same seeds): ``grey`` (a grey DAVIS),
+``rgb`` (colour frames, events of the channel mean: no real sensor, the old synthetic world)
+and ``cfa`` (a colour DAVIS: RGGB Bayer filter over APS and event pixels, each pixel's events on
+its own channel, frames demosaiced bilinearly by the "camera software").
+
 Presets: ``3dgs`` (blurry frames as sharp, poses held), ``3dgs-po`` (the same with per-frame
 pose optimisation, gsplat's pose_opt), ``bad``, ``edi-3dgs``, ``ebad``, and ``3dgs-sharp``
-(the sharp ground-truth frames at the capture's poses: a reference, not a ceiling). In
+(the sharp ground-truth frames at the capture's poses: a reference, not a ceiling), and
+``ebad-luma``: ebad given the colour-DAVIS capture without its ``cfa`` (events taken as the
+luminance of the RGB frames: what ebad did before it modelled the filter). In
 ``ideal`` the poses are exact and held by every preset (3dgs-po is left out there). Each preset
 gets the same wall-time budget and step cap per run. Scores (``ebad.evaluate``): novel views
 at their run-frame poses refined against their images (scene frozen), and the deblurred
@@ -34,6 +41,7 @@ import numpy as np
 from ._common import config_spec, seed_all, write_json
 
 PRESETS = ["3dgs", "3dgs-po", "bad", "edi-3dgs", "ebad", "3dgs-sharp"]
+COLOURS = {"grey": {}, "rgb": {"rgb": True}, "cfa": {"rgb": True, "cfa": "RGGB"}}
 REFINE_ITERS = 300  # test-pose refinement steps at most, unless --refine-iters says otherwise
 SETTINGS = {
     "ideal": {"sensor": "ideal", "poses": "exact"},
@@ -44,11 +52,12 @@ SETTINGS = {
 
 def make_config(name: str, iters: int, seconds: float | None, seed: int):
     """A preset, ``3dgs-po``, or a preset with options (``_common.config_spec``: ``ebad+trajectory.kind=cubic``)."""
-    cfg = config_spec("3dgs" if name == "3dgs-po" else name)
+    cfg = config_spec({"3dgs-po": "3dgs", "ebad-luma": "ebad"}.get(name, name))
     if name == "3dgs":
         cfg.trajectory.anchor_mid = "yes"  # poses held as given (the baseline without pose freedom)
+    if name in ("3dgs-po", "ebad-luma"):
+        cfg.name = name
     if name == "3dgs-po":
-        cfg.name = "3dgs-po"
         cfg.trajectory.anchor_mid = "no"  # per-frame pose optimisation
     cfg.train.iters = iters
     cfg.train.max_seconds = seconds
@@ -64,6 +73,10 @@ def run_one(scene, name: str, iters: int, seconds: float | None, seed: int, refi
 
     cfg = make_config(name, iters, seconds, seed)
     cap = sharp_capture(scene) if name == "3dgs-sharp" else scene.capture
+    if name == "ebad-luma":
+        import dataclasses
+
+        cap = dataclasses.replace(cap, cfa=None)  # the same capture, its filter not stated
     t0 = time.perf_counter()
     run = reconstruct(cap, cfg)
     wall = time.perf_counter() - t0
@@ -94,24 +107,20 @@ def _ms(values: list[float]) -> str:
     return "-" if a.size == 0 else f"{a.mean():.2f} ± {a.std():.2f}"
 
 
+def _mean_std(rs: list[dict], k: str) -> tuple[float | None, float | None]:
+    v = [r[k] for r in rs if r[k] is not None]
+    return (float(np.mean(v)), float(np.std(v))) if v else (None, None)
+
+
 def summarise(rows: list[dict]) -> dict:
+    """{setting (with its colour): {preset: {metric: (mean, std), "seeds": n}}}."""
+    keys = ("test_refined_psnr", "test_refined_ssim", "deblur_psnr", "deblur_ssim", "steps")
     out: dict = {}
     for setting in dict.fromkeys(r["setting"] for r in rows):
         out[setting] = {}
         for name in dict.fromkeys(r["preset"] for r in rows if r["setting"] == setting):
             rs = [r for r in rows if r["setting"] == setting and r["preset"] == name]
-            out[setting][name] = {
-                k: (
-                    float(np.mean([r[k] for r in rs if r[k] is not None]))
-                    if any(r[k] is not None for r in rs)
-                    else None,
-                    float(np.std([r[k] for r in rs if r[k] is not None]))
-                    if any(r[k] is not None for r in rs)
-                    else None,
-                )
-                for k in ("test_refined_psnr", "test_refined_ssim", "deblur_psnr", "deblur_ssim", "steps")
-            }
-            out[setting][name]["seeds"] = len(rs)
+            out[setting][name] = {k: _mean_std(rs, k) for k in keys} | {"seeds": len(rs)}
     return out
 
 
@@ -119,6 +128,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="tiny scenes, one seed, short budget")
     ap.add_argument("--settings", default="ideal,noisy,sfm")
+    ap.add_argument("--colour", default="grey", help=f"one or more of {', '.join(COLOURS)}, comma-separated")
+    ap.add_argument("--scene", default="boxes", help="synthetic scene (scenes.SCENES)")
     ap.add_argument(
         "--presets",
         default=",".join(PRESETS),
@@ -138,6 +149,10 @@ def main(argv=None) -> int:
     size = args.size or ("tiny" if args.quick else "small")
     seeds = [0] if args.quick else [int(s) for s in args.seeds.split(",")]
     settings = [s for s in args.settings.split(",") if s]
+    colours = [c for c in args.colour.split(",") if c]
+    bad = [c for c in colours if c not in COLOURS] + [s for s in settings if s not in SETTINGS]
+    if bad:
+        ap.error(f"unknown --colour/--settings value(s) {bad}: colours {list(COLOURS)}, settings {list(SETTINGS)}")
     presets = [p for p in args.presets.split(",") if p]
     for name in presets:
         make_config(name, iters, seconds, 0).check()  # a typo fails before any training
@@ -146,20 +161,21 @@ def main(argv=None) -> int:
 
     warm_up()  # numba compiles once, outside every preset's budget
     rows = []
-    for setting in settings:
+    for setting, colour in [(s, c) for s in settings for c in colours]:
+        label = setting if colours == ["grey"] else f"{setting}/{colour}"
         for seed in seeds:
-            sc = scenes.make_scene("boxes", size=size, seed=seed, **SETTINGS[setting])
+            sc = scenes.make_scene(args.scene, size=size, seed=seed, **SETTINGS[setting], **COLOURS[colour])
             from ebad.evaluate import score_frames
 
             blurry = score_frames(sc.capture.frames, sc.gt_frames).psnr
             for name in presets:
-                if name == "3dgs-po" and setting == "ideal":
+                if (name == "3dgs-po" and setting == "ideal") or (name == "ebad-luma" and colour != "cfa"):
                     continue
                 r = run_one(sc, name, iters, seconds, seed, args.refine_iters)
-                r.update({"setting": setting, "size": size, "blurry_psnr": blurry})
+                r.update({"setting": label, "colour": colour, "size": size, "blurry_psnr": blurry})
                 rows.append(r)
                 print(
-                    f"{setting:6s} seed {seed} {name:10s} "
+                    f"{label:10s} seed {seed} {name:10s} "
                     f"novel (refined) {r['test_refined_psnr'] or float('nan'):6.2f} dB"
                     f"  deblurred {r['deblur_psnr']:6.2f} dB  {r['steps']:5d} steps  {r['train_seconds']:6.1f} s"
                     f"  poses {r['pose_source']}{' (held)' if r['anchored'] else ''}",
@@ -190,6 +206,8 @@ def main(argv=None) -> int:
             "iters": iters,
             "seeds": seeds,
             "settings": {k: SETTINGS[k] for k in settings},
+            "colours": {k: COLOURS[k] for k in colours},
+            "scene": args.scene,
             "rows": rows,
             "summary": summary,
             "argv": sys.argv[1:],
