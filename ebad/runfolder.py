@@ -41,9 +41,9 @@ from .config import Config, load_config, save_config
 from .errors import UserError
 from .export import write_exports
 from .io import plot_trajectories, read_ply, write_ply, write_png16, write_trajectories
-from .response import Response
+from .response import RESPONSES, Response
 from .run import Run, RunMetrics
-from .trajectory import ExposureTrajectories
+from .trajectory import TRAJECTORIES, ExposureTrajectories
 
 __all__ = ["write_run", "load_run", "json_safe", "write_text_atomic", "RunLock", "check_out_dir", "resume_config"]
 
@@ -226,6 +226,105 @@ def _complete(metrics_path: Path) -> bool:
     return complete
 
 
+MAX_SIDE = 1 << 16  # largest image side a run folder may state
+MAX_VIEWS = 1024  # largest number of virtual views per exposure a run folder may state
+
+
+class _ModelError(Exception):
+    """A field of model.json that cannot be a run's (the message names it)."""
+
+
+def _array(
+    doc: dict, key: str, shape: tuple[int | None, ...] | None, dtype: type = float, field: str | None = None
+) -> np.ndarray:
+    """``doc[key]`` as a finite array of ``shape`` (None: any length; ``shape`` None: any shape)."""
+    key_name = field or key
+    try:
+        a: np.ndarray = np.asarray(doc[key], dtype=dtype)
+    except (TypeError, ValueError, OverflowError):
+        raise _ModelError(f"field {key_name!r} must be an array of numbers of shape {shape}") from None
+    if shape is not None and (a.ndim != len(shape) or any(n is not None and n != m for n, m in zip(shape, a.shape))):
+        raise _ModelError(f"field {key_name!r} must have shape {shape}, got {a.shape}")
+    if dtype is float and not np.isfinite(a).all():
+        raise _ModelError(f"field {key_name!r} has a non-finite value")
+    return a
+
+
+def _int(doc: dict, key: str, lo: int, hi: int) -> int:
+    v = doc[key]
+    if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
+        raise _ModelError(f"field {key!r} must be an integer in [{lo}, {hi}], got {json.dumps(v)[:40]}")
+    return v
+
+
+def _check_model(m: object) -> dict:
+    """model.json's document, every field the loader reads checked for type, shape and range."""
+    if not isinstance(m, dict):
+        raise _ModelError(f"must be a JSON object, got {type(m).__name__}")
+    need = ["K", "width", "height", "names", "exposures", "views", "kind", "anchored", "scale", "c2w_mid", "knots"]
+    missing = [k for k in need + ["moving", "channels", "pose_source", "test_c2w", "response"] if k not in m]
+    if missing:
+        raise _ModelError(f"missing field(s) {missing}")
+    K = _array(m, "K", (3, 3))
+    if not (K[0, 0] > 0 and K[1, 1] > 0):
+        raise _ModelError("field 'K' must have positive focal lengths")
+    _int(m, "width", 1, MAX_SIDE), _int(m, "height", 1, MAX_SIDE)
+    names = m["names"]
+    if not isinstance(names, list) or not names or not all(isinstance(n, str) for n in names):
+        raise _ModelError("field 'names' must be a non-empty list of frame names")
+    F = len(names)
+    _array(m, "exposures", (F, 2))
+    views = _array(m, "views", (F,))
+    if (views != np.round(views)).any() or views.min() < 1 or views.max() > MAX_VIEWS:
+        raise _ModelError(f"field 'views' must hold integers in [1, {MAX_VIEWS}], one per frame")
+    _array(m, "c2w_mid", (F, 4, 4))
+    _array(m, "moving", (F,), bool)
+    _array(m, "knots", None)  # its size is checked against the trajectory kind when loaded
+    if m["kind"] not in TRAJECTORIES:
+        raise _ModelError(f"field 'kind' must be one of {list(TRAJECTORIES)}, got {json.dumps(m['kind'])[:40]}")
+    if not isinstance(m["anchored"], bool):
+        raise _ModelError("field 'anchored' must be true or false")
+    scale = m["scale"]
+    if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not (np.isfinite(scale) and scale > 0):
+        raise _ModelError("field 'scale' must be a positive number")
+    if m["channels"] not in (1, 3) or isinstance(m["channels"], bool):
+        raise _ModelError(f"field 'channels' must be 1 or 3, got {json.dumps(m['channels'])[:40]}")
+    if not isinstance(m["pose_source"], str):
+        raise _ModelError("field 'pose_source' must be a string")
+    if not isinstance(m["test_c2w"], dict):
+        raise _ModelError("field 'test_c2w' must be an object of 4x4 poses by test-view name")
+    for k in m["test_c2w"]:
+        _array(m["test_c2w"], k, (4, 4), field=f"test_c2w.{k}")
+    r = m["response"]
+    if not isinstance(r, dict) or r.get("kind") not in RESPONSES:
+        raise _ModelError(f"field 'response' must be {{'kind': one of {list(RESPONSES)}, 'raw': [3 numbers]}}")
+    _array(r, "raw", (3,), field="response.raw")
+    return m
+
+
+def _read_model(path: Path) -> dict:
+    try:
+        return _check_model(json.loads(path.read_text()))
+    except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as exc:
+        raise UserError(f"{path}: not valid JSON ({str(exc)[:120]})") from None
+    except _ModelError as exc:
+        raise UserError(f"{path}: {exc}; the run folder is damaged (rerun 'ebad reconstruct')") from None
+
+
+def _read_metrics(path: Path) -> RunMetrics:
+    try:
+        doc = json.loads(path.read_text())
+        metrics = RunMetrics.from_dict(doc)
+    except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as exc:
+        raise UserError(f"{path}: not valid JSON ({str(exc)[:120]})") from None
+    except (TypeError, KeyError, ValueError, AttributeError) as exc:
+        raise UserError(f"{path}: not the metrics of a run of this version ({str(exc)[:120]})") from None
+    steps = metrics.steps
+    if isinstance(steps, bool) or not isinstance(steps, int) or not 0 <= steps < 1 << 40:
+        raise UserError(f"{path}: field 'steps' must be a non-negative integer, got {json.dumps(steps)[:40]}")
+    return metrics
+
+
 def load_run(path: str | Path) -> Run:
     """A ``Run`` from a finished run folder (for rendering and evaluation)."""
     path = Path(path)
@@ -243,11 +342,15 @@ def load_run(path: str | Path) -> Run:
         if not (path / name).exists():
             raise UserError(f"{path} is not a complete run folder: {name} is missing")
     cfg = load_config(path / "config.json")
-    model = json.loads((path / "model.json").read_text())
+    model = _read_model(path / "model.json")
+    metrics = _read_metrics(metrics_path)
     try:
         ply = read_ply(path / "point_cloud.ply")
-    except ValueError as exc:  # the message names the file
-        raise UserError(str(exc)) from None
+    except (ValueError, MemoryError, EOFError) as exc:  # the message names the file
+        raise UserError(f"{path / 'point_cloud.ply'}: cannot be read ({str(exc)[:160]})") from None
+    bad = [k for k, v in ply.items() if not torch.isfinite(v).all()]
+    if bad:
+        raise UserError(f"{path / 'point_cloud.ply'}: non-finite values in {bad}; the run folder is damaged")
     params: dict[str, Tensor] = {k: nn.Parameter(v) for k, v in ply.items()}
     if params["colors"].shape[1] != model["channels"]:
         params["colors"] = nn.Parameter(params["colors"][:, : model["channels"]].contiguous())
@@ -258,15 +361,17 @@ def load_run(path: str | Path) -> Run:
         scale=model["scale"],
         anchored=model["anchored"],
     )
+    knots = torch.tensor(model["knots"], dtype=traj.knots.dtype)
+    if knots.numel() != traj.knots.numel():
+        raise UserError(
+            f"{path / 'model.json'}: field 'knots' holds {knots.numel()} numbers where a {model['kind']} trajectory "
+            f"of {len(model['names'])} frames has {traj.knots.numel()}; the run folder is damaged"
+        )
     with torch.no_grad():
-        traj.knots.data = torch.tensor(model["knots"]).reshape(traj.knots.shape)
+        traj.knots.data = knots.reshape(traj.knots.shape)
     response = Response(model["response"]["kind"])
     with torch.no_grad():
         response.raw.copy_(torch.tensor(model["response"]["raw"]))
-    try:
-        metrics = RunMetrics.from_dict(json.loads(metrics_path.read_text()))
-    except (TypeError, KeyError, ValueError) as exc:
-        raise UserError(f"{metrics_path}: not the metrics of a run of this version ({exc})") from exc
     return Run(
         params=params,
         trajectories=traj,
