@@ -8,17 +8,27 @@ so that one ray per pixel does not alias. Intensities are linear.
 A scene is a list of primitives: textured quads (a box is six) and textured spheres. Quads map
 their texture with u along edge ``eu`` (image columns) and v along ``ev`` (image rows); spheres
 use longitude/latitude in the sphere's own frame.
+
+Materials: a primitive is matte (``specular = 0``, the default: its radiance is its texture,
+the same from every direction) or glossy: a Blinn-Phong highlight of a white directional light
+(``RayScene.light``, the direction towards the light) brightens the texture towards white,
+``texture + (1 - texture) * specular * max(0, n.h) ** shininess`` with h the half vector of the
+light and view directions and n the surface normal facing the viewer (zero where the light is
+behind the surface). It depends on the view direction and stays in [0, 1] for textures in [0, 1].
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Literal, overload
 
 import numpy as np
 import trimesh
 
-__all__ = ["Quad", "Sphere", "RayScene", "render", "pixel_rays", "project_points"]
+__all__ = ["Quad", "Sphere", "RayScene", "render", "pixel_rays", "project_points", "glossy", "DEFAULT_LIGHT"]
+
+DEFAULT_LIGHT = (0.25, -0.55, -0.8)  # direction towards the light of glossy surfaces (world; up is -y)
 
 
 @dataclass
@@ -29,6 +39,12 @@ class Quad:
     eu: np.ndarray  # [3] along texture columns
     ev: np.ndarray  # [3] along texture rows
     texture: np.ndarray  # [th, tw, D] linear intensity
+    specular: float = 0.0  # weight of the view-dependent highlight in [0, 1] (0: matte)
+    shininess: float = 50.0  # Blinn-Phong exponent of the highlight (larger: smaller, sharper)
+
+    def normal(self, pts: np.ndarray) -> np.ndarray:  # [R, 3] -> [R, 3] unit (one side; render faces it to the ray)
+        n = np.cross(np.asarray(self.eu, np.float64), np.asarray(self.ev, np.float64))
+        return np.broadcast_to(n / np.linalg.norm(n), np.shape(pts)).copy()
 
     def mesh(self) -> trimesh.Trimesh:
         o, u, v = (np.asarray(a, np.float64) for a in (self.origin, self.eu, self.ev))
@@ -55,6 +71,12 @@ class Sphere:
     radius: float
     texture: np.ndarray  # [th, tw, D]
     subdivisions: int = 4
+    specular: float = 0.0  # weight of the view-dependent highlight in [0, 1] (0: matte)
+    shininess: float = 50.0  # Blinn-Phong exponent of the highlight
+
+    def normal(self, pts: np.ndarray) -> np.ndarray:  # [R, 3] -> [R, 3] unit, outward (analytic, not the mesh's)
+        d = np.asarray(pts, np.float64) - np.asarray(self.center, np.float64)
+        return d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
 
     def mesh(self) -> trimesh.Trimesh:
         m = trimesh.creation.icosphere(subdivisions=self.subdivisions, radius=self.radius)
@@ -74,6 +96,7 @@ class RayScene:
 
     primitives: list
     background: float = 0.0  # intensity of rays that hit nothing
+    light: tuple[float, float, float] = DEFAULT_LIGHT  # direction towards the light of glossy primitives (world)
     mesh: trimesh.Trimesh = field(init=False, repr=False)
     tri_prim: np.ndarray = field(init=False, repr=False)  # [T] primitive index of each triangle
 
@@ -83,6 +106,14 @@ class RayScene:
         d = {p.texture.shape[2] for p in self.primitives}
         if len(d) != 1:
             raise ValueError(f"primitives: textures must share a channel count, got {sorted(d)}")
+        for i, p in enumerate(self.primitives):
+            if not (0.0 <= p.specular <= 1.0):
+                raise ValueError(f"primitives[{i}].specular: must be in [0, 1], got {p.specular!r}")
+            if not (math.isfinite(p.shininess) and p.shininess > 0):
+                raise ValueError(f"primitives[{i}].shininess: must be a positive finite number, got {p.shininess!r}")
+        lt = np.asarray(self.light, np.float64)
+        if lt.shape != (3,) or not np.isfinite(lt).all() or np.linalg.norm(lt) == 0:
+            raise ValueError(f"light: must be a non-zero finite direction (x, y, z), got {self.light!r}")
         meshes = [p.mesh() for p in self.primitives]
         self.tri_prim = np.concatenate([np.full(len(m.faces), i) for i, m in enumerate(meshes)])
         mesh = trimesh.util.concatenate(meshes)
@@ -111,6 +142,28 @@ def _bilinear(tex: np.ndarray, uv: np.ndarray, wrap_u: bool) -> np.ndarray:
     top = tex[ya, xa] * (1 - fx) + tex[ya, xb] * fx
     bot = tex[yb, xa] * (1 - fx) + tex[yb, xb] * fx
     return top * (1 - fy) + bot * fy
+
+
+def glossy(
+    albedo: np.ndarray,  # [R, D] texture values in [0, 1]
+    normal: np.ndarray,  # [R, 3] unit surface normals (either side)
+    view: np.ndarray,  # [R, 3] unit ray directions, camera -> surface
+    light: np.ndarray | tuple[float, float, float],  # [3] direction towards the light
+    specular: float,
+    shininess: float,
+) -> np.ndarray:  # [R, D] in [0, 1] for albedo in [0, 1]
+    """Blinn-Phong radiance of a glossy surface: ``albedo + (1 - albedo) * specular * max(0, n.h) ** shininess``
+    (the texture where there is no highlight, towards white at its peak), n facing the viewer,
+    h = normalize(l + v) (v towards the camera); no highlight where n.l <= 0."""
+    v = -np.asarray(view, np.float64)
+    n = np.asarray(normal, np.float64)
+    n = np.where((np.einsum("ij,ij->i", n, v) < 0)[:, None], -n, n)
+    lt = np.asarray(light, np.float64) / np.linalg.norm(light)
+    h = v + lt
+    h /= np.maximum(np.linalg.norm(h, axis=1, keepdims=True), 1e-12)
+    spec = np.maximum(np.einsum("ij,ij->i", n, h), 0.0) ** shininess * (n @ lt > 0)
+    a = np.asarray(albedo, np.float64)
+    return a + (1.0 - a) * (specular * spec[:, None])
 
 
 def pixel_rays(
@@ -197,7 +250,10 @@ def render(
         for pi, p in enumerate(scene.primitives):
             sel = np.flatnonzero(prim == pi)
             if len(sel):
-                vals[sel] = _bilinear(p.texture, p.uv(loc[sel]), isinstance(p, Sphere))
+                albedo = _bilinear(p.texture, p.uv(loc[sel]), isinstance(p, Sphere))
+                if p.specular > 0:  # matte primitives stay exactly their texture
+                    albedo = glossy(albedo, p.normal(loc[sel]), d[iray[sel]], scene.light, p.specular, p.shininess)
+                vals[sel] = albedo
         cam = iray // npx
         pix = iray % npx
         img[b0 + cam, pix] = vals

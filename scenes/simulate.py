@@ -1,7 +1,9 @@
 """An ESIM-style event simulator over a sequence of renders.
 
 Each pixel keeps a reference log level ``log(I + eps)`` (I: linear intensity; colour renders
-are averaged over channels first, as ``edi.moving_texture`` does). Between two renders the log
+are averaged over channels first, as ``edi.moving_texture`` does, unless a colour filter array
+``cfa`` is given: then each pixel sees its own channel of the Bayer mosaic, ``edi.cfa.mosaic``,
+as the pixels of a colour DAVIS do). Between two renders the log
 intensity is taken as linear in time; every time it climbs ``C+`` above the reference (or
 falls ``C-`` below it) the pixel fires one event at the interpolated crossing time and the
 reference moves by exactly that threshold. ``C+`` and ``C-`` are drawn per pixel from
@@ -154,6 +156,7 @@ def simulate_events(
     return_thresholds: Literal[False] = False,
     reference: bool = False,
     leak_hz: float = 0.0,
+    cfa: str | None = None,
 ) -> EventStream: ...
 
 
@@ -173,6 +176,7 @@ def simulate_events(
     return_thresholds: Literal[True],
     reference: bool = False,
     leak_hz: float = 0.0,
+    cfa: str | None = None,
 ) -> tuple[EventStream, np.ndarray, np.ndarray]: ...
 
 
@@ -190,11 +194,12 @@ def simulate_events(
     return_thresholds: bool = False,
     reference: bool = False,
     leak_hz: float = 0.0,
+    cfa: str | None = None,
 ) -> EventStream | tuple[EventStream, np.ndarray, np.ndarray]:
     """Events fired by a DVS pixel array watching ``images`` at ``times``.
 
     Args:
-        images: [S, H, W] or [S, H, W, D] linear intensity (D = 3 is averaged to grey first).
+        images: [S, H, W] or [S, H, W, D] linear intensity (D = 3 is averaged to grey first, unless ``cfa``).
         times: [S] seconds, strictly increasing. Events lie in [times[0], times[-1]].
         c: mean contrast threshold, natural-log units: a float, or a pair (c_pos, c_neg).
         sigma_c: per-pixel std of C+ and C-.
@@ -206,6 +211,8 @@ def simulate_events(
         eps: the sensor's offset in log(I + eps); None means ``edi.LOG_EPS``.
         return_thresholds: also return (c_pos, c_neg), each [H, W].
         reference: use the plain-Python kernel (slow; for tests).
+        cfa: a Bayer pattern of ``edi.cfa`` ("RGGB", ...): ``images`` are [S, H, W, 3] and each
+            pixel fires on the log of its own channel (a colour DAVIS); None: grey or channel mean.
 
     Returns:
         EventStream (t in integer microseconds of ``times``' clock, sorted, inside the sensor),
@@ -225,7 +232,16 @@ def simulate_events(
     imgs, t = _check(
         images, times, (cp, cn), float(sigma_c), float(refractory), float(noise_hz), hot_pixels, eps, float(leak_hz)
     )
-    if imgs.ndim == 4:
+    if cfa is not None:
+        from edi.cfa import check_pattern, mosaic
+
+        check_pattern(cfa)
+        if imgs.ndim != 4 or imgs.shape[3] != 3:
+            raise ValueError(
+                f"images: a colour filter array (cfa={cfa!r}) needs [S, H, W, 3] renders, got {imgs.shape}"
+            )
+        imgs = mosaic(imgs, cfa)
+    elif imgs.ndim == 4:
         imgs = imgs.mean(axis=3)
     s, h, w = imgs.shape
     rng = np.random.default_rng(seed)

@@ -1,9 +1,11 @@
 """Tiny synthetic blurry event captures with exact ground truth.
 
-A scene (``SCENES``: "boxes", "spheres") is built from textured quads, boxes and spheres
-(textures: scikit-image's bundled photographs, their 8-bit values taken as linear irradiance
-and rescaled into [0.05, 0.95]) and rendered by ray casting (``scenes.render``), never by
-splat_cpu.
+A scene (``SCENES``: "boxes", "spheres", "glossy") is built from textured quads, boxes and
+spheres (textures: scikit-image's bundled photographs, their 8-bit values taken as linear
+irradiance and rescaled into [0.05, 0.95]) and rendered by ray casting (``scenes.render``), never
+by splat_cpu. "boxes" and "spheres" are matte (the same radiance from every direction);
+"glossy" has Blinn-Phong highlights that move over its spheres and box as the camera moves
+(view-dependent radiance, ``scenes.render.glossy``).
 
 Timeline: frame k is exposed over [t_k, t_k + exposure], t_k = lead + k * period. The camera
 follows a horizontal arc around the scene: it is parked on the arc during each exposure and
@@ -24,8 +26,14 @@ exposure boundaries included. The camera (``Sensor``, presets ``SENSORS``):
   such that bright parts saturate), plus Gaussian read noise, quantised to 8 or 16 bits;
 - events: ``simulate_events`` over all irradiance renders with the sensor's own log offset,
   c_pos != c_neg, per-pixel mismatch, refractory period, shot and leak noise, hot pixels.
-  Colour captures: the event pixels see luminance, ``Sensor.luminance`` weights of the linear
-  R, G, B irradiance (Rec. 709 in the realistic preset, the channel mean in the ideal one);
+  Colour captures (``rgb``): the event pixels see luminance, ``Sensor.luminance`` weights of the
+  linear R, G, B irradiance (Rec. 709 in the realistic preset, the channel mean in the ideal one),
+  a baseline no colour DAVIS produces;
+- a colour DAVIS (``cfa="RGGB"`` etc., ``edi.cfa``): every pixel sits behind one filter of the
+  Bayer pattern; its events fire on the log of its own channel (the same thresholds, mismatch
+  and noise per pixel), its APS value is its own channel through the response and read noise,
+  and the frames are the camera software's bilinear demosaic of that raw mosaic (or the raw
+  mosaic itself, ``raw_frames``). The capture records ``cfa``; the ground truth stays full RGB;
 - poses: exact, with SfM-like error (``pose_rot_deg``, ``pose_trans``), or none; the capture
   states which (``Capture.pose_trust``: "exact", "approximate", "none").
 
@@ -54,6 +62,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from edi import LOG_EPS, EventStream
+from edi.cfa import check_pattern, demosaic, mosaic
 
 from .capture import Capture, TestView
 from .errors import CaptureError
@@ -364,7 +373,44 @@ def build_spheres(width: int, rgb: bool) -> RayScene:
     return RayScene(prims, background=0.1)
 
 
-SCENES: dict[str, Callable[[int, bool], RayScene]] = {"boxes": build_boxes, "spheres": build_spheres}
+def build_glossy(width: int, rgb: bool) -> RayScene:
+    """View-dependent radiance: two glossy spheres and a glossy box (Blinn-Phong
+    highlights of one white directional light, ``scenes.render.glossy``) on a matte floor before a matte wall.
+    The highlights move over the surfaces as the camera moves, which view-independent colours
+    cannot reproduce."""
+    ppu = lambda d: 1.5 * _px_per_unit(width, d)  # noqa: E731
+    wall = Quad(
+        np.array([-11.0, -6.5, 8.5]),
+        np.array([22.0, 0, 0]),
+        np.array([0, 8.0, 0]),
+        _texture("astronaut", rgb, 22.0 * ppu(8.5)),
+    )
+    floor = Quad(
+        np.array([-11.0, 1.4, -1.0]),
+        np.array([22.0, 0, 0]),
+        np.array([0, 0, 9.5]),
+        _texture("gravel", rgb, 22.0 * ppu(3.0)),
+    )
+    prims = [
+        wall,
+        floor,
+        Sphere(np.array([-1.2, 0.4, 3.4]), 0.9, _texture("coffee", rgb, 5.7 * ppu(3.0)), specular=0.8, shininess=30.0),
+        Sphere(np.array([0.2, -1.1, 6.2]), 0.9, _texture("rocket", rgb, 5.7 * ppu(6.0)), specular=0.8, shininess=30.0),
+    ]
+    box = _box(
+        [1.3, 0.75, 4.4],
+        [1.3, 1.3, 1.3],
+        [_texture("chelsea", rgb, 1.3 * ppu(4.0)), _texture("brick", rgb, 1.3 * ppu(4.0))],
+    )
+    prims += [replace(q, specular=0.7, shininess=12.0) for q in box]
+    return RayScene(prims, background=0.1)
+
+
+SCENES: dict[str, Callable[[int, bool], RayScene]] = {
+    "boxes": build_boxes,
+    "spheres": build_spheres,
+    "glossy": build_glossy,
+}
 
 
 # --------------------------------------------------------------------------- trajectory
@@ -500,13 +546,15 @@ def sensor_events(
     times: np.ndarray,  # [S] seconds, increasing
     sensor: Sensor,
     seed: int = 0,
+    cfa: str | None = None,
 ) -> tuple[EventStream, np.ndarray, np.ndarray]:
-    """The events ``sensor``'s pixels fire watching ``irradiance``: its luminance model for colour
-    (the channel mean goes through ``simulate_events`` as it always did), thresholds, mismatch,
-    refractory period, noise, hot pixels and log offset. Returns (EventStream, c_pos [H, W],
-    c_neg [H, W])."""
+    """The events ``sensor``'s pixels fire watching ``irradiance``: with a colour filter array
+    ``cfa`` (a colour DAVIS) each pixel fires on the log of its own channel (``edi.cfa.mosaic``);
+    without, its luminance model for colour (the channel mean goes through ``simulate_events`` as it
+    always did); thresholds, mismatch, refractory period, noise, hot pixels and log offset per pixel
+    either way. Returns (EventStream, c_pos [H, W], c_neg [H, W])."""
     irr = np.asarray(irradiance)
-    if irr.ndim == 4 and irr.shape[3] == 3 and tuple(sensor.luminance) != CHANNEL_MEAN:
+    if cfa is None and irr.ndim == 4 and irr.shape[3] == 3 and tuple(sensor.luminance) != CHANNEL_MEAN:
         irr = np.tensordot(irr, np.asarray(sensor.luminance, np.float32), axes=([3], [0]))  # [S, H, W]
     hot = int(round(sensor.hot_pixel_fraction * irr.shape[1] * irr.shape[2]))
     return simulate_events(
@@ -521,6 +569,7 @@ def sensor_events(
         eps=sensor.log_eps,
         seed=seed,
         return_thresholds=True,
+        cfa=cfa,
     )
 
 
@@ -603,6 +652,8 @@ def make_scene(
     sharp_fraction: float = 0.0,
     n_blur: int = N_BLUR,
     refractory: float | None = None,
+    cfa: str | None = None,
+    raw_frames: bool = False,
 ) -> SynthScene:
     """Build a synthetic blurry event capture with ground truth.
 
@@ -618,6 +669,15 @@ def make_scene(
         exposure: seconds (default 0.05, frame period 0.1 s).
         sharp_fraction: fraction of frames (rounded) with no shake, hence sharp.
         n_blur: renders averaged per exposure (>= 32).
+        cfa: a colour DAVIS with this Bayer filter ("RGGB", "BGGR", "GRBG", "GBRG"; implies a colour
+            scene): each pixel's events fire on the log of its own channel, the APS records the raw
+            mosaic (response, read noise, quantisation per pixel), and the frames are the camera
+            software's bilinear demosaic of it (``edi.cfa.demosaic``, re-quantised) or, with
+            ``raw_frames``, the raw mosaic itself (D = 1). The capture records ``cfa``. Ground truth
+            (``gt_frames``, test views' images) stays full RGB through the response, what a perfect
+            camera would show; with raw frames the capture's test images are raw mosaics too.
+            None: grey, or with ``rgb`` events of ``sensor.luminance`` (the luminance baseline).
+        raw_frames: with ``cfa``, keep the frames as 1-channel raw mosaics.
 
     Raises:
         CaptureError naming the argument (or ``sensor.<field>``) of a value that cannot work.
@@ -641,6 +701,8 @@ def make_scene(
         raise CaptureError(None, "exposure", f"must be in (0, {PERIOD_S - 0.01}] s, got {exposure!r}")
     if int(n_blur) < 32:
         raise CaptureError(None, "n_blur", f"must be >= 32, got {n_blur}")
+    cfa = _check_cfa(cfa, raw_frames)
+    rgb = rgb or cfa is not None  # a colour filter array sees a colour world
     sen = _resolve_sensor(sensor, poses, c, sigma_c, noise_hz, refractory, tremor)
     width, height = SIZES[size]
     K = _intrinsics(width, height)
@@ -674,13 +736,9 @@ def make_scene(
 
     scene = SCENES[name](width, rgb)
     renders = render(scene, traj.c2w(grid), K, width, height)  # [S, H, W, D] irradiance
-    frames = np.empty((n_frames, height, width, scene.channels), np.float32)
-    trap = np.full(n_blur + 1, 1.0 / n_blur)
-    trap[[0, -1]] *= 0.5  # trapezoidal mean over the exposure's n_blur + 1 grid instants
-    for k in range(n_frames):
-        i0 = lead_steps + period_steps * k
-        frames[k] = aps_record(np.tensordot(trap, renders[i0 : i0 + n_blur + 1], axes=1), sen, rng_aps)
-    events, c_pos, c_neg = sensor_events(renders, grid, sen, seed)
+    starts_i = lead_steps + period_steps * np.arange(n_frames)
+    frames = _aps_frames(renders, starts_i, n_blur, sen, rng_aps, cfa, raw_frames)
+    events, c_pos, c_neg = sensor_events(renders, grid, sen, seed, cfa=cfa)
     del renders
     mids = 0.5 * (starts + ends)
     c2w_mid = traj.c2w(mids)
@@ -694,6 +752,8 @@ def make_scene(
     test_irr = render(scene, test_c2w, K, width, height) if len(gaps) else np.zeros((0, height, width, scene.channels))
     gt_test = aps_response(test_irr, sen).astype(np.float32)
     test_rec = aps_record(test_irr, sen, rng_aps) if sen.record_test_views else gt_test
+    if cfa is not None and raw_frames:  # the capture's test images in the frames' raw domain; gt/ keeps RGB
+        test_rec = quantize(mosaic(test_rec, cfa)[..., None], sen.bits) if len(gaps) else test_rec[..., :1]
     given: np.ndarray | None = c2w_mid
     given_test: np.ndarray | list[None] = test_c2w
     if sen.poses == "noisy":
@@ -713,6 +773,8 @@ def make_scene(
         "poses": sen.poses,
         "renderer": "trimesh ray casting" + (" (embree)" if _has_embree() else " (pure Python)"),
     }
+    if cfa is not None:  # a label (the capture states its filter in Capture.cfa): gt/gt.json's meta carries it too
+        meta["cfa"] = cfa
     cap = Capture(
         frames=frames,
         exposures=np.stack([starts, ends], 1),
@@ -724,6 +786,7 @@ def make_scene(
         names=[f"{k:04d}" for k in range(n_frames)],
         meta=meta,
         pose_trust=POSE_TRUST_OF[sen.poses],
+        cfa=cfa,
     ).validate("make_scene")
     hit = gt_depths[gt_depths > 0]
     truth = {
@@ -736,7 +799,15 @@ def make_scene(
         "period": PERIOD_S,
         "sharp_frames": np.flatnonzero(sharp).tolist(),
         "depth_range": [float(hit.min()), float(hit.max())] if len(hit) else None,
-        "event_channel": ("luminance " + str(list(sen.luminance))) if rgb else "grey",
+        "event_channel": (
+            f"cfa {cfa} (each pixel's own channel)"
+            if cfa is not None
+            else ("luminance " + str(list(sen.luminance)))
+            if rgb
+            else "grey"
+        ),
+        "cfa": cfa,
+        "frames": "raw mosaic" if raw_frames else ("demosaiced" if cfa is not None else "as rendered"),
     }
     return SynthScene(
         capture=cap,
@@ -753,6 +824,45 @@ def make_scene(
         gt_test_images=gt_test,
         truth=truth,
     )
+
+
+def _check_cfa(cfa: str | None, raw_frames: bool) -> str | None:
+    """make_scene's ``cfa`` as a pattern of ``edi.cfa`` (or None); CaptureError naming the argument."""
+    if cfa is None:
+        if raw_frames:
+            raise CaptureError(None, "raw_frames", "raw mosaic frames need a colour filter array (pass cfa)")
+        return None
+    try:
+        return check_pattern(cfa)
+    except ValueError as exc:
+        raise CaptureError(None, "cfa", str(exc).split(": ", 1)[-1]) from None
+
+
+def _aps_frames(
+    renders: np.ndarray,  # [S, H, W, D] irradiance on the time grid
+    starts: np.ndarray,  # [F] grid index of each exposure's start
+    n_blur: int,
+    sen: Sensor,
+    rng: np.random.Generator,
+    cfa: str | None,
+    raw_frames: bool,
+) -> np.ndarray:  # [F, H, W, D'] float32
+    """The blurry frames the APS records: the trapezoidal mean of each exposure's n_blur + 1 renders
+    through ``aps_record``. With ``cfa`` the APS records each pixel's own channel (the raw mosaic,
+    D' = 1), then, unless ``raw_frames``, the camera software demosaics it (bilinear, ``edi.cfa``) and
+    writes it at the APS's bit depth (D' = 3)."""
+    _, h, w, d = renders.shape
+    frames = np.empty((len(starts), h, w, 1 if cfa is not None else d), np.float32)
+    trap = np.full(n_blur + 1, 1.0 / n_blur)
+    trap[[0, -1]] *= 0.5  # trapezoidal mean over the exposure's n_blur + 1 grid instants
+    for k, i0 in enumerate(starts):
+        blurred = np.tensordot(trap, renders[i0 : i0 + n_blur + 1], axes=1)
+        if cfa is not None:
+            blurred = mosaic(blurred, cfa)[..., None]
+        frames[k] = aps_record(blurred, sen, rng)
+    if cfa is not None and not raw_frames:
+        frames = quantize(demosaic(frames[..., 0], cfa), sen.bits)
+    return frames
 
 
 def _has_embree() -> bool:

@@ -48,3 +48,10 @@ class GroundTruth:
         if len({c.shape for c in c2ws}) != 1:
             return None
         return np.stack(c2ws)
+
+    @property
+    def cfa(self) -> str | None:
+        """The Bayer pattern of the colour DAVIS that recorded the capture ("RGGB", ...), or None
+        (a grey sensor, or colour events taken as luminance), as the scene's meta states it."""
+        v = self.meta.get("cfa")
+        return str(v) if v is not None else None

@@ -16,6 +16,7 @@ NAME = "demo"
 HELP = "reconstruct a synthetic blurry scene with ebad and with 3dgs, and compare (about 3 minutes)"
 
 METHODS = (("3dgs", "3dgs (blurry frames)"), ("ebad", "ebad (EBAD-Gaussian)"))
+RGB_CFA = "RGGB"  # the Bayer filter of the colour DAVIS346 that ``--rgb`` simulates
 
 
 @dataclass
@@ -29,7 +30,10 @@ class Args:
     sensor: Literal["realistic", "ideal"] = "realistic"
     """the simulated camera (realistic: non-linear APS, noisy thresholds and poses)"""
     rgb: bool = False
-    """a colour scene instead of grey (a DAVIS346 records grey)"""
+    (
+        "a colour DAVIS346 instead of a grey one: an RGGB Bayer filter over the frame and event pixels (each pixel's "
+        "events fire on its own channel), RGB frames demosaiced by the camera software"
+    )
     seconds: float = 50.0
     """training time per method"""
     iters: int = 100_000
@@ -79,8 +83,11 @@ def run(args: Args) -> int:
     t_all = time.perf_counter()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    print(f"ebad demo: building the synthetic scene '{args.scene}' ({args.size}, {args.sensor} camera) ...", flush=True)
-    scene = scenes.make_scene(args.scene, size=args.size, seed=args.seed, rgb=args.rgb, sensor=args.sensor)
+    camera = f"{args.sensor} colour DAVIS ({RGB_CFA})" if args.rgb else f"{args.sensor} camera"
+    print(f"ebad demo: building the synthetic scene '{args.scene}' ({args.size}, {camera}) ...", flush=True)
+    scene = scenes.make_scene(
+        args.scene, size=args.size, seed=args.seed, rgb=args.rgb, sensor=args.sensor, cfa=RGB_CFA if args.rgb else None
+    )
     cap = scene.capture
     print(
         f"  {cap.num_frames} blurry {cap.width}x{cap.height} frames, {len(cap.events)} events, "

@@ -14,7 +14,7 @@ HELP = "build a synthetic blurry event capture (capture/ for training, gt/ for e
 
 # the registries of scenes.synth (SCENES, SIZES, SENSORS), written out so that ``ebad --help`` does not import
 # the scene builder; tests/ebad/cli/test_synth.py checks that they agree
-SceneName = Literal["boxes", "spheres"]
+SceneName = Literal["boxes", "glossy", "spheres"]
 SizeName = Literal["davis", "small", "tiny"]
 SensorName = Literal["ideal", "realistic"]
 
@@ -22,7 +22,7 @@ SensorName = Literal["ideal", "realistic"]
 @dataclass
 class Args:
     name: Annotated[tyro.conf.Positional[SceneName], tyro.conf.arg(metavar="NAME")]
-    """scene to build (boxes, spheres)"""
+    """scene to build (boxes, spheres, glossy: view-dependent highlights)"""
     out: str
     """output folder (gets capture/ and gt/)"""
     size: SizeName = "tiny"
@@ -30,7 +30,14 @@ class Args:
     seed: int = 0
     """random seed (shake, tremor, thresholds, noise, pose errors)"""
     rgb: bool = False
-    """colour frames instead of grey"""
+    """colour frames instead of grey (events of the luminance, the baseline; a colour DAVIS: --cfa)"""
+    cfa: Literal["RGGB", "BGGR", "GRBG", "GBRG"] | None = None
+    (
+        "a colour DAVIS with this Bayer filter (implies --rgb): each pixel's events fire on its own channel, frames "
+        "are the raw mosaic demosaiced (bilinear) unless --raw-frames"
+    )
+    raw_frames: bool = False
+    """with --cfa, write the frames as 1-channel raw Bayer mosaics instead of demosaiced RGB"""
     sensor: SensorName = "realistic"
     (
         "camera model: realistic (non-linear saturating APS with read noise, c_pos != c_neg, noise events, hand "
@@ -70,6 +77,8 @@ def run(args: Args) -> int:
         if len(args.c) not in (1, 2):
             raise UserError(f"--c takes one value or two (c_pos c_neg), got {len(args.c)}")
         c = args.c[0] if len(args.c) == 1 else (args.c[0], args.c[1])
+    if args.raw_frames and args.cfa is None:
+        raise UserError("--raw-frames needs --cfa PATTERN (a raw mosaic needs a colour filter array)")
     t0 = time.perf_counter()
     scene = make_scene(
         args.name,
@@ -86,11 +95,14 @@ def run(args: Args) -> int:
         n_test=args.test_views,
         exposure=args.exposure,
         sharp_fraction=args.sharp_fraction,
+        cfa=args.cfa,
+        raw_frames=args.raw_frames,
     )
     out = write_scene(scene, args.out, overwrite=args.overwrite)
     cap = scene.capture
+    colour = "" if cap.cfa is None else f", {cap.cfa} colour filter, {'raw' if cap.raw_mosaic else 'demosaiced'} frames"
     print(
-        f"ebad synth: {args.name} {cap.width}x{cap.height}x{cap.channels} ({args.sensor} sensor, poses "
+        f"ebad synth: {args.name} {cap.width}x{cap.height}x{cap.channels} ({args.sensor} sensor{colour}, poses "
         f"{scene.sensor.poses}), {cap.num_frames} frames, {len(cap.test_views)} test views, {len(cap.events)} "
         f"events in {time.perf_counter() - t0:.1f} s"
     )

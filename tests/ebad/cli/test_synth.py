@@ -76,3 +76,20 @@ def test_overwrite_replaces_only_a_synthetic_scene(tmp_path, capsys):
     (tmp_path / "f").write_text("x")
     assert main(args + ["--out", str(tmp_path / "f"), "--overwrite"]) == 2
     assert (tmp_path / "f").read_text() == "x"
+
+
+def test_cli_synth_colour_davis(tmp_path, capsys):
+    args = ["synth", "glossy", "--frames", "2", "--test-views", "1", "--cfa", "RGGB"]
+    assert main(args + ["--out", str(tmp_path / "d")]) == 0
+    assert "RGGB colour filter, demosaiced frames" in capsys.readouterr().out
+    cap = load(tmp_path / "d" / "capture")
+    assert cap.cfa == "RGGB" and cap.channels == 3 and not cap.raw_mosaic and cap.meta["scene"] == "glossy"
+    assert main(args + ["--out", str(tmp_path / "r"), "--raw-frames"]) == 0
+    raw = load(tmp_path / "r" / "capture")
+    assert raw.cfa == "RGGB" and raw.raw_mosaic and raw.test_views[0].image.shape == (48, 64, 1)
+    assert json.loads((tmp_path / "r" / "gt" / "gt.json").read_text())["truth"]["cfa"] == "RGGB"
+    capsys.readouterr()
+    assert main(["synth", "boxes", "--out", str(tmp_path / "x"), "--raw-frames"]) == 2
+    assert "--raw-frames needs --cfa" in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()
+    assert main(["synth", "boxes", "--out", str(tmp_path / "y"), "--cfa", "RGBW"]) == 2  # tyro rejects it

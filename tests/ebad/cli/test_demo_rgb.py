@@ -1,0 +1,24 @@
+"""``ebad demo --rgb`` simulates a colour DAVIS (an RGGB Bayer filter over frame and event pixels)."""
+
+import pytest
+
+import scenes
+from ebad.cli import demo
+
+
+class _Stop(Exception):
+    pass
+
+
+@pytest.mark.parametrize("rgb, cfa", [(True, "RGGB"), (False, None)])
+def test_demo_rgb_builds_a_colour_davis_capture(tmp_path, monkeypatch, rgb, cfa):
+    seen = {}
+
+    def fake_make_scene(name, **kw):
+        seen.update(kw, name=name)
+        raise _Stop
+
+    monkeypatch.setattr(scenes, "make_scene", fake_make_scene)
+    with pytest.raises(_Stop):
+        demo.run(demo.Args(out=str(tmp_path / "o"), rgb=rgb))
+    assert seen["cfa"] == cfa and seen["rgb"] is rgb and seen["name"] == "boxes"
