@@ -124,6 +124,32 @@ def summarise(rows: list[dict]) -> dict:
     return out
 
 
+def margins(rows: list[dict]) -> dict:
+    """Per setting: ebad's novel-view (refined) margin over each other preset, paired by seed
+    (``3dgs*``: the stronger of 3dgs and 3dgs-po in that seed), as (mean, std, per-seed list)."""
+    out: dict = {}
+    for setting in dict.fromkeys(r["setting"] for r in rows):
+        by_seed: dict[int, dict[str, float]] = {}
+        for r in rows:
+            if r["setting"] == setting and r["test_refined_psnr"] is not None:
+                by_seed.setdefault(r["seed"], {})[r["preset"]] = r["test_refined_psnr"]
+        res: dict = {}
+        for other in ("3dgs*", "bad", "ebad-luma", "edi-3dgs"):
+            d = []
+            for v in by_seed.values():
+                ref = (
+                    max((v[p] for p in ("3dgs", "3dgs-po") if p in v), default=None)
+                    if other == "3dgs*"
+                    else v.get(other)
+                )
+                if "ebad" in v and ref is not None:
+                    d.append(v["ebad"] - ref)
+            if d:
+                res[other] = (float(np.mean(d)), float(np.std(d)), d)
+        out[setting] = res
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="tiny scenes, one seed, short budget")
@@ -198,6 +224,11 @@ def main(argv=None) -> int:
                 f"| {setting} | {name} | {f['test_refined_psnr']} | {f['test_refined_ssim']} | {f['deblur_psnr']} | "
                 f"{f['deblur_ssim']} | {s['steps'][0]:.0f} |"
             )
+    marg = margins(rows)
+    print("\nebad's novel-view margin (refined, dB), paired by seed: mean ± std [per seed]")
+    for setting, res in marg.items():
+        for other, (m, sd, d) in res.items():
+            print(f"  {setting:12s} ebad - {other:9s} {m:+6.2f} ± {sd:.2f}  [{', '.join(f'{x:+.2f}' for x in d)}]")
     path = write_json(
         args.name,
         {
@@ -210,6 +241,7 @@ def main(argv=None) -> int:
             "scene": args.scene,
             "rows": rows,
             "summary": summary,
+            "margins": marg,
             "argv": sys.argv[1:],
         },
     )
