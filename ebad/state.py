@@ -342,8 +342,35 @@ def read_checkpoint(path: str | Path, fingerprint: dict[str, Any] | None = None)
     return doc
 
 
+FINGERPRINT_EVENT_SAMPLES = 1 << 20  # events hashed for the content fingerprint (evenly spaced, ends included)
+
+
+def _digest(*arrays: np.ndarray) -> str:
+    import hashlib
+
+    h = hashlib.blake2b(digest_size=12)
+    for a in arrays:
+        h.update(np.ascontiguousarray(a).tobytes())
+    return h.hexdigest()
+
+
+def _content_fingerprint(capture: Capture) -> dict[str, str]:
+    """Hashes of what a run learns from: every frame's pixels, the poses given (and the filter), and the
+    events (at most ``FINGERPRINT_EVENT_SAMPLES`` of them, evenly spaced: a stream edited anywhere
+    but between samples, or shifted in time, changes it). A few ms for 10 frames at 346x260."""
+    ev = capture.events
+    out = {"pixels": _digest(np.asarray(capture.frames, dtype=np.float32))}
+    poses = [] if capture.c2w is None else [np.round(np.asarray(capture.c2w, dtype=np.float64), 9)]
+    out["poses"] = _digest(*poses, np.frombuffer(str(capture.cfa).encode(), np.uint8))
+    if ev is not None and len(ev):
+        idx = np.unique(np.linspace(0, len(ev) - 1, min(len(ev), FINGERPRINT_EVENT_SAMPLES)).astype(np.int64))
+        out["event_content"] = _digest(*(np.asarray(getattr(ev, k))[idx].astype(np.int64) for k in "txyp"))
+    return out
+
+
 def capture_fingerprint(capture: Capture) -> dict[str, Any]:
-    """What identifies the capture a run was made from: frame names, size, exposures, events, K."""
+    """What identifies the capture a run was made from: frame names, size, exposures, events, K, and
+    hashes of the content (``_content_fingerprint``)."""
     ev = capture.events
     return {
         "frames": [str(n) for n in (capture.names or range(capture.num_frames))],
@@ -351,15 +378,17 @@ def capture_fingerprint(capture: Capture) -> dict[str, Any]:
         "exposures": np.round(np.asarray(capture.exposures, dtype=np.float64), 9).tolist(),
         "events": 0 if ev is None else int(len(ev)),
         "K": np.round(np.asarray(capture.K, dtype=np.float64), 6).tolist(),
+        **_content_fingerprint(capture),
     }
 
 
 def fingerprint_diff(saved: dict[str, Any], now: dict[str, Any]) -> str:
-    """A short description of how two fingerprints differ ('' when they match)."""
+    """A short description of how two fingerprints differ ('' when they match). The content hashes
+    are compared when the checkpoint has them (checkpoints written before them still resume)."""
     out = []
-    for key in ("frames", "size", "exposures", "events", "K"):
+    for key in ("frames", "size", "exposures", "events", "K", "pixels", "poses", "event_content"):
         a, b = saved.get(key), now.get(key)
-        if a == b:
+        if a == b or (key in ("pixels", "poses", "event_content") and key not in saved):
             continue
         if key == "frames":
             # a fingerprint without frames (None) reads as other frame names, not a TypeError
@@ -369,6 +398,10 @@ def fingerprint_diff(saved: dict[str, Any], now: dict[str, Any]) -> str:
                 out.append("other frame names")
         elif key in ("size", "events"):
             out.append(f"{key} {a} then, {b} now")
+        elif key == "pixels":
+            out.append("other frame pixels")
+        elif key == "event_content":
+            out.append("other event content")
         else:
             out.append(f"other {key}")
     return "; ".join(out)
