@@ -48,6 +48,7 @@ from .trajectory import TRAJECTORIES, ExposureTrajectories
 __all__ = ["write_run", "load_run", "json_safe", "write_text_atomic", "RunLock", "check_out_dir", "resume_config"]
 
 LOCK_NAME = ".lock"
+BLANK_LOCK_SECONDS = 5.0  # an empty lock file older than this names no live writer
 
 
 def json_safe(x):
@@ -121,6 +122,16 @@ class RunLock:
         except (OSError, ValueError):
             return None
 
+    def _blank_and_old(self) -> bool:
+        """The lock file holds no pid/host and was made over ``BLANK_LOCK_SECONDS`` ago (a writer that
+        died between creating and writing it, or could not write it: a full disk)."""
+        import time
+
+        try:
+            return not self.path.read_text().strip() and time.time() - self.path.stat().st_mtime > BLANK_LOCK_SECONDS
+        except OSError:
+            return False
+
     def acquire(self) -> RunLock:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         me = f"{os.getpid()} {socket.gethostname()}\n"
@@ -129,6 +140,13 @@ class RunLock:
                 fd = os.open(self.path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
             except FileExistsError:
                 holder = self._holder()
+                if holder is None and self._blank_and_old():
+                    self.say(
+                        f"ebad: taking over the lock of {self.path.parent}: it names no holder "
+                        "(left by a writer that failed)"
+                    )
+                    self.path.unlink(missing_ok=True)
+                    continue
                 if holder is not None and holder[1] == socket.gethostname() and not _alive(holder[0]):
                     self.say(
                         f"ebad: taking over the lock of {self.path.parent} left by process {holder[0]}, "
@@ -141,8 +159,12 @@ class RunLock:
                     f"{self.path.parent} is in use by {who} (lock file {self.path}); wait for it to "
                     "finish or choose another --out"
                 ) from None
-            with os.fdopen(fd, "w") as fh:
-                fh.write(me)
+            try:
+                with os.fdopen(fd, "w") as fh:
+                    fh.write(me)
+            except OSError as exc:  # a full disk: leave no lock that names nobody
+                self.path.unlink(missing_ok=True)
+                raise UserError(f"cannot write the lock file {self.path}: {exc.strerror or exc}") from None
             self.held = True
             return self
         raise UserError(f"could not lock {self.path.parent} (lock file {self.path})")
