@@ -540,8 +540,8 @@ def load_config(path: str | Path) -> Config:
     path = Path(path)
     try:
         data = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise ConfigError(f"{path}: not valid JSON: {exc}") from exc
+    except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as exc:
+        raise ConfigError(f"{path}: not valid JSON: {str(exc)[:120]}") from None
     try:
         return config_from_dict(data)
     except ConfigError as exc:

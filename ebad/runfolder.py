@@ -238,8 +238,8 @@ def _complete(metrics_path: Path) -> bool:
     """The ``complete`` field of a run's ``metrics.json`` as written (only JSON ``true`` is a finished run)."""
     try:
         doc = json.loads(metrics_path.read_text())
-    except json.JSONDecodeError as exc:
-        raise UserError(f"{metrics_path}: not valid JSON ({exc})") from None
+    except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as exc:
+        raise UserError(f"{metrics_path}: not valid JSON ({str(exc)[:120]})") from None
     if not isinstance(doc, dict):
         raise UserError(f"{metrics_path}: must be a JSON object, got {type(doc).__name__}")
     complete = doc.get("complete", False)

@@ -18,7 +18,9 @@ def read_json_object(path: Path) -> dict:
     try:
         doc = json.loads(path.read_text())
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise CaptureError(str(path), None, f"not valid JSON ({exc})") from None
+        raise CaptureError(str(path), None, f"not valid JSON ({str(exc)[:120]})") from None
+    except RecursionError:  # nested deeper than Python's parser follows
+        raise CaptureError(str(path), None, "not valid JSON (nested too deeply)") from None
     if not isinstance(doc, dict):
         raise CaptureError(str(path), None, "top level must be an object")
     return doc
