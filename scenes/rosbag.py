@@ -222,8 +222,8 @@ def load_rosbag(path: str | os.PathLike, K: np.ndarray | None = None, exposure_u
     exposures = (window_us - events.t0).astype(np.float64) * 1e-6
     distortion = None
     if bag.camera_info is not None:
-        K, distortion = _calibration(bag.camera_info, w, h, path)
         meta["calibration"] = bag.connections["camera_info"].topic
+        K, distortion = _calibration(bag.camera_info, w, h, path, meta["calibration"])
     elif K is None:
         K = guess_K(w, h)
         meta["K_guessed"] = True
@@ -324,24 +324,31 @@ def _event_stream(chunks: list[np.ndarray], window_us: np.ndarray, w: int, h: in
         raise CaptureError(str(path), "events", str(exc)) from None
 
 
-def _calibration(info: Any, w: int, h: int, path: Path) -> tuple[np.ndarray, np.ndarray | None]:
+def _calibration(
+    info: Any, w: int, h: int, path: Path, topic: str = TOPICS["camera_info"]
+) -> tuple[np.ndarray, np.ndarray | None]:
     """K [3, 3] (principal point moved to our pixel-centre convention) and distortion [5] or None
-    from a CameraInfo message."""
+    from a CameraInfo message (of ``topic``, named in errors: ``/dvs/camera_info.K``); a non-finite
+    K or D is refused here, as bad calibration, before anything is computed from it."""
     Kr = np.asarray(info.K, dtype=np.float64).reshape(3, 3)
     if (int(info.width), int(info.height)) != (w, h):
-        raise CaptureError(str(path), "camera_info", f"calibrated for {info.width}x{info.height}, images are {w}x{h}")
+        raise CaptureError(str(path), topic, f"calibrated for {info.width}x{info.height}, images are {w}x{h}")
+    if not np.isfinite(Kr).all():
+        raise CaptureError(str(path), f"{topic}.K", f"has a non-finite entry: {Kr.reshape(-1).tolist()}")
     if Kr[0, 0] <= 0 or Kr[1, 1] <= 0:
-        raise CaptureError(str(path), "camera_info.K", f"focal lengths must be positive, got {Kr[0, 0]}, {Kr[1, 1]}")
+        raise CaptureError(str(path), f"{topic}.K", f"focal lengths must be positive, got {Kr[0, 0]}, {Kr[1, 1]}")
     K = np.array([[Kr[0, 0], 0.0, Kr[0, 2] + 0.5], [0.0, Kr[1, 1], Kr[1, 2] + 0.5], [0.0, 0.0, 1.0]])
     D = np.asarray(info.D, dtype=np.float64)
+    if not np.isfinite(D).all():
+        raise CaptureError(str(path), f"{topic}.D", f"has a non-finite entry: {D.tolist()}")
     if len(D) and info.distortion_model not in DISTORTION_MODELS:
         raise CaptureError(
             str(path),
-            "camera_info.distortion_model",
+            f"{topic}.distortion_model",
             f"{info.distortion_model!r} is not supported (plumb_bob k1 k2 p1 p2 k3)",
         )
     if len(D) > 5 and np.any(D[5:] != 0):
-        raise CaptureError(str(path), "camera_info.D", "only k1 k2 p1 p2 k3 are supported; k4.. are not zero")
+        raise CaptureError(str(path), f"{topic}.D", "only k1 k2 p1 p2 k3 are supported; k4.. are not zero")
     distortion = None
     if np.any(D != 0):
         distortion = np.zeros(5)
