@@ -24,6 +24,7 @@ from typing import Literal, get_args
 import numpy as np
 
 from edi import CorruptFileError, EbadError, EventStream, read_aedat4
+from edi.cfa import check_pattern
 
 from .capture import Capture, guess_K
 from .e2nerf import LLFF_HOLD, detect_e2nerf, load_e2nerf, load_ebad_nerf
@@ -101,6 +102,7 @@ def load(
     K: np.ndarray | None = None,
     exposure_us: int | None = None,
     llffhold: int = LLFF_HOLD,
+    cfa: str | None = None,
 ) -> Capture:
     """Read a capture in any supported layout (see :func:`detect_layout`).
 
@@ -114,6 +116,12 @@ def load(
             ``/dvs/exposure``; ignored otherwise.
         llffhold: EBAD-NeRF layout: every ``llffhold``-th view is held out (when
             ``images_gt_novel/`` exists).
+        cfa: the Bayer pattern of a colour DAVIS (``edi.cfa.CFA_PATTERNS``, in the frames'
+            pixel grid) when the layout does not record it, or ``"none"``: take the events as
+            luminance whatever the file records. None (default): what the file records.
+            A pattern that disagrees with the one the file records is refused (CaptureError
+            naming ``cfa``): the file's record is the camera's own statement (frames flipped or
+            cropped by a reader carry the transformed pattern already).
 
     Raises:
         CaptureError: unknown layout or malformed input; names the file and the field.
@@ -134,6 +142,8 @@ def load(
         cap = load_e2nerf(path)
     else:
         cap = load_evdeblurnerf(path)
+    if cfa is not None:
+        _state_cfa(cap, cfa, str(path))
     if undistort and cap.distortion is not None and np.any(np.asarray(cap.distortion) != 0):
         d = np.asarray(cap.distortion, dtype=np.float64)
         cap.frames = undistort_frames(cap.frames, cap.K, d)
@@ -143,6 +153,30 @@ def load(
         cap.meta["events_dropped_undistort"] = dropped
         cap.distortion = None
     return cap.validate(str(path))
+
+
+def _state_cfa(cap: Capture, cfa: str, source: str) -> None:
+    """``cap.cfa`` as stated by hand (``load(cfa=...)``): a pattern, or "none"; see ``load``."""
+    if isinstance(cfa, str) and cfa.lower() == "none":
+        if cap.cfa is not None:
+            cap.meta["cfa_dropped"] = cap.cfa
+        cap.cfa = None
+        cap.meta["cfa_source"] = "stated: none (events taken as luminance)"
+        return
+    try:
+        pattern = check_pattern(cfa, "cfa")
+    except EbadError as exc:
+        raise CaptureError(source, "cfa", str(exc).split(": ", 1)[-1]) from None
+    if cap.cfa is not None and cap.cfa != pattern:
+        raise CaptureError(
+            source,
+            "cfa",
+            f"stated {pattern} but the capture records {cap.cfa} ({cap.meta.get('cfa_source', 'its own field')}); "
+            "leave it out to use the recorded one, or pass 'none' to take the events as luminance",
+        )
+    if cap.cfa is None:
+        cap.meta["cfa_source"] = "stated by hand"
+    cap.cfa = pattern
 
 
 # --------------------------------------------------------------------------- ECD
@@ -267,8 +301,11 @@ def _read_events(path: Path, t_unit: str | None, width: int, height: int) -> Eve
 def load_aedat4(path: str | os.PathLike, K: np.ndarray | None = None) -> Capture:  # K [3, 3]
     """An AEDAT4 recording: APS frames with exposure begin/end and events, no poses. AEDAT4
     holds no calibration: pass ``K``, or a guess from a 70-degree horizontal field of view is
-    used and ``meta['K_guessed'] = True``. Needs the ``aedat`` package (the ``aedat`` extra):
-    without it a CaptureError says how to install it."""
+    used and ``meta['K_guessed'] = True``. A colour DAVIS recorded by DV states its Bayer
+    filter in the header (``edi.io.DV_COLOR_FILTER``): it becomes ``Capture.cfa``, and the
+    frames are DV's demosaiced RGB or, in DV's "Original" frame mode, 1-channel raw mosaics.
+    Needs the ``aedat`` package (the ``aedat`` extra): without it a CaptureError says how to
+    install it."""
     path = Path(path)
     try:
         rec = read_aedat4(path)
@@ -286,7 +323,10 @@ def load_aedat4(path: str | os.PathLike, K: np.ndarray | None = None) -> Capture
     if frames.ndim != 4 or len(frames) == 0:
         raise CaptureError(str(path), "frames", f"the recording has no APS frames (got shape {frames.shape})")
     f, h, w, _ = frames.shape
-    meta = {"source_layout": "aedat4", "source": str(path), "t0_us": int(getattr(rec, "t0", 0))}
+    meta: dict = {"source_layout": "aedat4", "source": str(path), "t0_us": int(getattr(rec, "t0", 0))}
+    cfa = getattr(rec, "cfa", None)
+    if cfa is not None:
+        meta["cfa_source"] = "AEDAT4 header: events stream info colorFilter (DV)"
     if K is None:
         K = guess_K(w, h)
         meta["K_guessed"] = True
@@ -298,6 +338,7 @@ def load_aedat4(path: str | os.PathLike, K: np.ndarray | None = None) -> Capture
         split=["train"] * f,
         names=[f"{i:05d}" for i in range(f)],
         meta=meta,
+        cfa=cfa,
     )
 
 

@@ -84,3 +84,69 @@ def test_bag_with_inf_in_camera_info_D_is_a_bad_D(tmp_path):
     write_bag(tmp_path / "rec.bag", D=(0.01, float("inf"), 0, 0, 0))
     with pytest.raises(CaptureError, match=r"field '/dvs/camera_info\.D': has a non-finite entry"):
         load(tmp_path / "rec.bag")
+
+
+# ----------------------------------------------------------------------------- AEDAT4 from a colour DAVIS
+
+
+def fake_dv_recording(tmp_path, monkeypatch, color_filter="0", rgb=True, n_frames=2):
+    """An AEDAT4 file whose header is DV's (``colorFilter`` on the events stream) and whose packets
+    come from a stand-in decoder: events and frames (demosaiced RGB, or DV's "Original" raw mosaics)."""
+    aedat = pytest.importorskip("aedat")
+    from tests.edi.test_aedat4_header import aedat4_header, dv_xml
+
+    rng = np.random.default_rng(3)
+
+    class Decoder:
+        def __init__(self, path):
+            pass
+
+        def id_to_stream(self):
+            return {0: {"type": "events", "width": W, "height": H}, 1: {"type": "frame", "width": W, "height": H}}
+
+        def __iter__(self):
+            ev = np.zeros(20, [("t", "<i8"), ("x", "<i2"), ("y", "<i2"), ("on", "?")])
+            ev["t"] = 1_000_000 + np.arange(20) * 1000
+            ev["x"], ev["y"], ev["on"] = rng.integers(0, W, 20), rng.integers(0, H, 20), rng.integers(0, 2, 20)
+            yield {"stream_id": 0, "events": ev}
+            for k in range(n_frames):
+                px = rng.integers(0, 256, (H, W, 3) if rgb else (H, W)).astype(np.uint8)
+                t = 1_000_000 + 8000 * k
+                fr = {"pixels": px, "format": "RGB" if rgb else "L", "exposure_begin_t": t, "exposure_end_t": t + 4000}
+                yield {"stream_id": 1, "frame": fr}
+
+    monkeypatch.setattr(aedat, "Decoder", Decoder)
+    f = tmp_path / "rec.aedat4"
+    f.write_bytes(aedat4_header(dv_xml(color_filter)))
+    return f
+
+
+@pytest.mark.parametrize("rgb", [True, False])
+def test_aedat4_of_a_colour_davis_states_its_filter(tmp_path, monkeypatch, rgb):
+    f = fake_dv_recording(tmp_path, monkeypatch, color_filter="3", rgb=rgb)
+    cap = load(f)
+    assert cap.cfa == "BGGR" and cap.channels == (3 if rgb else 1)
+    assert cap.raw_mosaic is (not rgb)
+    assert "colorFilter" in cap.meta["cfa_source"]
+
+
+def test_aedat4_of_a_grey_davis_has_no_filter(tmp_path, monkeypatch):
+    cap = load(fake_dv_recording(tmp_path, monkeypatch, color_filter=None, rgb=False))
+    assert cap.cfa is None and not cap.raw_mosaic
+
+
+def test_cfa_stated_by_hand(tmp_path, monkeypatch):
+    grey = fake_dv_recording(tmp_path, monkeypatch, color_filter=None, rgb=True)
+    cap = load(grey, cfa="grbg")
+    assert cap.cfa == "GRBG" and cap.meta["cfa_source"] == "stated by hand"
+    with pytest.raises(CaptureError, match=r"field 'cfa': 'RGBG' is not a Bayer pattern"):
+        load(grey, cfa="RGBG")
+
+
+def test_cfa_stated_against_the_recorded_one(tmp_path, monkeypatch):
+    f = fake_dv_recording(tmp_path, monkeypatch, color_filter="0", rgb=True)
+    assert load(f, cfa="RGGB").cfa == "RGGB"  # agrees: kept
+    with pytest.raises(CaptureError, match=r"rec\.aedat4: field 'cfa': stated BGGR but the capture records RGGB"):
+        load(f, cfa="BGGR")
+    cap = load(f, cfa="none")  # events taken as luminance on purpose
+    assert cap.cfa is None and cap.meta["cfa_dropped"] == "RGGB"
