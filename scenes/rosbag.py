@@ -6,7 +6,10 @@ Topics (found by message type; where a type is on several topics the driver's na
 
 - ``dvs_msgs/EventArray`` (``/dvs/events``): decoded with numpy straight from the message
   bytes (13 bytes per event: uint16 x, uint16 y, uint32 sec, uint32 nsec, uint8 polarity).
-- ``sensor_msgs/Image`` (``/dvs/image_raw``): mono8/mono16/rgb8/bgr8/rgb16/bgr16 frames.
+- ``sensor_msgs/Image`` (``/dvs/image_raw``): mono8/mono16/rgb8/bgr8/rgb16/bgr16 frames, or
+  raw Bayer mosaics ``bayer_rggb8`` etc. (8 or 16 bit): then ``Capture.cfa`` is the pattern the
+  encoding names and the frames are 1-channel raw mosaics. The driver's ``rgb8`` frames of a
+  colour DAVIS do not say which filter the sensor has: state it (``load(..., cfa=...)``).
 - ``std_msgs/Int32`` (``/dvs/exposure``): the exposure in microseconds, published by the
   driver right after each image (matched in order); when the bag did not record it, pass
   ``exposure_us``.
@@ -45,6 +48,7 @@ __all__ = [
     "DVS_EVENT_MSG",
     "DVS_EVENT_ARRAY_MSG",
     "TOPICS",
+    "BAYER_ENCODINGS",
 ]
 
 ROS_INSTALL = "pip install 'ebad[ros]' (or: pip install 'rosbags>=0.9')"
@@ -73,6 +77,13 @@ IMAGE_ENCODINGS: dict[str, tuple[int, type[np.unsignedinteger], bool]] = {
     "rgb16": (3, np.uint16, False),
     "bgr16": (3, np.uint16, True),
 }
+# sensor_msgs/image_encodings.h: raw Bayer mosaics, the letters naming the filters row by row
+# (bayer_rggb8: R G on the first row, G B on the second), so in edi.cfa's order of pixels
+# (0, 0), (1, 0), (0, 1), (1, 1) the pattern is the letters as written
+BAYER_ENCODINGS: dict[str, str] = {
+    f"bayer_{p.lower()}{bits}": p for p in ("RGGB", "BGGR", "GBRG", "GRBG") for bits in (8, 16)
+}
+IMAGE_ENCODINGS.update({enc: (1, np.uint16 if enc.endswith("16") else np.uint8, False) for enc in BAYER_ENCODINGS})
 DISTORTION_MODELS = ("plumb_bob", "rational_polynomial")
 
 
@@ -177,6 +188,7 @@ class _BagMessages:
     event_chunks: list[np.ndarray]  # per EventArray message: [M] EVENT_DTYPE
     sensor_size: tuple[int, int] | None  # (width, height) of the first EventArray
     images: list[np.ndarray]  # [H, W, D] float32 per image message
+    encodings: list[str]  # per image message, its ``encoding``
     stamps_ns: list[int]  # per image, the header stamp
     exposures_us: list[int]  # per exposure message
     camera_info: Any | None  # the first CameraInfo message
@@ -207,6 +219,7 @@ def load_rosbag(path: str | os.PathLike, K: np.ndarray | None = None, exposure_u
     bag = _read_bag(rosbag1, path)
     frames = _stack_images(bag, path)
     f, h, w, _ = frames.shape
+    cfa = _bayer_pattern(bag, path)
     if bag.sensor_size is not None and bag.sensor_size != (w, h):
         raise CaptureError(
             str(path), "events", f"sensor {bag.sensor_size[0]}x{bag.sensor_size[1]} differs from the images' {w}x{h}"
@@ -216,6 +229,8 @@ def load_rosbag(path: str | os.PathLike, K: np.ndarray | None = None, exposure_u
         "source": str(path),
         "exposure_rule": "image stamp = mid-exposure (libcaer); window [s - e//2, s - e//2 + e)",
     }
+    if cfa is not None:
+        meta["cfa_source"] = f"{bag.connections['image'].topic} encoding {bag.encodings[0]}"
     exp_us = _exposure_times_us(bag, exposure_us, f, path, meta)
     window_us = exposure_window_us(_ns_to_us(np.array(bag.stamps_ns, dtype=np.int64)), exp_us)
     events = _event_stream(bag.event_chunks, window_us, w, h, path)
@@ -236,7 +251,17 @@ def load_rosbag(path: str | os.PathLike, K: np.ndarray | None = None, exposure_u
         split=["train"] * f,
         names=[f"{i:05d}" for i in range(f)],
         meta=meta,
+        cfa=cfa,
     )
+
+
+def _bayer_pattern(bag: _BagMessages, path: Path) -> str | None:
+    """The Bayer pattern the images' encoding states (``BAYER_ENCODINGS``: the frames are raw
+    mosaics), or None; images of different encodings are refused."""
+    encodings = sorted(set(bag.encodings))
+    if len(encodings) > 1:
+        raise CaptureError(str(path), "image.encoding", f"images differ in encoding: {', '.join(encodings)}")
+    return BAYER_ENCODINGS.get(encodings[0]) if encodings else None
 
 
 def _read_bag(rosbag1: Any, path: Path) -> _BagMessages:
@@ -255,7 +280,7 @@ def _read_bag(rosbag1: Any, path: Path) -> _BagMessages:
                         f"no {MSGTYPES[kind]} topic (expected {TOPICS[kind]}); "
                         f"topics: {', '.join(sorted({c.topic for c in conns}))}",
                     )
-            bag = _BagMessages(picked, [], None, [], [], [], None)
+            bag = _BagMessages(picked, [], None, [], [], [], [], None)
             for _, _, raw in reader.messages(connections=[picked["events"]]):
                 arr, w, h = decode_event_array(raw)
                 bag.sensor_size = bag.sensor_size or (w, h)
@@ -263,6 +288,7 @@ def _read_bag(rosbag1: Any, path: Path) -> _BagMessages:
             for k, (conn, _, raw) in enumerate(reader.messages(connections=[picked["image"]])):
                 msg = store.deserialize_ros1(raw, conn.msgtype)
                 bag.images.append(_image(msg, path, k))
+                bag.encodings.append(str(msg.encoding))
                 bag.stamps_ns.append(_stamp_ns(msg.header))
             if picked["exposure"] is not None:
                 for conn, _, raw in reader.messages(connections=[picked["exposure"]]):

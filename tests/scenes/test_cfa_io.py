@@ -150,3 +150,20 @@ def test_cfa_stated_against_the_recorded_one(tmp_path, monkeypatch):
         load(f, cfa="BGGR")
     cap = load(f, cfa="none")  # events taken as luminance on purpose
     assert cap.cfa is None and cap.meta["cfa_dropped"] == "RGGB"
+
+
+# ----------------------------------------------------------------------------- ROS bags of raw Bayer images
+
+
+@pytest.mark.parametrize("encoding,pattern", [("bayer_rggb8", "RGGB"), ("bayer_gbrg8", "GBRG")])
+def test_bag_of_bayer_images_is_a_raw_mosaic_capture(tmp_path, encoding, pattern):
+    frames = write_bag(tmp_path / "rec.bag", encoding=encoding)
+    cap = load(tmp_path / "rec.bag", undistort=False)
+    assert cap.cfa == pattern and cap.raw_mosaic and cap.frames.shape == (2, H, W, 1)
+    np.testing.assert_array_equal(cap.frames, frames.astype(np.float32) / np.float32(255))
+    assert cap.meta["cfa_source"] == f"/dvs/image_raw encoding {encoding}"
+
+
+def test_bag_of_mono_images_has_no_filter(tmp_path):
+    write_bag(tmp_path / "rec.bag", encoding="mono8")
+    assert load(tmp_path / "rec.bag", undistort=False).cfa is None
