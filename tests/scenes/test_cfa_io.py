@@ -167,3 +167,34 @@ def test_bag_of_bayer_images_is_a_raw_mosaic_capture(tmp_path, encoding, pattern
 def test_bag_of_mono_images_has_no_filter(tmp_path):
     write_bag(tmp_path / "rec.bag", encoding="mono8")
     assert load(tmp_path / "rec.bag", undistort=False).cfa is None
+
+
+# ----------------------------------------------------------------------------- scenes.convert --cfa
+
+
+def test_convert_cfa_states_the_filter_of_rgb_frames(tmp_path, capsys):
+    import json
+
+    from scenes.convert import main
+
+    write_bag(tmp_path / "rec.bag", encoding="rgb8")  # the driver's demosaiced frames: no pattern recorded
+    assert main([str(tmp_path / "rec.bag"), "--out", str(tmp_path / "cap"), "--cfa", "RGGB"]) == 0
+    assert json.loads((tmp_path / "cap" / "capture.json").read_text())["cfa"] == "RGGB"
+    assert "colour filter: RGGB (stated by hand); frames are demosaiced RGB" in capsys.readouterr().out
+    assert load(tmp_path / "cap").cfa == "RGGB"
+
+
+def test_convert_cfa_that_disagrees_with_the_file_is_one_line(tmp_path, capsys):
+    from scenes.convert import main
+
+    write_bag(tmp_path / "rec.bag", encoding="bayer_grbg8")
+    assert main([str(tmp_path / "rec.bag"), "--out", str(tmp_path / "cap"), "--cfa", "RGGB"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "field 'cfa': stated RGGB but the capture records GRBG" in err
+    assert main([str(tmp_path / "rec.bag"), "--out", str(tmp_path / "cap"), "--cfa", "RGB"]) == 2
+    assert "field 'cfa': 'RGB' is not a Bayer pattern" in capsys.readouterr().err
+    assert not (tmp_path / "cap").exists()
+    assert main([str(tmp_path / "rec.bag"), "--out", str(tmp_path / "cap")]) == 0
+    assert "colour filter: GRBG (/dvs/image_raw encoding bayer_grbg8); frames are raw Bayer mosaics" in (
+        capsys.readouterr().out
+    )
