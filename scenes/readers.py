@@ -9,7 +9,10 @@ frames (bilinear resampling onto the pinhole grid with the same K) and moves eve
 the ideal pixel that contains its undistorted pixel centre (events leaving the sensor are
 dropped and counted in ``meta['events_dropped_undistort']``); the returned Capture has
 ``distortion=None`` and ``meta['undistorted'] = True``. Pass ``undistort=False`` to carry the
-distortion coefficients in ``Capture.distortion`` untouched instead.
+distortion coefficients in ``Capture.distortion`` untouched instead. A capture with a colour
+filter (``Capture.cfa``) keeps it true on the ideal grid: each event moves to the nearest pixel
+of its own channel, and raw mosaics are demosaiced, resampled and mosaicked again
+(``_undistort_cfa``).
 """
 
 from __future__ import annotations
@@ -146,13 +149,68 @@ def load(
         _state_cfa(cap, cfa, str(path))
     if undistort and cap.distortion is not None and np.any(np.asarray(cap.distortion) != 0):
         d = np.asarray(cap.distortion, dtype=np.float64)
-        cap.frames = undistort_frames(cap.frames, cap.K, d)
-        cap.events, dropped = undistort_events(cap.events, cap.K, d)
+        if cap.cfa is None:
+            cap.frames = undistort_frames(cap.frames, cap.K, d)
+            cap.events, dropped = undistort_events(cap.events, cap.K, d)
+        else:
+            cap.frames, cap.events, dropped = _undistort_cfa(cap, d)
+            cap.meta["undistort_cfa"] = CFA_UNDISTORT_RULE
         cap.meta["undistorted"] = True
         cap.meta["distortion_removed"] = d.tolist()
         cap.meta["events_dropped_undistort"] = dropped
         cap.distortion = None
     return cap.validate(str(path))
+
+
+CFA_UNDISTORT_RULE = (
+    "events move to the nearest pixel of their own filter around their undistorted centre; "
+    "raw mosaics are demosaiced, resampled and mosaicked again"
+)
+
+
+def _undistort_cfa(cap: Capture, d: np.ndarray) -> tuple[np.ndarray, EventStream, int]:  # d [5]
+    """Undistort a colour-filter capture so that the filter still holds on the ideal grid.
+
+    An event fired on the log of its own pixel's channel, so it moves to the pixel *of that
+    channel* nearest to its undistorted pixel centre (within the 3 x 3 pixels around the one
+    containing it; at most sqrt(2) px from it, sqrt(5) at the sensor's border, against 0.71 px
+    for the plain rule) and keeps meaning what it meant. Demosaiced RGB frames are resampled as any
+    frames; raw mosaics are demosaiced (``edi.cfa.demosaic``), resampled and mosaicked again, so
+    each pixel holds its own channel. Returns (frames, events, number of events dropped)."""
+    from edi.cfa import channel_map, demosaic, mosaic
+
+    from .undistort import undistort_normalized
+
+    assert cap.cfa is not None
+    K = cap.K
+    if cap.raw_mosaic:
+        rgb = demosaic(cap.frames[..., 0], cap.cfa).astype(np.float32)
+        frames = mosaic(undistort_frames(rgb, K, d), cap.cfa)[..., None].astype(np.float32)
+    else:
+        frames = undistort_frames(cap.frames, K, d)
+    ev = cap.events
+    w, h = ev.width, ev.height
+    chan = channel_map(cap.cfa, h, w)
+    u, v = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
+    xy = undistort_normalized(np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1]], -1), d)
+    pu, pv = xy[..., 0] * K[0, 0] + K[0, 2], xy[..., 1] * K[1, 1] + K[1, 2]  # [H, W] ideal pixel coordinates
+    fu, fv = np.floor(pu).astype(np.int64), np.floor(pv).astype(np.int64)
+    inside = (fu >= 0) & (fu < w) & (fv >= 0) & (fv < h)
+    best = np.full((h, w), np.inf)
+    tx, ty = np.zeros((h, w), np.int64), np.zeros((h, w), np.int64)
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            cx, cy = fu + dx, fv + dy
+            ok = inside & (cx >= 0) & (cx < w) & (cy >= 0) & (cy < h)
+            ok[ok] &= chan[cy[ok], cx[ok]] == chan[ok]
+            dist = np.where(ok, (cx + 0.5 - pu) ** 2 + (cy + 0.5 - pv) ** 2, np.inf)
+            closer = dist < best
+            best[closer], tx[closer], ty[closer] = dist[closer], cx[closer], cy[closer]
+    keep_px = np.isfinite(best)
+    keep = keep_px[ev.y, ev.x]
+    out = EventStream(ev.t[keep], tx[ev.y, ev.x][keep], ty[ev.y, ev.x][keep], ev.p[keep], w, h)
+    object.__setattr__(out, "t0", ev.t0)
+    return frames, out, int((~keep).sum())
 
 
 def _state_cfa(cap: Capture, cfa: str, source: str) -> None:

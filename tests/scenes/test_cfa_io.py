@@ -198,3 +198,72 @@ def test_convert_cfa_that_disagrees_with_the_file_is_one_line(tmp_path, capsys):
     assert "colour filter: GRBG (/dvs/image_raw encoding bayer_grbg8); frames are raw Bayer mosaics" in (
         capsys.readouterr().out
     )
+
+
+# ----------------------------------------------------------------------------- Capture checks with cfa
+
+
+def _capture(d=1, fw=W, fh=H, ew=W, eh=H, cfa="RGGB"):
+    from edi import EventStream
+    from scenes import Capture
+
+    frames = np.full((1, fh, fw, d), 0.5, np.float32)
+    K = np.array([[5.0, 0, fw / 2], [0, 5.0, fh / 2], [0, 0, 1]])
+    return Capture(frames, np.array([[0.0, 0.01]]), EventStream.empty(ew, eh), K, cfa=cfa)
+
+
+def test_capture_with_cfa_takes_rgb_or_raw_frames():
+    assert _capture(d=3).validate().cfa == "RGGB" and not _capture(d=3).raw_mosaic
+    assert _capture(d=1).validate().raw_mosaic
+    assert _capture(d=1, cfa="bggr").validate().cfa == "BGGR"  # normalised
+
+
+def test_raw_frame_of_another_size_than_the_events_sensor_is_named():
+    with pytest.raises(
+        CaptureError, match=r"cap\.json: field 'frames': raw Bayer mosaics of 4x4 under cfa RGGB, .*6x4"
+    ):
+        _capture(d=1, fw=4).validate("cap.json")
+    with pytest.raises(CaptureError, match=r"field 'cfa': demosaiced RGB frames of 6x2 under cfa RGGB, .*6x4"):
+        _capture(d=3, fh=2).validate()
+
+
+def test_cfa_pattern_must_fit_the_frames():
+    with pytest.raises(CaptureError, match=r"field 'cfa': a 2x2 Bayer pattern needs frames of at least 2x2, got 6x1"):
+        _capture(d=3, fh=1, eh=1).validate()
+    with pytest.raises(CaptureError, match=r"field 'cfa': 'RGBG' is not a Bayer pattern"):
+        _capture(cfa="RGBG").validate()
+
+
+# ----------------------------------------------------------------------------- undistortion keeps the filter
+
+
+def test_undistort_on_load_keeps_each_event_on_its_own_channel_and_raw_frames_a_mosaic(tmp_path):
+    from edi import EventStream
+    from edi.cfa import channel_map, mosaic
+    from scenes import Capture, save
+    from scenes.undistort import undistort_normalized
+
+    h, w = 16, 24
+    K = np.array([[20.0, 0, 12.0], [0, 20.0, 8.0], [0, 0, 1]])
+    d = np.array([-0.3, 0.05, 0.001, -0.002, 0.0])
+    yy, xx = np.mgrid[0:h, 0:w]
+    t = np.arange(h * w, dtype=np.int64)  # one event per pixel, told apart by its time
+    ev = EventStream(t, xx.ravel(), yy.ravel(), np.ones(h * w, np.int8), w, h)
+    colour = np.broadcast_to(np.array([0.8, 0.5, 0.2], np.float32), (1, h, w, 3))
+    raw = mosaic(colour, "GRBG")[..., None]  # [1, H, W, 1]
+    cap = Capture(raw, np.array([[0.0, 0.01]]), ev, K, distortion=d, cfa="GRBG")
+    save(cap, tmp_path / "cap")
+    out = load(tmp_path / "cap")
+    chan = channel_map("GRBG", h, w)
+    assert out.cfa == "GRBG" and out.raw_mosaic and out.meta["undistorted"]
+    # raw frames stay a mosaic: every pixel holds its own channel's value
+    np.testing.assert_allclose(out.frames[0, ..., 0], np.array([0.8, 0.5, 0.2])[chan], atol=1e-6)
+    # each event lands on a pixel of the channel it fired on, next to its undistorted centre
+    src = out.events.t  # the source pixel index of each kept event
+    assert len(src) > 0.8 * h * w
+    np.testing.assert_array_equal(chan[out.events.y, out.events.x], chan.ravel()[src])
+    c = np.stack([(xx.ravel()[src] + 0.5 - K[0, 2]) / 20.0, (yy.ravel()[src] + 0.5 - K[1, 2]) / 20.0], -1)
+    ideal = undistort_normalized(c, d) * 20.0 + K[[0, 1], [2, 2]]
+    dist = np.hypot(out.events.x + 0.5 - ideal[:, 0], out.events.y + 0.5 - ideal[:, 1])
+    interior = (ideal[:, 0] > 2) & (ideal[:, 0] < w - 2) & (ideal[:, 1] > 2) & (ideal[:, 1] < h - 2)
+    assert dist[interior].max() <= np.sqrt(2) + 1e-9 and dist.max() <= np.sqrt(5) + 1e-9  # further at a border
