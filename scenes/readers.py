@@ -30,6 +30,7 @@ from edi import CorruptFileError, EbadError, EventStream, read_aedat4
 from edi.cfa import check_pattern
 
 from .capture import Capture, guess_K
+from .cdavis import CDAVIS_CFA, EV_MAP, read_cdavis_events, snap_to_channel
 from .e2nerf import LLFF_HOLD, detect_e2nerf, load_e2nerf, load_ebad_nerf
 from .errors import CaptureError
 from .format import FORMAT, decode_events, load_capture_folder, nearest_rigid
@@ -194,19 +195,7 @@ def _undistort_cfa(cap: Capture, d: np.ndarray) -> tuple[np.ndarray, EventStream
     u, v = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
     xy = undistort_normalized(np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1]], -1), d)
     pu, pv = xy[..., 0] * K[0, 0] + K[0, 2], xy[..., 1] * K[1, 1] + K[1, 2]  # [H, W] ideal pixel coordinates
-    fu, fv = np.floor(pu).astype(np.int64), np.floor(pv).astype(np.int64)
-    inside = (fu >= 0) & (fu < w) & (fv >= 0) & (fv < h)
-    best = np.full((h, w), np.inf)
-    tx, ty = np.zeros((h, w), np.int64), np.zeros((h, w), np.int64)
-    for dy in (-1, 0, 1):
-        for dx in (-1, 0, 1):
-            cx, cy = fu + dx, fv + dy
-            ok = inside & (cx >= 0) & (cx < w) & (cy >= 0) & (cy < h)
-            ok[ok] &= chan[cy[ok], cx[ok]] == chan[ok]
-            dist = np.where(ok, (cx + 0.5 - pu) ** 2 + (cy + 0.5 - pv) ** 2, np.inf)
-            closer = dist < best
-            best[closer], tx[closer], ty[closer] = dist[closer], cx[closer], cy[closer]
-    keep_px = np.isfinite(best)
+    tx, ty, keep_px = (a.reshape(h, w) for a in snap_to_channel(pu.ravel(), pv.ravel(), chan.ravel(), chan))
     keep = keep_px[ev.y, ev.x]
     out = EventStream(ev.t[keep], tx[ev.y, ev.x][keep], ty[ev.y, ev.x][keep], ev.p[keep], w, h)
     object.__setattr__(out, "t0", ev.t0)
@@ -403,7 +392,8 @@ def load_aedat4(path: str | os.PathLike, K: np.ndarray | None = None) -> Capture
 def load_evdeblurnerf(root: str | os.PathLike) -> Capture:
     """An EvDeblurNeRF-style folder: ``events.h5`` (or .npz/.txt), LLFF ``poses_bounds.npy``
     (see scenes.poses) and ``images_1/`` frames with ``images_1/timestamps.npz`` holding start
-    and end times (seconds)."""
+    and end times (seconds). With ``ev_map.npz`` it is the CDAVIS layout (a colour DAVIS346):
+    ``cfa`` is RGGB and the rectified events are placed on their filter (``scenes.cdavis``)."""
     root = Path(root)
     pb_path = root / "poses_bounds.npy"
     c2w_llff, hwf, bounds = read_poses_bounds(pb_path)
@@ -432,11 +422,17 @@ def load_evdeblurnerf(root: str | os.PathLike) -> Capture:
     K = np.array([[hwf[0, 2] * w / hwf[0, 1], 0, w / 2], [0, hwf[0, 2] * h / hwf[0, 0], h / 2], [0, 0, 1.0]])
     c2w = np.stack([nearest_rigid(c2w_llff[i], str(pb_path), f"poses_bounds[{i}]") for i in range(f)])
     ev_file = next(root / n for n in ("events.h5", "events.npz", "events.txt") if (root / n).is_file())
-    events = _read_events(ev_file, None, w, h)
+    cdavis = (root / EV_MAP).is_file() and ev_file.suffix != ".txt"
+    if cdavis:  # Ev-DeblurNeRF's colour DAVIS: rectified events, each on its filter (scenes.cdavis)
+        events, cdavis_meta = read_cdavis_events(ev_file, root / EV_MAP, w, h)
+    else:
+        events = _read_events(ev_file, None, w, h)
     exps = np.stack([np.asarray(start, np.float64).reshape(-1), np.asarray(end, np.float64).reshape(-1)], 1)
     if exps.shape != (f, 2) or not np.isfinite(exps).all():
         raise CaptureError(str(ts_path), "start", f"need {f} finite start and end times, got shape {exps.shape}")
     meta = {"source_layout": "evdeblurnerf", "source": str(root), "bounds": bounds.tolist()}
+    if cdavis:
+        meta.update(cdavis_meta)
     if exps.max() > 1e3:  # not seconds of a short capture: microseconds on the events' raw clock
         exps = (exps - events.t0) * 1e-6
         meta["timestamps_unit"] = "us (converted to seconds on the events' clock)"
@@ -449,4 +445,5 @@ def load_evdeblurnerf(root: str | os.PathLike) -> Capture:
         split=["train"] * f,
         names=[p.stem for p in files],
         meta=meta,
+        cfa=CDAVIS_CFA if cdavis else None,
     )

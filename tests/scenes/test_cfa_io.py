@@ -267,3 +267,83 @@ def test_undistort_on_load_keeps_each_event_on_its_own_channel_and_raw_frames_a_
     dist = np.hypot(out.events.x + 0.5 - ideal[:, 0], out.events.y + 0.5 - ideal[:, 1])
     interior = (ideal[:, 0] > 2) & (ideal[:, 0] < w - 2) & (ideal[:, 1] > 2) & (ideal[:, 1] < h - 2)
     assert dist[interior].max() <= np.sqrt(2) + 1e-9 and dist.max() <= np.sqrt(5) + 1e-9  # further at a border
+
+
+# ----------------------------------------------------------------------------- Ev-DeblurNeRF CDAVIS layout
+
+
+def write_cdavis(root: Path, n_events=200, seed=0):
+    """A CDAVIS folder as Ev-DeblurNeRF ships it: undistorted RGB images_1/, timestamps.npz,
+    poses_bounds.npy, events.h5 (x, y, t, p at the root; x, y rectified floats) and ev_map.npz."""
+    import h5py
+    from PIL import Image
+
+    h, w = 6, 8
+    rng = np.random.default_rng(seed)
+    (root / "images_1").mkdir(parents=True)
+    rows = []
+    for i in range(2):
+        c = np.eye(4)
+        c[:3, 3] = [0.1 * i, 0, 0]
+        r = np.stack([c[:3, 1], c[:3, 0], -c[:3, 2]], 1)
+        m = np.concatenate([r, c[:3, 3:4], np.array([[h], [w], [7.0]])], 1)
+        rows.append(np.concatenate([m.ravel(), [0.5, 20.0]]))
+        img = rng.integers(0, 256, (h, w, 3)).astype(np.uint8)
+        Image.fromarray(img).save(root / "images_1" / f"{i:02d}.png")
+    np.save(root / "poses_bounds.npy", np.array(rows))
+    np.savez(root / "images_1" / "timestamps.npz", timestamps_start=[1000, 30000], timestamps_end=[21000, 50000])
+    yy, xx = np.mgrid[0:h, 0:w]
+    inv_x = (xx + 0.4 * np.sin(yy) - 0.2).astype(np.float32)  # rectified coordinates of each sensor pixel
+    inv_y = (yy + 0.3 * np.cos(xx) + 0.1).astype(np.float32)
+    np.savez(root / "ev_map.npz", inv_mapx=inv_x, inv_mapy=inv_y)
+    src = rng.integers(0, h * w, n_events)  # each event's sensor pixel
+    with h5py.File(root / "events.h5", "w") as f:
+        f["x"], f["y"] = inv_x.ravel()[src], inv_y.ravel()[src]
+        f["t"] = np.sort(rng.integers(0, 60000, n_events))
+        f["p"] = rng.integers(0, 2, n_events)
+    return src, inv_x, inv_y
+
+
+def test_cdavis_events_land_on_their_own_filter(tmp_path):
+    from edi.cfa import channel_map
+
+    src, inv_x, inv_y = write_cdavis(tmp_path / "c")
+    cap = load(tmp_path / "c")
+    assert cap.cfa == "RGGB" and cap.channels == 3 and not cap.raw_mosaic
+    assert cap.meta["events_dropped_rectified"] == len(src) - len(cap.events)
+    chan = channel_map("RGGB", 6, 8)
+    u, v = inv_x.ravel()[src] + 0.5, inv_y.ravel()[src] + 0.5  # our pixel coordinates
+    inside = (u >= 0) & (u < 8) & (v >= 0) & (v < 6)
+    kept = src[inside]  # events stay in order; those rectified off the grid are dropped
+    assert 0 < (~inside).sum() < 20 and len(cap.events) == len(kept)
+    np.testing.assert_array_equal(chan[cap.events.y, cap.events.x], chan.ravel()[kept])
+    dist = np.hypot(cap.events.x - inv_x.ravel()[kept], cap.events.y - inv_y.ravel()[kept])
+    assert dist.max() <= np.sqrt(5) + 1e-6
+
+
+def test_cdavis_event_off_the_map_is_named(tmp_path):
+    import h5py
+
+    write_cdavis(tmp_path / "c")
+    with h5py.File(tmp_path / "c" / "events.h5", "r+") as f:
+        x = f["x"][:]
+        x[3] += 0.01
+        f["x"][...] = x
+    with pytest.raises(CaptureError, match=r"events\.h5: field 'x': 1 events sit where no sensor pixel"):
+        load(tmp_path / "c")
+
+
+# ----------------------------------------------------------------------------- EBAD-NeRF / E2NeRF real-world
+
+
+def test_ebad_nerf_colour_frames_say_the_filter_is_not_recorded_and_take_one_stated(tmp_path, capsys):
+    from scenes.convert import main
+    from scenes.e2nerf import CFA_NOTE
+    from tests.scenes.test_e2nerf import write_ebad_nerf
+
+    write_ebad_nerf(tmp_path / "scene", novel=False)
+    cap = load(tmp_path / "scene")
+    assert cap.cfa is None and cap.meta["cfa_note"] == CFA_NOTE  # not recorded: not guessed
+    assert load(tmp_path / "scene", cfa="RGGB").cfa == "RGGB"
+    assert main([str(tmp_path / "scene"), "--out", str(tmp_path / "out")]) == 0
+    assert "colour filter: none (colour frames, but the layout records no colour filter" in capsys.readouterr().out
