@@ -64,6 +64,8 @@ def summary(cap: Capture) -> list[str]:
     if cap.cfa is not None:
         kind = "raw Bayer mosaics" if cap.raw_mosaic else "demosaiced RGB"
         lines.append(f"colour filter: {cap.cfa} ({m.get('cfa_source', 'stated')}); frames are {kind}")
+    elif "cfa_note" in m:
+        lines.append(f"colour filter: none ({m['cfa_note']})")
     if m.get("K_guessed"):
         lines.append("intrinsics: guessed from a 70-degree field of view (pass --intrinsics FX FY CX CY)")
     if m.get("undistorted"):
