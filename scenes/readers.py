@@ -393,7 +393,8 @@ def load_evdeblurnerf(root: str | os.PathLike) -> Capture:
     """An EvDeblurNeRF-style folder: ``events.h5`` (or .npz/.txt), LLFF ``poses_bounds.npy``
     (see scenes.poses) and ``images_1/`` frames with ``images_1/timestamps.npz`` holding start
     and end times (seconds). With ``ev_map.npz`` it is the CDAVIS layout (a colour DAVIS346):
-    ``cfa`` is RGGB and the rectified events are placed on their filter (``scenes.cdavis``)."""
+    ``cfa`` is RGGB and the rectified events are placed on their filter (``scenes.cdavis``), and
+    its sharp images (start == end, Ev-DeblurNeRF's held-out views) become test views."""
     root = Path(root)
     pb_path = root / "poses_bounds.npy"
     c2w_llff, hwf, bounds = read_poses_bounds(pb_path)
@@ -436,7 +437,7 @@ def load_evdeblurnerf(root: str | os.PathLike) -> Capture:
     if exps.max() > 1e3:  # not seconds of a short capture: microseconds on the events' raw clock
         exps = (exps - events.t0) * 1e-6
         meta["timestamps_unit"] = "us (converted to seconds on the events' clock)"
-    return Capture(
+    cap = Capture(
         frames=frames,
         exposures=exps,
         events=events,
@@ -447,3 +448,12 @@ def load_evdeblurnerf(root: str | os.PathLike) -> Capture:
         meta=meta,
         cfa=CDAVIS_CFA if cdavis else None,
     )
+    sharp = [cap.names[i] for i in np.flatnonzero(exps[:, 0] == exps[:, 1])]
+    if cdavis and 0 < len(sharp) < f:
+        # CDAVIS interleaves the sharp ground-truth views (t_start == t_end) with the blurry
+        # frames and holds them out (llffhold_end): they are test views, never training frames
+        from .convert import hold_out
+
+        cap = hold_out(cap, test_frames=sharp)
+        cap.meta["test_rule"] = "CDAVIS: the sharp images (timestamps_start == timestamps_end) are the test views"
+    return cap

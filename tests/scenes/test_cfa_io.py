@@ -272,7 +272,7 @@ def test_undistort_on_load_keeps_each_event_on_its_own_channel_and_raw_frames_a_
 # ----------------------------------------------------------------------------- Ev-DeblurNeRF CDAVIS layout
 
 
-def write_cdavis(root: Path, n_events=200, seed=0):
+def write_cdavis(root: Path, n_events=200, seed=0, sharp_last=False):
     """A CDAVIS folder as Ev-DeblurNeRF ships it: undistorted RGB images_1/, timestamps.npz,
     poses_bounds.npy, events.h5 (x, y, t, p at the root; x, y rectified floats) and ev_map.npz."""
     import h5py
@@ -282,7 +282,7 @@ def write_cdavis(root: Path, n_events=200, seed=0):
     rng = np.random.default_rng(seed)
     (root / "images_1").mkdir(parents=True)
     rows = []
-    for i in range(2):
+    for i in range(3 if sharp_last else 2):
         c = np.eye(4)
         c[:3, 3] = [0.1 * i, 0, 0]
         r = np.stack([c[:3, 1], c[:3, 0], -c[:3, 2]], 1)
@@ -291,7 +291,8 @@ def write_cdavis(root: Path, n_events=200, seed=0):
         img = rng.integers(0, 256, (h, w, 3)).astype(np.uint8)
         Image.fromarray(img).save(root / "images_1" / f"{i:02d}.png")
     np.save(root / "poses_bounds.npy", np.array(rows))
-    np.savez(root / "images_1" / "timestamps.npz", timestamps_start=[1000, 30000], timestamps_end=[21000, 50000])
+    start, end = [1000, 30000] + [55000] * sharp_last, [21000, 50000] + [55000] * sharp_last
+    np.savez(root / "images_1" / "timestamps.npz", timestamps_start=start, timestamps_end=end)
     yy, xx = np.mgrid[0:h, 0:w]
     inv_x = (xx + 0.4 * np.sin(yy) - 0.2).astype(np.float32)  # rectified coordinates of each sensor pixel
     inv_y = (yy + 0.3 * np.cos(xx) + 0.1).astype(np.float32)
@@ -347,3 +348,13 @@ def test_ebad_nerf_colour_frames_say_the_filter_is_not_recorded_and_take_one_sta
     assert load(tmp_path / "scene", cfa="RGGB").cfa == "RGGB"
     assert main([str(tmp_path / "scene"), "--out", str(tmp_path / "out")]) == 0
     assert "colour filter: none (colour frames, but the layout records no colour filter" in capsys.readouterr().out
+
+
+def test_cdavis_sharp_images_are_the_test_views(tmp_path):
+    write_cdavis(tmp_path / "c", sharp_last=True)
+    cap = load(tmp_path / "c")
+    assert cap.names == ["00", "01"] and [v.name for v in cap.test_views] == ["02"]
+    v = cap.test_views[0]
+    assert v.image is not None and v.image.shape == (6, 8, 3) and v.c2w is not None
+    assert v.t == pytest.approx(cap.exposures[0, 0] + 0.054)  # its own (sharp) time on the events' clock
+    assert cap.meta["held_out_frames"] == ["02"]
