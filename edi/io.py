@@ -7,7 +7,8 @@ Formats (by extension):
   * ``.mat``: MATLAB, an ``events`` array N x 4 ``[t, x, y, p]`` (ni-joint layout), or
     separate x, y, t, p variables.
   * ``.aedat4``: through the ``aedat`` package (``pip install aedat``, or the project's
-    ``[aedat]`` extra); ``dv-processing`` is used when ``aedat`` is missing.
+    ``[aedat]`` extra); ``dv-processing`` is used when ``aedat`` is missing. The header (the
+    streams, and the Bayer filter of a colour DAVIS) is read here, without either package.
 
 The time unit is given (``t_unit`` in "s", "ms", "us", "ns") or inferred from the magnitude
 and the span of the timestamps together (``infer_time_unit``), logged at INFO and returned by
@@ -21,8 +22,14 @@ A file that cannot be parsed (truncated, not the format its extension says) rais
 
 from __future__ import annotations
 
+import contextlib
 import logging
-from collections.abc import Callable
+import os
+import struct
+import sys
+import tempfile
+import xml.etree.ElementTree as ET
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal, overload
@@ -32,7 +39,7 @@ import numpy as np
 from .errors import CorruptFileError
 from .events import EventError, EventStream
 
-__all__ = ["read_events", "read_aedat4", "AedatRecording", "infer_time_unit"]
+__all__ = ["read_events", "read_aedat4", "read_aedat4_info", "AedatRecording", "infer_time_unit", "DV_COLOR_FILTER"]
 
 log = logging.getLogger(__name__)
 
@@ -337,6 +344,133 @@ class AedatRecording:
     frames: np.ndarray  # [F, H, W, D] float32 linear [0, 1]
     exposures: np.ndarray  # [F, 2] float64 seconds (exposure begin, end) relative to t0
     t0: int  # us, the raw timestamp subtracted
+    # the sensor's Bayer pattern (``edi.cfa``, the events' = the frames' pixel grid) as DV recorded
+    # it (``DV_COLOR_FILTER``), or None: DV recorded none (a grey DAVIS)
+    cfa: str | None = None
+
+
+AEDAT4_MAGIC = b"#!AER-DAT4.0\r\n"
+# DV's DAVIS module (dv-runtime modules/davis) writes a colour DAVIS's filter on the events
+# stream's info node as the int attribute ``colorFilter`` = libcaer's ``apsColorFilter`` - 1:
+# 0 RGBG, 1 GRGB, 2 GBGR, 3 BGRG. libcaer names the filters clockwise from pixel (0, 0)
+# (frame_utils.c ``colorKeys``: RGBG is R at (0, 0), G at (1, 0), B at (1, 1), G at (0, 1)); in
+# edi.cfa's order of pixels (0, 0), (1, 0), (0, 1), (1, 1) they are:
+DV_COLOR_FILTER = {0: "RGGB", 1: "GRBG", 2: "GBRG", 3: "BGGR"}
+_IOHEADER_INFO_FIELD = 2  # IOHeader table: compression, dataTablePosition, infoNode (a string)
+
+
+def _aedat4_info_xml(path: Path) -> str:
+    """The ``infoNode`` XML of an AEDAT4 file's IOHeader (a size-prefixed flatbuffer after the
+    magic line), every offset checked against the header's size, so that a damaged header is a
+    CorruptFileError here and never reaches the decoder (which panics on one)."""
+
+    def bad(what: str) -> CorruptFileError:
+        return CorruptFileError(f"{path}: damaged AEDAT4 header ({what})")
+
+    with open(path, "rb") as fh:
+        head = fh.read(len(AEDAT4_MAGIC) + 4)
+        if not head.startswith(AEDAT4_MAGIC):
+            raise CorruptFileError(f"{path}: not an AEDAT4 file (no '#!AER-DAT4.0' line)")
+        if len(head) < len(AEDAT4_MAGIC) + 4:
+            raise bad("the file ends inside it")
+        (size,) = struct.unpack_from("<I", head, len(AEDAT4_MAGIC))
+        fb = fh.read(size) if size <= 1 << 24 else b""
+    if len(fb) != size or size < 12:
+        raise bad(f"it says {size} bytes; the file holds {len(fb)} of them")
+
+    def u32(off: int, fmt: str = "<I") -> int:
+        n = struct.calcsize(fmt)
+        if off < 0 or off + n > size:
+            raise bad(f"offset {off} outside its {size} bytes")
+        return int(struct.unpack_from(fmt, fb, off)[0])
+
+    if fb[4:8] != b"IOHE":
+        raise bad(f"file identifier {bytes(fb[4:8])!r}, expected b'IOHE'")
+    table = u32(0)
+    vtable = table - u32(table, "<i")
+    vt_size, table_size = u32(vtable, "<H"), u32(vtable + 2, "<H")
+    if vt_size < 4 + 2 * (_IOHEADER_INFO_FIELD + 1) or vtable + vt_size > size or table + table_size > size:
+        raise bad(f"its table ({table_size} bytes at {table}, vtable {vt_size} at {vtable}) does not fit {size} bytes")
+    field = u32(vtable + 4 + 2 * _IOHEADER_INFO_FIELD, "<H")
+    if field == 0:
+        raise bad("no info node")
+    string = table + field + u32(table + field)
+    length = u32(string)
+    if string + 4 + length > size:
+        raise bad(f"info node of {length} bytes runs past its {size} bytes")
+    try:
+        return fb[string + 4 : string + 4 + length].decode("utf-8")
+    except UnicodeDecodeError:
+        raise bad("info node is not text") from None
+
+
+def read_aedat4_info(path: str | Path) -> dict[str, dict[str, str]]:
+    """The streams an AEDAT4 file declares, read from its header alone: per stream id, its
+    ``typeIdentifier`` (``EVTS``, ``FRME``, ...), ``originalOutputName`` and the attributes of its
+    ``info`` node (``sizeX``, ``sizeY``, ``colorFilter``, ...), all as strings.
+
+    Raises:
+        CorruptFileError: naming the file: not AEDAT4, or a damaged header.
+    """
+    path = Path(path)
+    text = _aedat4_info_xml(path)
+    try:
+        root = ET.fromstring(text)
+    except ET.ParseError as exc:
+        raise CorruptFileError(f"{path}: damaged AEDAT4 header (info node: {exc})") from None
+    streams: dict[str, dict[str, str]] = {}
+    for node in root.iter("node"):
+        if node.get("path", "").rstrip("/").rsplit("/", 2)[-2:-1] != ["outInfo"]:
+            continue  # only /.../outInfo/<id>/
+        attrs = {a.get("key", ""): a.text or "" for a in node.findall("attr")}
+        info = node.find("node[@name='info']")
+        if info is not None:
+            attrs.update({a.get("key", ""): a.text or "" for a in info.findall("attr")})
+        streams[node.get("name", "")] = attrs
+    return streams
+
+
+def _aedat4_cfa(streams: dict[str, dict[str, str]], path: Path) -> str | None:
+    """The Bayer pattern DV recorded on the (first) events stream, or None."""
+    ev = next((s for s in streams.values() if s.get("typeIdentifier") == "EVTS"), None)
+    if ev is None or "colorFilter" not in ev:
+        return None
+    value = ev["colorFilter"].strip()
+    if not value.lstrip("-").isdigit() or int(value) not in DV_COLOR_FILTER:
+        raise CorruptFileError(
+            f"{path}: events stream info colorFilter is {value!r}; DV writes 0..3 ({DV_COLOR_FILTER})"
+        )
+    return DV_COLOR_FILTER[int(value)]
+
+
+def _is_panic(exc: BaseException) -> bool:
+    """A Rust panic raised through pyo3 (``pyo3_runtime.PanicException``, a BaseException)."""
+    return type(exc).__name__ == "PanicException"
+
+
+@contextlib.contextmanager
+def _native_stderr_held() -> Iterator[list[bool]]:
+    """Hold what native code writes to file descriptor 2 (a Rust panic's message and backtrace)
+    while the block runs; it is written out afterwards unless the block put False in the list."""
+    keep: list[bool] = [True]
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError, AttributeError):  # no real fd 2 (embedded, captured): nothing to hold
+        yield keep
+        return
+    with tempfile.TemporaryFile() as tmp:
+        os.dup2(tmp.fileno(), 2)
+        try:
+            yield keep
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            if keep[0]:
+                tmp.seek(0)
+                held = tmp.read()
+                if held:
+                    sys.stderr.write(held.decode("utf-8", "replace"))
 
 
 _MISSING = (
@@ -367,7 +501,14 @@ def _sensor_size(streams: dict, path: Path) -> tuple[int, int]:
 
 
 def read_aedat4(path: str | Path) -> AedatRecording:
-    """Read events and frames of an AEDAT4 file (``aedat``, else ``dv-processing``)."""
+    """Read events and frames of an AEDAT4 file (``aedat``, else ``dv-processing``).
+
+    The header is read here first (``read_aedat4_info``): a damaged one is a CorruptFileError
+    before the decoder sees it, and the colour filter DV records for a colour DAVIS becomes
+    ``AedatRecording.cfa`` (``DV_COLOR_FILTER``). A decoder that panics on a damaged packet
+    (a Rust panic, not an Exception) is a one-line CorruptFileError too; its own message to
+    stderr is dropped.
+    """
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"AEDAT4 file not found: {path}")
@@ -379,25 +520,38 @@ def read_aedat4(path: str | Path) -> AedatRecording:
         except ImportError:
             raise ImportError(_MISSING) from None
         return _read_aedat4_dv(path)
-    try:
-        dec = aedat.Decoder(str(path))
-    except (OSError, RuntimeError, ValueError) as exc:
-        raise CorruptFileError(f"{path}: not a readable AEDAT4 file ({type(exc).__name__}: {exc})") from exc
-    size = _sensor_size(dec.id_to_stream(), path)
-    ev_chunks, frames, exps = [], [], []
-    try:
-        for pk in dec:
-            if "events" in pk:
-                ev_chunks.append(pk["events"])
-            elif "frame" in pk:
-                fr = pk["frame"]
-                frames.append(_frame_pixels(fr["pixels"], fr.get("format", "L")))
-                exps.append((int(fr["exposure_begin_t"]), int(fr["exposure_end_t"])))
-    except (OSError, RuntimeError) as exc:  # the decoder's "failed to fill whole buffer" on a truncated file
-        raise CorruptFileError(
-            f"{path}: truncated or corrupt AEDAT4 file after {len(ev_chunks)} event and "
-            f"{len(frames)} frame packets ({type(exc).__name__}: {exc})"
-        ) from exc
+    cfa = _aedat4_cfa(read_aedat4_info(path), path)
+    ev_chunks: list[np.ndarray] = []
+    frames: list[np.ndarray] = []
+    exps: list[tuple[int, int]] = []
+    with _native_stderr_held() as keep:
+        try:
+            dec = aedat.Decoder(str(path))
+            streams = dec.id_to_stream()
+        except BaseException as exc:
+            if not (_is_panic(exc) or isinstance(exc, (OSError, RuntimeError, ValueError))):
+                raise
+            keep[0] = False
+            raise CorruptFileError(
+                f"{path}: not a readable AEDAT4 file ({type(exc).__name__}: {str(exc).splitlines()[0]})"
+            ) from None
+        try:
+            for pk in dec:
+                if "events" in pk:
+                    ev_chunks.append(pk["events"])
+                elif "frame" in pk:
+                    fr = pk["frame"]
+                    frames.append(_frame_pixels(fr["pixels"], fr.get("format", "L")))
+                    exps.append((int(fr["exposure_begin_t"]), int(fr["exposure_end_t"])))
+        except BaseException as exc:  # "failed to fill whole buffer" on a truncated file; a panic on a damaged one
+            if not (_is_panic(exc) or isinstance(exc, (OSError, RuntimeError))):
+                raise
+            keep[0] = False
+            raise CorruptFileError(
+                f"{path}: truncated or corrupt AEDAT4 file after {len(ev_chunks)} event and "
+                f"{len(frames)} frame packets ({type(exc).__name__}: {str(exc).splitlines()[0]})"
+            ) from None
+    size = _sensor_size(streams, path)
     evs = np.concatenate(ev_chunks) if ev_chunks else None
     t_raw = evs["t"].astype(np.int64) if evs is not None else np.zeros(0, np.int64)
     candidates = [int(t_raw[0])] if len(t_raw) else []
@@ -420,11 +574,13 @@ def read_aedat4(path: str | Path) -> AedatRecording:
     else:
         fr_arr = np.zeros((0, size[1], size[0], 1), np.float32)
         ex = np.zeros((0, 2))
-    return AedatRecording(events, fr_arr, ex, t0)
+    return AedatRecording(events, fr_arr, ex, t0, cfa)
 
 
 def _read_aedat4_dv(path: Path) -> AedatRecording:  # pragma: no cover - needs dv-processing
     import dv_processing as dv
+
+    cfa = _aedat4_cfa(read_aedat4_info(path), path)
 
     rec = dv.io.MonoCameraRecording(str(path))
     evs, frames, exps = [], [], []
@@ -448,4 +604,4 @@ def _read_aedat4_dv(path: Path) -> AedatRecording:  # pragma: no cover - needs d
     )
     ex = (np.asarray(exps, np.int64) - t0) * 1e-6 if exps else np.zeros((0, 2))
     fr_arr = np.stack(frames) if frames else np.zeros((0, h, w, 1), np.float32)
-    return AedatRecording(events, fr_arr, ex, t0)
+    return AedatRecording(events, fr_arr, ex, t0, cfa)

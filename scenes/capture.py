@@ -222,10 +222,10 @@ class Capture:
         the field (and ``source``, the file it came from, when given). Returns ``self``."""
         self._check_frames(source)
         self._check_exposures(source)
+        self._check_cfa(source)
         self._check_events(source)
         self._check_camera(source)
         self._check_poses(source)
-        self._check_cfa(source)
         self._check_per_frame_lists(source)
         seen: set[str] = set()
         for j, tv in enumerate(self.test_views):
@@ -303,7 +303,16 @@ class Capture:
             raise CaptureError(source, "pose_trust", f"is {self.pose_trust!r} but the frames carry no c2w")
 
     def _check_cfa(self, source: str | None) -> None:
-        """cfa: unset or a Bayer pattern of ``edi.cfa``, over frames of at least 2 x 2 pixels."""
+        """cfa: unset or a Bayer pattern of ``edi.cfa`` that fits the frames.
+
+        A pattern fits when the frames are at least 2 x 2 and are the events' pixel grid (the
+        same W x H: the pattern names the filters of the frames' pixels, and events always come
+        from the mosaic, so one pattern must hold for both). Frames flipped or cropped from the
+        sensor state the transformed pattern (``edi.cfa.transform_pattern``: a crop at an odd
+        offset or a flip of an odd size moves which filter sits at (0, 0)). With ``cfa`` the
+        frames are 3-channel (demosaiced) or 1-channel raw mosaics, which are the sensor's values
+        themselves, so a raw frame of another size than the events' sensor is never right.
+        """
         if self.cfa is None:
             return
         from edi.cfa import check_pattern
@@ -315,6 +324,17 @@ class Capture:
         if self.height < 2 or self.width < 2:
             raise CaptureError(
                 source, "cfa", f"a 2x2 Bayer pattern needs frames of at least 2x2, got {self.width}x{self.height}"
+            )
+        ev = self.events
+        if isinstance(ev, EventStream) and (ev.width, ev.height) != (self.width, self.height):
+            kind = "raw Bayer mosaics" if self.channels == 1 else "demosaiced RGB frames"
+            raise CaptureError(
+                source,
+                "frames" if self.channels == 1 else "cfa",
+                f"{kind} of {self.width}x{self.height} under cfa {self.cfa}, but the events' sensor is "
+                f"{ev.width}x{ev.height}: with a colour filter the frames must be the events' pixel grid "
+                "(frames cropped or flipped from it state the transformed pattern, edi.cfa.transform_pattern, "
+                "and the events are cropped or flipped alike)",
             )
 
     def _check_per_frame_lists(self, source: str | None) -> None:

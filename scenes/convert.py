@@ -10,6 +10,9 @@ Options for any layout (``hold_out``; ``ebad reconstruct`` has the same three fo
 NAME,NAME`` the named frames; a held-out frame leaves the training frames and becomes a test view
 with its recorded image (blurry if the frame is) and its pose (when the capture has poses).
 ``--pose-trust exact|approximate|none`` states how far the capture's poses are trusted.
+``--cfa RGGB|BGGR|GRBG|GBRG`` states the Bayer filter of a colour DAVIS in the frames' pixel grid
+when the input does not record it (``--cfa none``: take the events as luminance); a pattern that
+disagrees with the one the input records is an error (``scenes.load``'s ``cfa``).
 
 Exit status: 0 written; 2 for a user mistake (one line naming the file and field, or the path
 of an OSError); anything else is a bug and shows its traceback.
@@ -58,6 +61,11 @@ def summary(cap: Capture) -> list[str]:
         + (f" ({len(m['held_out_frames'])} held-out frames)" if m.get("held_out_frames") else ""),
         f"pose trust: {cap.effective_pose_trust}" + ("" if cap.pose_trust is not None else " (unstated)"),
     ]
+    if cap.cfa is not None:
+        kind = "raw Bayer mosaics" if cap.raw_mosaic else "demosaiced RGB"
+        lines.append(f"colour filter: {cap.cfa} ({m.get('cfa_source', 'stated')}); frames are {kind}")
+    elif "cfa_note" in m:
+        lines.append(f"colour filter: none ({m['cfa_note']})")
     if m.get("K_guessed"):
         lines.append("intrinsics: guessed from a 70-degree field of view (pass --intrinsics FX FY CX CY)")
     if m.get("undistorted"):
@@ -163,6 +171,13 @@ def _parser() -> argparse.ArgumentParser:
         default=None,
         help="how far the capture's poses are trusted (motion capture: exact); default: the capture's own",
     )
+    p.add_argument(
+        "--cfa",
+        default=None,
+        metavar="PATTERN",
+        help="Bayer filter of a colour DAVIS (RGGB, BGGR, GRBG, GBRG; pixels (0,0) (1,0) (0,1) (1,1)) when the "
+        "input does not record it; 'none': events taken as luminance. Default: what the input records",
+    )
     p.add_argument("--overwrite", action="store_true", help="replace --out if it is an ebad-capture/1 folder")
     return p
 
@@ -181,7 +196,12 @@ def main(argv: list[str] | None = None) -> int:
             Path(args.out), args.overwrite, CAPTURE_CONTENTS, "capture.json", "an ebad-capture/1 folder", "--out"
         )
         cap = load(
-            args.input, undistort=not args.no_undistort, K=K, exposure_us=args.exposure_us, llffhold=args.llffhold
+            args.input,
+            undistort=not args.no_undistort,
+            K=K,
+            exposure_us=args.exposure_us,
+            llffhold=args.llffhold,
+            cfa=args.cfa,
         )
         cap = hold_out(cap, args.test_every, parse_names(args.test_frames), args.pose_trust)
         save(cap, args.out, overwrite=args.overwrite)

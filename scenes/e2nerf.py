@@ -72,6 +72,7 @@ __all__ = [
     "BIN_S",
     "LLFF_HOLD",
     "EVENTS_FILE",
+    "CFA_NOTE",
 ]
 
 BIN_S = 0.01  # nominal length of one event bin, seconds (the layouts record none)
@@ -88,6 +89,13 @@ TRANSFORMS = {
     "test": ("transforms_test.json", "transform_test.json"),
 }
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+# E2NeRF's real-world preprocessing (orginal_data&preprocessing/real-world/Data-preprocessing) writes
+# DV's demosaiced frames of a colour DAVIS346 as images and sums the events per sensor pixel: the
+# events come from the mosaic, but the layout does not record which Bayer filter it has
+CFA_NOTE = (
+    "colour frames, but the layout records no colour filter: the events are taken as luminance; "
+    "a colour DAVIS's filter is stated with --cfa (scenes.load(cfa=...))"
+)
 BINNED_RULE = (
     "bin b of a frame covers [t_start + b T/B, t_start + (b+1) T/B) of its nominal exposure T; a "
     "signed count n becomes |n| events of polarity sign(n) at the bin centre"
@@ -308,6 +316,8 @@ def load_ebad_nerf(root: str | os.PathLike, llffhold: int = LLFF_HOLD) -> Captur
         "held_out_frames": [files[i].name for i in test_idx],
         **_binned_meta(counts.shape[1], exposures),
     }
+    if frames.shape[-1] == 3:
+        meta["cfa_note"] = CFA_NOTE
     return Capture(
         frames=frames,
         exposures=exposures,

@@ -9,7 +9,10 @@ frames (bilinear resampling onto the pinhole grid with the same K) and moves eve
 the ideal pixel that contains its undistorted pixel centre (events leaving the sensor are
 dropped and counted in ``meta['events_dropped_undistort']``); the returned Capture has
 ``distortion=None`` and ``meta['undistorted'] = True``. Pass ``undistort=False`` to carry the
-distortion coefficients in ``Capture.distortion`` untouched instead.
+distortion coefficients in ``Capture.distortion`` untouched instead. A capture with a colour
+filter (``Capture.cfa``) keeps it true on the ideal grid: each event moves to the nearest pixel
+of its own channel, and raw mosaics are demosaiced, resampled and mosaicked again
+(``_undistort_cfa``).
 """
 
 from __future__ import annotations
@@ -24,8 +27,10 @@ from typing import Literal, get_args
 import numpy as np
 
 from edi import CorruptFileError, EbadError, EventStream, read_aedat4
+from edi.cfa import check_pattern
 
 from .capture import Capture, guess_K
+from .cdavis import CDAVIS_CFA, EV_MAP, read_cdavis_events, snap_to_channel
 from .e2nerf import LLFF_HOLD, detect_e2nerf, load_e2nerf, load_ebad_nerf
 from .errors import CaptureError
 from .format import FORMAT, decode_events, load_capture_folder, nearest_rigid
@@ -101,6 +106,7 @@ def load(
     K: np.ndarray | None = None,
     exposure_us: int | None = None,
     llffhold: int = LLFF_HOLD,
+    cfa: str | None = None,
 ) -> Capture:
     """Read a capture in any supported layout (see :func:`detect_layout`).
 
@@ -114,6 +120,12 @@ def load(
             ``/dvs/exposure``; ignored otherwise.
         llffhold: EBAD-NeRF layout: every ``llffhold``-th view is held out (when
             ``images_gt_novel/`` exists).
+        cfa: the Bayer pattern of a colour DAVIS (``edi.cfa.CFA_PATTERNS``, in the frames'
+            pixel grid) when the layout does not record it, or ``"none"``: take the events as
+            luminance whatever the file records. None (default): what the file records.
+            A pattern that disagrees with the one the file records is refused (CaptureError
+            naming ``cfa``): the file's record is the camera's own statement (frames flipped or
+            cropped by a reader carry the transformed pattern already).
 
     Raises:
         CaptureError: unknown layout or malformed input; names the file and the field.
@@ -134,15 +146,84 @@ def load(
         cap = load_e2nerf(path)
     else:
         cap = load_evdeblurnerf(path)
+    if cfa is not None:
+        _state_cfa(cap, cfa, str(path))
     if undistort and cap.distortion is not None and np.any(np.asarray(cap.distortion) != 0):
         d = np.asarray(cap.distortion, dtype=np.float64)
-        cap.frames = undistort_frames(cap.frames, cap.K, d)
-        cap.events, dropped = undistort_events(cap.events, cap.K, d)
+        if cap.cfa is None:
+            cap.frames = undistort_frames(cap.frames, cap.K, d)
+            cap.events, dropped = undistort_events(cap.events, cap.K, d)
+        else:
+            cap.frames, cap.events, dropped = _undistort_cfa(cap, d)
+            cap.meta["undistort_cfa"] = CFA_UNDISTORT_RULE
         cap.meta["undistorted"] = True
         cap.meta["distortion_removed"] = d.tolist()
         cap.meta["events_dropped_undistort"] = dropped
         cap.distortion = None
     return cap.validate(str(path))
+
+
+CFA_UNDISTORT_RULE = (
+    "events move to the nearest pixel of their own filter around their undistorted centre; "
+    "raw mosaics are demosaiced, resampled and mosaicked again"
+)
+
+
+def _undistort_cfa(cap: Capture, d: np.ndarray) -> tuple[np.ndarray, EventStream, int]:  # d [5]
+    """Undistort a colour-filter capture so that the filter still holds on the ideal grid.
+
+    An event fired on the log of its own pixel's channel, so it moves to the pixel *of that
+    channel* nearest to its undistorted pixel centre (within the 3 x 3 pixels around the one
+    containing it; at most sqrt(2) px from it, sqrt(5) at the sensor's border, against 0.71 px
+    for the plain rule) and keeps meaning what it meant. Demosaiced RGB frames are resampled as any
+    frames; raw mosaics are demosaiced (``edi.cfa.demosaic``), resampled and mosaicked again, so
+    each pixel holds its own channel. Returns (frames, events, number of events dropped)."""
+    from edi.cfa import channel_map, demosaic, mosaic
+
+    from .undistort import undistort_normalized
+
+    assert cap.cfa is not None
+    K = cap.K
+    if cap.raw_mosaic:
+        rgb = demosaic(cap.frames[..., 0], cap.cfa).astype(np.float32)
+        frames = mosaic(undistort_frames(rgb, K, d), cap.cfa)[..., None].astype(np.float32)
+    else:
+        frames = undistort_frames(cap.frames, K, d)
+    ev = cap.events
+    w, h = ev.width, ev.height
+    chan = channel_map(cap.cfa, h, w)
+    u, v = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
+    xy = undistort_normalized(np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1]], -1), d)
+    pu, pv = xy[..., 0] * K[0, 0] + K[0, 2], xy[..., 1] * K[1, 1] + K[1, 2]  # [H, W] ideal pixel coordinates
+    tx, ty, keep_px = (a.reshape(h, w) for a in snap_to_channel(pu.ravel(), pv.ravel(), chan.ravel(), chan))
+    keep = keep_px[ev.y, ev.x]
+    out = EventStream(ev.t[keep], tx[ev.y, ev.x][keep], ty[ev.y, ev.x][keep], ev.p[keep], w, h)
+    object.__setattr__(out, "t0", ev.t0)
+    return frames, out, int((~keep).sum())
+
+
+def _state_cfa(cap: Capture, cfa: str, source: str) -> None:
+    """``cap.cfa`` as stated by hand (``load(cfa=...)``): a pattern, or "none"; see ``load``."""
+    if isinstance(cfa, str) and cfa.lower() == "none":
+        if cap.cfa is not None:
+            cap.meta["cfa_dropped"] = cap.cfa
+        cap.cfa = None
+        cap.meta["cfa_source"] = "stated: none (events taken as luminance)"
+        return
+    try:
+        pattern = check_pattern(cfa, "cfa")
+    except EbadError as exc:
+        raise CaptureError(source, "cfa", str(exc).split(": ", 1)[-1]) from None
+    if cap.cfa is not None and cap.cfa != pattern:
+        raise CaptureError(
+            source,
+            "cfa",
+            f"stated {pattern} but the capture records {cap.cfa} ({cap.meta.get('cfa_source', 'its own field')}); "
+            "leave it out to use the recorded one, or pass 'none' to take the events as luminance",
+        )
+    if cap.cfa is None:
+        cap.meta["cfa_source"] = "stated by hand"
+    cap.cfa = pattern
 
 
 # --------------------------------------------------------------------------- ECD
@@ -267,8 +348,11 @@ def _read_events(path: Path, t_unit: str | None, width: int, height: int) -> Eve
 def load_aedat4(path: str | os.PathLike, K: np.ndarray | None = None) -> Capture:  # K [3, 3]
     """An AEDAT4 recording: APS frames with exposure begin/end and events, no poses. AEDAT4
     holds no calibration: pass ``K``, or a guess from a 70-degree horizontal field of view is
-    used and ``meta['K_guessed'] = True``. Needs the ``aedat`` package (the ``aedat`` extra):
-    without it a CaptureError says how to install it."""
+    used and ``meta['K_guessed'] = True``. A colour DAVIS recorded by DV states its Bayer
+    filter in the header (``edi.io.DV_COLOR_FILTER``): it becomes ``Capture.cfa``, and the
+    frames are DV's demosaiced RGB or, in DV's "Original" frame mode, 1-channel raw mosaics.
+    Needs the ``aedat`` package (the ``aedat`` extra): without it a CaptureError says how to
+    install it."""
     path = Path(path)
     try:
         rec = read_aedat4(path)
@@ -286,7 +370,10 @@ def load_aedat4(path: str | os.PathLike, K: np.ndarray | None = None) -> Capture
     if frames.ndim != 4 or len(frames) == 0:
         raise CaptureError(str(path), "frames", f"the recording has no APS frames (got shape {frames.shape})")
     f, h, w, _ = frames.shape
-    meta = {"source_layout": "aedat4", "source": str(path), "t0_us": int(getattr(rec, "t0", 0))}
+    meta: dict = {"source_layout": "aedat4", "source": str(path), "t0_us": int(getattr(rec, "t0", 0))}
+    cfa = getattr(rec, "cfa", None)
+    if cfa is not None:
+        meta["cfa_source"] = "AEDAT4 header: events stream info colorFilter (DV)"
     if K is None:
         K = guess_K(w, h)
         meta["K_guessed"] = True
@@ -298,13 +385,16 @@ def load_aedat4(path: str | os.PathLike, K: np.ndarray | None = None) -> Capture
         split=["train"] * f,
         names=[f"{i:05d}" for i in range(f)],
         meta=meta,
+        cfa=cfa,
     )
 
 
 def load_evdeblurnerf(root: str | os.PathLike) -> Capture:
     """An EvDeblurNeRF-style folder: ``events.h5`` (or .npz/.txt), LLFF ``poses_bounds.npy``
     (see scenes.poses) and ``images_1/`` frames with ``images_1/timestamps.npz`` holding start
-    and end times (seconds)."""
+    and end times (seconds). With ``ev_map.npz`` it is the CDAVIS layout (a colour DAVIS346):
+    ``cfa`` is RGGB and the rectified events are placed on their filter (``scenes.cdavis``), and
+    its sharp images (start == end, Ev-DeblurNeRF's held-out views) become test views."""
     root = Path(root)
     pb_path = root / "poses_bounds.npy"
     c2w_llff, hwf, bounds = read_poses_bounds(pb_path)
@@ -333,15 +423,21 @@ def load_evdeblurnerf(root: str | os.PathLike) -> Capture:
     K = np.array([[hwf[0, 2] * w / hwf[0, 1], 0, w / 2], [0, hwf[0, 2] * h / hwf[0, 0], h / 2], [0, 0, 1.0]])
     c2w = np.stack([nearest_rigid(c2w_llff[i], str(pb_path), f"poses_bounds[{i}]") for i in range(f)])
     ev_file = next(root / n for n in ("events.h5", "events.npz", "events.txt") if (root / n).is_file())
-    events = _read_events(ev_file, None, w, h)
+    cdavis = (root / EV_MAP).is_file() and ev_file.suffix != ".txt"
+    if cdavis:  # Ev-DeblurNeRF's colour DAVIS: rectified events, each on its filter (scenes.cdavis)
+        events, cdavis_meta = read_cdavis_events(ev_file, root / EV_MAP, w, h)
+    else:
+        events = _read_events(ev_file, None, w, h)
     exps = np.stack([np.asarray(start, np.float64).reshape(-1), np.asarray(end, np.float64).reshape(-1)], 1)
     if exps.shape != (f, 2) or not np.isfinite(exps).all():
         raise CaptureError(str(ts_path), "start", f"need {f} finite start and end times, got shape {exps.shape}")
     meta = {"source_layout": "evdeblurnerf", "source": str(root), "bounds": bounds.tolist()}
+    if cdavis:
+        meta.update(cdavis_meta)
     if exps.max() > 1e3:  # not seconds of a short capture: microseconds on the events' raw clock
         exps = (exps - events.t0) * 1e-6
         meta["timestamps_unit"] = "us (converted to seconds on the events' clock)"
-    return Capture(
+    cap = Capture(
         frames=frames,
         exposures=exps,
         events=events,
@@ -350,4 +446,14 @@ def load_evdeblurnerf(root: str | os.PathLike) -> Capture:
         split=["train"] * f,
         names=[p.stem for p in files],
         meta=meta,
+        cfa=CDAVIS_CFA if cdavis else None,
     )
+    sharp = [cap.names[i] for i in np.flatnonzero(exps[:, 0] == exps[:, 1])]
+    if cdavis and 0 < len(sharp) < f:
+        # CDAVIS interleaves the sharp ground-truth views (t_start == t_end) with the blurry
+        # frames and holds them out (llffhold_end): they are test views, never training frames
+        from .convert import hold_out
+
+        cap = hold_out(cap, test_frames=sharp)
+        cap.meta["test_rule"] = "CDAVIS: the sharp images (timestamps_start == timestamps_end) are the test views"
+    return cap

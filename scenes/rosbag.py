@@ -6,7 +6,10 @@ Topics (found by message type; where a type is on several topics the driver's na
 
 - ``dvs_msgs/EventArray`` (``/dvs/events``): decoded with numpy straight from the message
   bytes (13 bytes per event: uint16 x, uint16 y, uint32 sec, uint32 nsec, uint8 polarity).
-- ``sensor_msgs/Image`` (``/dvs/image_raw``): mono8/mono16/rgb8/bgr8/rgb16/bgr16 frames.
+- ``sensor_msgs/Image`` (``/dvs/image_raw``): mono8/mono16/rgb8/bgr8/rgb16/bgr16 frames, or
+  raw Bayer mosaics ``bayer_rggb8`` etc. (8 or 16 bit): then ``Capture.cfa`` is the pattern the
+  encoding names and the frames are 1-channel raw mosaics. The driver's ``rgb8`` frames of a
+  colour DAVIS do not say which filter the sensor has: state it (``load(..., cfa=...)``).
 - ``std_msgs/Int32`` (``/dvs/exposure``): the exposure in microseconds, published by the
   driver right after each image (matched in order); when the bag did not record it, pass
   ``exposure_us``.
@@ -45,6 +48,7 @@ __all__ = [
     "DVS_EVENT_MSG",
     "DVS_EVENT_ARRAY_MSG",
     "TOPICS",
+    "BAYER_ENCODINGS",
 ]
 
 ROS_INSTALL = "pip install 'ebad[ros]' (or: pip install 'rosbags>=0.9')"
@@ -73,6 +77,13 @@ IMAGE_ENCODINGS: dict[str, tuple[int, type[np.unsignedinteger], bool]] = {
     "rgb16": (3, np.uint16, False),
     "bgr16": (3, np.uint16, True),
 }
+# sensor_msgs/image_encodings.h: raw Bayer mosaics, the letters naming the filters row by row
+# (bayer_rggb8: R G on the first row, G B on the second), so in edi.cfa's order of pixels
+# (0, 0), (1, 0), (0, 1), (1, 1) the pattern is the letters as written
+BAYER_ENCODINGS: dict[str, str] = {
+    f"bayer_{p.lower()}{bits}": p for p in ("RGGB", "BGGR", "GBRG", "GRBG") for bits in (8, 16)
+}
+IMAGE_ENCODINGS.update({enc: (1, np.uint16 if enc.endswith("16") else np.uint8, False) for enc in BAYER_ENCODINGS})
 DISTORTION_MODELS = ("plumb_bob", "rational_polynomial")
 
 
@@ -177,6 +188,7 @@ class _BagMessages:
     event_chunks: list[np.ndarray]  # per EventArray message: [M] EVENT_DTYPE
     sensor_size: tuple[int, int] | None  # (width, height) of the first EventArray
     images: list[np.ndarray]  # [H, W, D] float32 per image message
+    encodings: list[str]  # per image message, its ``encoding``
     stamps_ns: list[int]  # per image, the header stamp
     exposures_us: list[int]  # per exposure message
     camera_info: Any | None  # the first CameraInfo message
@@ -207,6 +219,7 @@ def load_rosbag(path: str | os.PathLike, K: np.ndarray | None = None, exposure_u
     bag = _read_bag(rosbag1, path)
     frames = _stack_images(bag, path)
     f, h, w, _ = frames.shape
+    cfa = _bayer_pattern(bag, path)
     if bag.sensor_size is not None and bag.sensor_size != (w, h):
         raise CaptureError(
             str(path), "events", f"sensor {bag.sensor_size[0]}x{bag.sensor_size[1]} differs from the images' {w}x{h}"
@@ -216,14 +229,16 @@ def load_rosbag(path: str | os.PathLike, K: np.ndarray | None = None, exposure_u
         "source": str(path),
         "exposure_rule": "image stamp = mid-exposure (libcaer); window [s - e//2, s - e//2 + e)",
     }
+    if cfa is not None:
+        meta["cfa_source"] = f"{bag.connections['image'].topic} encoding {bag.encodings[0]}"
     exp_us = _exposure_times_us(bag, exposure_us, f, path, meta)
     window_us = exposure_window_us(_ns_to_us(np.array(bag.stamps_ns, dtype=np.int64)), exp_us)
     events = _event_stream(bag.event_chunks, window_us, w, h, path)
     exposures = (window_us - events.t0).astype(np.float64) * 1e-6
     distortion = None
     if bag.camera_info is not None:
-        K, distortion = _calibration(bag.camera_info, w, h, path)
         meta["calibration"] = bag.connections["camera_info"].topic
+        K, distortion = _calibration(bag.camera_info, w, h, path, meta["calibration"])
     elif K is None:
         K = guess_K(w, h)
         meta["K_guessed"] = True
@@ -236,7 +251,17 @@ def load_rosbag(path: str | os.PathLike, K: np.ndarray | None = None, exposure_u
         split=["train"] * f,
         names=[f"{i:05d}" for i in range(f)],
         meta=meta,
+        cfa=cfa,
     )
+
+
+def _bayer_pattern(bag: _BagMessages, path: Path) -> str | None:
+    """The Bayer pattern the images' encoding states (``BAYER_ENCODINGS``: the frames are raw
+    mosaics), or None; images of different encodings are refused."""
+    encodings = sorted(set(bag.encodings))
+    if len(encodings) > 1:
+        raise CaptureError(str(path), "image.encoding", f"images differ in encoding: {', '.join(encodings)}")
+    return BAYER_ENCODINGS.get(encodings[0]) if encodings else None
 
 
 def _read_bag(rosbag1: Any, path: Path) -> _BagMessages:
@@ -255,7 +280,7 @@ def _read_bag(rosbag1: Any, path: Path) -> _BagMessages:
                         f"no {MSGTYPES[kind]} topic (expected {TOPICS[kind]}); "
                         f"topics: {', '.join(sorted({c.topic for c in conns}))}",
                     )
-            bag = _BagMessages(picked, [], None, [], [], [], None)
+            bag = _BagMessages(picked, [], None, [], [], [], [], None)
             for _, _, raw in reader.messages(connections=[picked["events"]]):
                 arr, w, h = decode_event_array(raw)
                 bag.sensor_size = bag.sensor_size or (w, h)
@@ -263,6 +288,7 @@ def _read_bag(rosbag1: Any, path: Path) -> _BagMessages:
             for k, (conn, _, raw) in enumerate(reader.messages(connections=[picked["image"]])):
                 msg = store.deserialize_ros1(raw, conn.msgtype)
                 bag.images.append(_image(msg, path, k))
+                bag.encodings.append(str(msg.encoding))
                 bag.stamps_ns.append(_stamp_ns(msg.header))
             if picked["exposure"] is not None:
                 for conn, _, raw in reader.messages(connections=[picked["exposure"]]):
@@ -324,24 +350,31 @@ def _event_stream(chunks: list[np.ndarray], window_us: np.ndarray, w: int, h: in
         raise CaptureError(str(path), "events", str(exc)) from None
 
 
-def _calibration(info: Any, w: int, h: int, path: Path) -> tuple[np.ndarray, np.ndarray | None]:
+def _calibration(
+    info: Any, w: int, h: int, path: Path, topic: str = TOPICS["camera_info"]
+) -> tuple[np.ndarray, np.ndarray | None]:
     """K [3, 3] (principal point moved to our pixel-centre convention) and distortion [5] or None
-    from a CameraInfo message."""
+    from a CameraInfo message (of ``topic``, named in errors: ``/dvs/camera_info.K``); a non-finite
+    K or D is refused here, as bad calibration, before anything is computed from it."""
     Kr = np.asarray(info.K, dtype=np.float64).reshape(3, 3)
     if (int(info.width), int(info.height)) != (w, h):
-        raise CaptureError(str(path), "camera_info", f"calibrated for {info.width}x{info.height}, images are {w}x{h}")
+        raise CaptureError(str(path), topic, f"calibrated for {info.width}x{info.height}, images are {w}x{h}")
+    if not np.isfinite(Kr).all():
+        raise CaptureError(str(path), f"{topic}.K", f"has a non-finite entry: {Kr.reshape(-1).tolist()}")
     if Kr[0, 0] <= 0 or Kr[1, 1] <= 0:
-        raise CaptureError(str(path), "camera_info.K", f"focal lengths must be positive, got {Kr[0, 0]}, {Kr[1, 1]}")
+        raise CaptureError(str(path), f"{topic}.K", f"focal lengths must be positive, got {Kr[0, 0]}, {Kr[1, 1]}")
     K = np.array([[Kr[0, 0], 0.0, Kr[0, 2] + 0.5], [0.0, Kr[1, 1], Kr[1, 2] + 0.5], [0.0, 0.0, 1.0]])
     D = np.asarray(info.D, dtype=np.float64)
+    if not np.isfinite(D).all():
+        raise CaptureError(str(path), f"{topic}.D", f"has a non-finite entry: {D.tolist()}")
     if len(D) and info.distortion_model not in DISTORTION_MODELS:
         raise CaptureError(
             str(path),
-            "camera_info.distortion_model",
+            f"{topic}.distortion_model",
             f"{info.distortion_model!r} is not supported (plumb_bob k1 k2 p1 p2 k3)",
         )
     if len(D) > 5 and np.any(D[5:] != 0):
-        raise CaptureError(str(path), "camera_info.D", "only k1 k2 p1 p2 k3 are supported; k4.. are not zero")
+        raise CaptureError(str(path), f"{topic}.D", "only k1 k2 p1 p2 k3 are supported; k4.. are not zero")
     distortion = None
     if np.any(D != 0):
         distortion = np.zeros(5)
