@@ -10,6 +10,9 @@ Options for any layout (``hold_out``; ``ebad reconstruct`` has the same three fo
 NAME,NAME`` the named frames; a held-out frame leaves the training frames and becomes a test view
 with its recorded image (blurry if the frame is) and its pose (when the capture has poses).
 ``--pose-trust exact|approximate|none`` states how far the capture's poses are trusted.
+``--poses FILE`` takes the frames' poses from a pose file users already have (a COLMAP model,
+``transforms.json``, LLFF ``poses_bounds.npy``, a TUM trajectory; ``scenes.pose_files``), with
+``--pose-format`` when its name does not tell.
 
 Exit status: 0 written; 2 for a user mistake (one line naming the file and field, or the path
 of an OSError); anything else is a bug and shows its traceback.
@@ -29,6 +32,7 @@ from edi import EbadError
 from .capture import POSE_TRUST, Capture, TestView
 from .e2nerf import LLFF_HOLD
 from .format import save
+from .pose_files import POSE_FORMATS, apply_pose_file, read_pose_file
 from .readers import load
 from .synth import check_replaceable
 
@@ -53,7 +57,8 @@ def summary(cap: Capture) -> list[str]:
             if "events_binned" in m
             else ""
         ),
-        f"poses: {'yes' if cap.c2w is not None else 'no (SfM will estimate them)'}",
+        f"poses: {'yes' if cap.c2w is not None else 'no (SfM will estimate them)'}"
+        + (f" (from {m['pose_source']})" if cap.c2w is not None and m.get("pose_source") else ""),
         f"test views: {len(cap.test_views)}"
         + (f" ({len(m['held_out_frames'])} held-out frames)" if m.get("held_out_frames") else ""),
         f"pose trust: {cap.effective_pose_trust}" + ("" if cap.pose_trust is not None else " (unstated)"),
@@ -163,6 +168,19 @@ def _parser() -> argparse.ArgumentParser:
         default=None,
         help="how far the capture's poses are trusted (motion capture: exact); default: the capture's own",
     )
+    p.add_argument(
+        "--poses",
+        default=None,
+        metavar="FILE",
+        help="the frames' poses from this file: a COLMAP model folder (sparse/0), transforms.json, "
+        "poses_bounds.npy or a TUM trajectory (docs/formats.md)",
+    )
+    p.add_argument(
+        "--pose-format",
+        choices=POSE_FORMATS,
+        default=None,
+        help="the format of --poses (default: from its name: folder colmap, .json transforms, .npy llff, .txt tum)",
+    )
     p.add_argument("--overwrite", action="store_true", help="replace --out if it is an ebad-capture/1 folder")
     return p
 
@@ -183,6 +201,10 @@ def main(argv: list[str] | None = None) -> int:
         cap = load(
             args.input, undistort=not args.no_undistort, K=K, exposure_us=args.exposure_us, llffhold=args.llffhold
         )
+        if args.poses is not None:
+            cap = apply_pose_file(cap, read_pose_file(args.poses, args.pose_format))
+        elif args.pose_format is not None:
+            raise EbadError("--pose-format needs --poses FILE")
         cap = hold_out(cap, args.test_every, parse_names(args.test_frames), args.pose_trust)
         save(cap, args.out, overwrite=args.overwrite)
     except EbadError as exc:
