@@ -62,9 +62,7 @@ class PoseFile:
 
 def _colmap_dir(path: Path) -> Path | None:
     for d in (path, path / "sparse" / "0", path / "0", path / "sparse"):
-        if d.is_dir() and all(
-            (d / f"{n}.bin").is_file() or (d / f"{n}.txt").is_file() for n in COLMAP_FILES
-        ):
+        if d.is_dir() and all((d / f"{n}.bin").is_file() or (d / f"{n}.txt").is_file() for n in COLMAP_FILES):
             return d
     return None
 
