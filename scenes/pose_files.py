@@ -224,12 +224,14 @@ def _at_times(pf: PoseFile, t: np.ndarray, what: list[str]) -> np.ndarray:  # [Q
         quat = Rotation.from_matrix(pf.c2w[:, :3, :3]).as_quat()
         out, ok = interpolate_poses(t, pf.times, pf.c2w[:, :3, 3], quat)
     if not ok.all():
-        i = int(np.flatnonzero(~ok)[0])
+        bad = np.flatnonzero(~ok)
+        i = int(bad[0])
+        more = f" and {len(bad) - 1} more" if len(bad) > 1 else ""
         raise CaptureError(
             pf.path,
             "timestamp",
-            f"{what[i]} at t = {t[i]:.6f} s lies outside the trajectory's {pf.times[0]:.6f}..{pf.times[-1]:.6f} s "
-            "(seconds on the capture's clock)",
+            f"{what[i]} (t = {t[i]:.6f} s){more} lies outside the trajectory's {pf.times[0]:.6f}..{pf.times[-1]:.6f} s "
+            "(seconds on the capture's clock): a pose is never extrapolated, give a trajectory that covers every frame",
         )
     return out
 
