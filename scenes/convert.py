@@ -65,6 +65,8 @@ def summary(cap: Capture) -> list[str]:
     ]
     if m.get("K_guessed"):
         lines.append("intrinsics: guessed from a 70-degree field of view (pass --intrinsics FX FY CX CY)")
+    if cap.c2w is not None and m.get("pose_file_focal_differs"):
+        lines.append(f"warning: {m['pose_file_focal_differs']}")
     if m.get("undistorted"):
         lines.append(f"undistorted on load ({m.get('events_dropped_undistort', 0)} events left the sensor)")
     return lines

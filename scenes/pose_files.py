@@ -46,6 +46,7 @@ __all__ = ["POSE_FORMATS", "PoseFile", "guess_pose_format", "read_pose_file", "a
 
 POSE_FORMATS = ("colmap", "transforms", "llff", "tum")
 COLMAP_FILES = ("cameras", "images", "points3D")
+FOCAL_MISMATCH = 0.02  # a pose file's focal length (per image width) this far from the capture's is said
 
 
 @dataclass
@@ -58,6 +59,7 @@ class PoseFile:
     c2w: np.ndarray  # [P, 4, 4]
     names: list[str] | None = None  # file stems, one per pose (by name)
     times: np.ndarray | None = None  # [P] seconds, increasing (by time)
+    focal_per_width: float | None = None  # fx / image width of the file's camera, when it has one
 
 
 def _colmap_dir(path: Path) -> Path | None:
@@ -118,7 +120,9 @@ def read_colmap(path: Path) -> PoseFile:
         c2w.append(np.linalg.inv(m))
     if not names:
         raise CaptureError(str(d), "images", "no registered image")
-    return PoseFile(str(d), "colmap", np.stack(c2w), names=names)
+    cam = next(iter(rec.cameras.values()), None)
+    fpw = None if cam is None or not cam.width else float(cam.calibration_matrix()[0, 0]) / float(cam.width)
+    return PoseFile(str(d), "colmap", np.stack(c2w), names=names, focal_per_width=fpw)
 
 
 def read_transforms(path: Path) -> PoseFile:
@@ -137,7 +141,9 @@ def read_transforms(path: Path) -> PoseFile:
         m = nearest_rigid(fr.get("transform_matrix"), str(path), f"frames[{k}].transform_matrix")
         names.append(fr["file_path"])
         c2w.append(m @ OPENGL_TO_OPENCV)
-    return PoseFile(str(path), "transforms", np.stack(c2w), names=names)
+    fx, w = doc.get("fl_x"), doc.get("w")
+    fpw = float(fx) / float(w) if isinstance(fx, (int, float)) and isinstance(w, (int, float)) and w > 0 else None
+    return PoseFile(str(path), "transforms", np.stack(c2w), names=names, focal_per_width=fpw)
 
 
 def read_llff(path: Path) -> PoseFile:
@@ -282,4 +288,10 @@ def apply_pose_file(cap: Capture, pf: PoseFile) -> Capture:
     if unposed:
         raise CaptureError(pf.path, "test views", f"no pose for test view {unposed[0]!r}, which has no image either")
     meta: dict[str, Any] = {**cap.meta, "pose_source": f"{pf.format}: {pf.path}"}
+    ours = float(cap.K[0, 0]) / cap.width
+    if pf.focal_per_width is not None and abs(pf.focal_per_width / ours - 1) > FOCAL_MISMATCH:
+        meta["pose_file_focal_differs"] = (
+            f"the pose file's camera has focal {pf.focal_per_width * cap.width:.1f} px at this width, the capture "
+            f"{cap.K[0, 0]:.1f} px: poses estimated with other intrinsics may be off (check the capture's K, or --intrinsics)"
+        )
     return dataclasses.replace(cap, c2w=np.asarray(c2w, dtype=np.float64), test_views=views, meta=meta)

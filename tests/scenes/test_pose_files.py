@@ -61,11 +61,11 @@ def _convert(src, tmp_path, pose_file, *extra) -> scenes.Capture:
     return scenes.load(tmp_path / "out")
 
 
-def _write_colmap_txt(folder, names, c2w) -> None:
+def _write_colmap_txt(folder, names, c2w, fx: float = 10.0) -> None:
     """COLMAP's text model: images.txt rows ``ID QW QX QY QZ TX TY TZ CAMERA_ID NAME`` of
     world-to-camera, then an (empty) line of 2D points."""
     folder.mkdir(parents=True)
-    (folder / "cameras.txt").write_text(f"1 PINHOLE {W} {H} 10 10 4 3\n")
+    (folder / "cameras.txt").write_text(f"1 PINHOLE {W} {H} {fx} {fx} 4 3\n")
     lines = ["# Image list with two lines of data per image:"]
     for i, (n, m) in enumerate(zip(names, c2w), 1):
         r = m[:3, :3].T
@@ -92,7 +92,7 @@ def test_colmap_model_by_name(src, tmp_path, binary):
     cap = _convert(src, tmp_path, tmp_path / "proj")
     np.testing.assert_allclose(cap.c2w, TRUTH, atol=1e-9)
     np.testing.assert_allclose(cap.test_views[0].c2w, TEST_POSE, atol=1e-9)
-    assert cap.meta["pose_source"].startswith("colmap: ")
+    assert cap.meta["pose_source"].startswith("colmap: ") and "pose_file_focal_differs" not in cap.meta
 
 
 def test_nerfstudio_transforms_opengl_axes(src, tmp_path):
@@ -190,3 +190,14 @@ def test_mistakes_are_one_line_naming_the_file(src, tmp_path, capsys, write, ext
     err = capsys.readouterr().err
     assert says in err and str(p) in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "out").exists()
+
+
+def test_a_pose_file_with_another_focal_length_is_said(src, tmp_path, capsys):
+    sparse = tmp_path / "sparse" / "0"
+    _write_colmap_txt(sparse, [f"{n}.png" for n in NAMES], TRUTH, fx=20.0)  # the capture's fx is 10
+    cap = _convert(src, tmp_path, sparse / "images.txt")  # COLMAP's own images.txt names the model
+    np.testing.assert_allclose(cap.c2w, TRUTH, atol=1e-9)
+    assert (
+        "warning: the pose file's camera has focal 20.0 px at this width, the capture 10.0 px"
+        in capsys.readouterr().out
+    )
