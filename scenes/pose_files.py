@@ -232,18 +232,19 @@ def _at_times(pf: PoseFile, t: np.ndarray, what: list[str]) -> np.ndarray:  # [Q
     if not ok.all():
         bad = np.flatnonzero(~ok)
         i = int(bad[0])
-        more = f" and {len(bad) - 1} more" if len(bad) > 1 else ""
+        more = f" and {len(bad) - 1} more lie" if len(bad) > 1 else " lies"
         raise CaptureError(
             pf.path,
             "timestamp",
-            f"{what[i]} (t = {t[i]:.6f} s){more} lies outside the trajectory's {pf.times[0]:.6f}..{pf.times[-1]:.6f} s "
+            f"{what[i]} (t = {t[i]:.6f} s){more} outside the trajectory's {pf.times[0]:.6f}..{pf.times[-1]:.6f} s "
             "(seconds on the capture's clock): a pose is never extrapolated, give a trajectory that covers every frame",
         )
     return out
 
 
 def apply_pose_file(cap: Capture, pf: PoseFile) -> Capture:
-    """``cap`` with its frames' (and matching test views') poses from ``pf`` (``cap`` is not changed).
+    """``cap`` with its frames' (and matching test views') poses from ``pf`` (``cap`` is not changed),
+    its ``pose_trust`` unstated (the trust of the poses it had says nothing of these).
 
     Raises:
         CaptureError: a frame the file has no pose for (names it), a count mismatch (llff).
@@ -288,10 +289,14 @@ def apply_pose_file(cap: Capture, pf: PoseFile) -> Capture:
     if unposed:
         raise CaptureError(pf.path, "test views", f"no pose for test view {unposed[0]!r}, which has no image either")
     meta: dict[str, Any] = {**cap.meta, "pose_source": f"{pf.format}: {pf.path}"}
+    meta.pop("pose_file_focal_differs", None)
     ours = float(cap.K[0, 0]) / cap.width
     if pf.focal_per_width is not None and abs(pf.focal_per_width / ours - 1) > FOCAL_MISMATCH:
         meta["pose_file_focal_differs"] = (
             f"the pose file's camera has focal {pf.focal_per_width * cap.width:.1f} px at this width, the capture "
-            f"{cap.K[0, 0]:.1f} px: poses estimated with other intrinsics may be off (check the capture's K, or --intrinsics)"
+            f"{cap.K[0, 0]:.1f} px: poses estimated with other intrinsics may be off "
+            "(check the capture's K, or --intrinsics)"
         )
-    return dataclasses.replace(cap, c2w=np.asarray(c2w, dtype=np.float64), test_views=views, meta=meta)
+    # the trust stated for the capture's old poses says nothing of these: unstated (approximate) until
+    # the user states it (``--pose-trust``)
+    return dataclasses.replace(cap, c2w=np.asarray(c2w, dtype=np.float64), test_views=views, meta=meta, pose_trust=None)

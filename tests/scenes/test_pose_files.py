@@ -148,6 +148,7 @@ def test_tum_trajectory_by_time_at_mid_exposure(src, tmp_path):
 def test_tum_interpolates_between_poses_with_slerp(src):
     # two poses 90 degrees apart about z, 1 s apart: a frame half-way gets 45 degrees
     cap = scenes.load(src)
+    cap.c2w, cap.pose_trust = TRUTH.copy(), "exact"  # the old poses' trust is not the file's
     mid = _mid()
     c2w = np.tile(np.eye(4), (2, 1, 1))
     c2w[1, :3, :3] = Rotation.from_euler("z", 90, degrees=True).as_matrix()
@@ -156,6 +157,7 @@ def test_tum_interpolates_between_poses_with_slerp(src):
     a = (mid[2] - mid[0]) / (mid[-1] - mid[0])
     np.testing.assert_allclose(out.c2w[2, :3, 3], [2 * a, 0, 0], atol=1e-12)
     np.testing.assert_allclose(Rotation.from_matrix(out.c2w[2, :3, :3]).as_euler("zyx", degrees=True)[0], 90 * a)
+    assert out.pose_trust is None and cap.pose_trust == "exact"
 
 
 @pytest.mark.parametrize(
