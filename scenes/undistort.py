@@ -62,12 +62,17 @@ def undistort_frames(
     frames: np.ndarray,  # [F, H, W, D]
     K: np.ndarray,
     dist: np.ndarray,
+    cfa: str | None = None,
 ) -> np.ndarray:
     """Resample distorted frames onto the ideal pinhole grid with the same K (bilinear,
     border pixels that map outside the sensor take the nearest edge value). [F, H, W, D].
 
     The result is quantised as the input was (:func:`input_bits`): 8-bit frames stay 8-bit,
-    16-bit frames 16-bit, so a converted capture's frames are PNG files."""
+    16-bit frames 16-bit, so a converted capture's frames are PNG files.
+
+    ``cfa`` (an ``edi.cfa`` pattern) with one-channel frames: the frames are raw Bayer mosaics,
+    resampled as colour (bilinear demosaic, undistort each channel, take each pixel's own channel
+    again), never by mixing the neighbouring pixels of other colours."""
     bits = input_bits(frames)
     f, h, w, d = frames.shape
     u, v = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
@@ -75,10 +80,22 @@ def undistort_frames(
     xyd = distort_normalized(xy, dist)
     src_u = xyd[..., 0] * K[0, 0] + K[0, 2] - 0.5  # array index space
     src_v = xyd[..., 1] * K[1, 1] + K[1, 2] - 0.5
-    out = np.empty_like(frames)
-    for i in range(f):
-        for c in range(d):
-            out[i, :, :, c] = ndimage.map_coordinates(frames[i, :, :, c], [src_v, src_u], order=1, mode="nearest")
+
+    def resample(a: np.ndarray) -> np.ndarray:  # [F, H, W, C]
+        res = np.empty_like(a)
+        for i in range(a.shape[0]):
+            for c in range(a.shape[3]):
+                res[i, :, :, c] = ndimage.map_coordinates(a[i, :, :, c], [src_v, src_u], order=1, mode="nearest")
+        return res
+
+    if cfa is not None and d == 1:
+        from edi.cfa import check_pattern, demosaic, mosaic
+
+        pattern = check_pattern(cfa)
+        rgb = demosaic(np.asarray(frames, dtype=np.float32)[..., 0], pattern)
+        out = np.asarray(mosaic(resample(rgb), pattern))[..., None]
+    else:
+        out = resample(frames)
     out = np.clip(out, 0.0, 1.0).astype(np.float32)
     return out if bits is None else quantize(out, bits)
 

@@ -61,3 +61,18 @@ def test_input_bits_and_float_frames_stay_float():
     assert input_bits(f) is None
     out = undistort_frames(f, np.array([[5.0, 0, 3], [0, 5.0, 2.5], [0, 0, 1]]), np.array(DIST))
     assert input_bits(out) is None and out.dtype == np.float32
+
+
+def test_a_raw_bayer_mosaic_is_undistorted_per_colour():
+    from edi.cfa import mosaic
+
+    # a flat colour scene seen through an RGGB mosaic: after undistortion every pixel must still
+    # carry its own channel's value, never an average with its differently coloured neighbours
+    rgb = np.broadcast_to(np.array([200, 128, 40], np.float32) / 255, (2, H, W, 3))
+    raw = mosaic(np.ascontiguousarray(rgb), "RGGB")[..., None].astype(np.float32)
+    out = undistort_frames(raw, K, np.array(DIST), cfa="RGGB")
+    np.testing.assert_array_equal(out, raw)
+    assert not np.array_equal(undistort_frames(raw, K, np.array(DIST)), raw)  # grey resampling mixes colours
+    # no distortion: the mosaic comes back as it was (bilinear demosaic keeps each pixel's own value)
+    noisy = (np.round(np.random.default_rng(0).uniform(0, 1, (1, H, W, 1)) * 255) / 255).astype(np.float32)
+    np.testing.assert_array_equal(undistort_frames(noisy, K, np.zeros(5), cfa="RGGB"), noisy)
