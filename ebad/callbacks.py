@@ -3,14 +3,18 @@
 ``ebad.loop.train`` calls ``on_step(state, stats)`` of each callback after every step, in
 order, and ``on_end(state, reason)`` once when it stops. ``Evaluator`` scores the test views,
 ``ProgressBar`` shows the losses, ``Checkpointer`` saves the state, ``StepHook`` hands each
-step to a user function.
+step to a user function, ``TensorBoardLogger`` writes TensorBoard event files (``ebad reconstruct
+--tensorboard``; needs the ``tensorboard`` package, the ``ebad[tensorboard]`` extra).
 """
 
 from __future__ import annotations
 
+import importlib.util
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
+
+import numpy as np
 
 from .config import Config
 from .data import TrainingData
@@ -20,7 +24,15 @@ from .state import StepStats, TrainState
 if TYPE_CHECKING:
     from scenes import TestView
 
-__all__ = ["Callback", "Evaluator", "ProgressBar", "Checkpointer", "StepHook"]
+__all__ = [
+    "Callback",
+    "Evaluator",
+    "ProgressBar",
+    "Checkpointer",
+    "StepHook",
+    "TensorBoardLogger",
+    "require_tensorboard",
+]
 
 
 class Callback(Protocol):
@@ -114,3 +126,86 @@ class StepHook:
 
     def on_end(self, state: TrainState, reason: str) -> None:
         return None
+
+
+def require_tensorboard(option: str = "--tensorboard") -> None:
+    """Raise ``UserError`` (one line naming ``option``) when the ``tensorboard`` package is missing."""
+    if importlib.util.find_spec("tensorboard") is None:
+        from .errors import UserError
+
+        raise UserError(
+            f"{option} needs the tensorboard package, which is not installed: pip install 'ebad[tensorboard]' "
+            "(or pip install tensorboard)"
+        )
+
+
+class TensorBoardLogger:
+    """TensorBoard event files in ``log_dir`` (torch's ``SummaryWriter``; ``tensorboard --logdir``).
+
+    After every step: ``loss/total``, ``loss/blur``, ``loss/ev`` and ``loss/edi`` (when on),
+    ``psnr/train``, ``gaussians``, ``time/step_s`` (seconds of the step), ``threshold/c_pos`` and
+    ``threshold/c_neg`` (when learnt), and ``psnr/test`` on the steps the ``Evaluator`` scored.
+    Every ``every`` steps (0: only at the end) and at the end: the renders, in the capture's own
+    recorded values (through the camera response), of the first training frame at its current
+    mid-exposure pose (``render/train_NAME``) and of each ``views`` (name, c2w [4, 4]) at its pose
+    (``render/NAME``). ``K``, ``width`` and ``height`` are the capture's.
+    """
+
+    def __init__(
+        self,
+        log_dir: str | Path,
+        K: np.ndarray,
+        width: int,
+        height: int,
+        background: float = 0.0,
+        every: int = 100,
+        views: Sequence[tuple[str, np.ndarray]] = (),
+        train_name: str = "0",
+    ):
+        require_tensorboard()
+        from torch.utils.tensorboard import SummaryWriter
+
+        self.writer = SummaryWriter(log_dir=str(log_dir))
+        self.K, self.width, self.height, self.background = np.asarray(K), width, height, background
+        self.every, self.views, self.train_name = every, list(views), train_name
+        self.last_time: float | None = None
+        self.last_render = -1
+
+    def on_step(self, state: TrainState, stats: StepStats) -> None:
+        w, step = self.writer, stats.step
+        w.add_scalar("loss/total", stats.loss, step)
+        w.add_scalar("loss/blur", stats.blur, step)
+        for k in ("ev", "edi"):
+            if getattr(stats, k) is not None:
+                w.add_scalar(f"loss/{k}", getattr(stats, k), step)
+        w.add_scalar("psnr/train", stats.train_psnr, step)
+        if stats.test_psnr is not None:
+            w.add_scalar("psnr/test", stats.test_psnr, step)
+        w.add_scalar("gaussians", stats.gaussians, step)
+        if self.last_time is not None:
+            w.add_scalar("time/step_s", stats.time - self.last_time, step)
+        self.last_time = stats.time
+        if stats.c is not None:
+            w.add_scalar("threshold/c_pos", stats.c[0], step)
+            w.add_scalar("threshold/c_neg", stats.c[1], step)
+        if self.every and step % self.every == 0:
+            self.renders(state, step)
+
+    def renders(self, state: TrainState, step: int) -> None:
+        """Write the renders (see the class docstring) at ``step``."""
+        from .scoring import render_images
+
+        c2w = [state.trajectories.mid_poses()[0].detach().double().numpy()] + [np.asarray(m) for _, m in self.views]
+        names = [f"train_{self.train_name}"] + [n for n, _ in self.views]
+        imgs = render_images(
+            state.params, np.stack(c2w), self.K, self.width, self.height, self.background, response=state.response
+        )
+        for name, img in zip(names, imgs):
+            self.writer.add_image(f"render/{name}", np.clip(img, 0.0, 1.0), step, dataformats="HWC")
+        self.last_render = step
+
+    def on_end(self, state: TrainState, reason: str) -> None:
+        if state.step > 0 and self.last_render != state.step:
+            self.renders(state, state.step)
+        self.writer.flush()
+        self.writer.close()

@@ -12,6 +12,9 @@ Layout::
     RUN/trajectories_tum.txt   the same poses in TUM format (timestamp tx ty tz qx qy qz qw), for evo
     RUN/cameras.json           training cameras at mid-exposure, 3DGS/SIBR layout
     RUN/point_cloud.splat      the Gaussians for web splat viewers (antimatter15 layout, sRGB colours)
+    RUN/point_cloud/iteration_N/point_cloud.ply   INRIA's layout: the same file (a hard link), N = the steps run
+    RUN/cfg_args               INRIA's saved arguments (one line, a Python ``Namespace(...)``): sh_degree 0,
+                               source_path and model_path = RUN, white_background, eval
     RUN/deblurred/NAME.png     every training frame rendered sharp at mid-exposure (16-bit)
     RUN/metrics.json           RunMetrics; written LAST: its "complete" says whether the run finished
     RUN/.lock                  while a process writes the run: its pid and host
@@ -45,10 +48,21 @@ from .response import RESPONSES, Response
 from .run import Run, RunMetrics
 from .trajectory import TRAJECTORIES, ExposureTrajectories
 
-__all__ = ["write_run", "load_run", "json_safe", "write_text_atomic", "RunLock", "check_out_dir", "resume_config"]
+__all__ = [
+    "write_run",
+    "load_run",
+    "json_safe",
+    "write_text_atomic",
+    "RunLock",
+    "check_out_dir",
+    "resume_config",
+    "write_inria_layout",
+]
 
 LOCK_NAME = ".lock"
 BLANK_LOCK_SECONDS = 5.0  # an empty lock file older than this names no live writer
+INRIA_PLY_DIR = "point_cloud"  # INRIA's RUN/point_cloud/iteration_N/point_cloud.ply
+CFG_ARGS = "cfg_args"
 
 
 def json_safe(x):
@@ -227,11 +241,59 @@ def write_run(run: Run, out: str | Path, gt_trajectories: np.ndarray | None = No
     with atomic_path(out / "trajectories.png") as tmp:
         plot_trajectories(tmp, poses, gt_trajectories)
     write_exports(run, out)  # cameras.json, point_cloud.splat, trajectories_tum.txt
+    write_inria_layout(out, run.step, white_background=run.config.model.background >= 0.5, eval=bool(run.test_c2w))
     for name, img in zip(run.names, run.deblurred_frames()):
         write_png16(file_in(out / "deblurred", name, ".png"), img)  # atomic itself (scenes.images, scenes._atomic)
     metrics = json_safe(run.metrics.to_dict() if run.metrics is not None else {"complete": False})
     write_text_atomic(out / "metrics.json", json.dumps(metrics, indent=2) + "\n")
     return out
+
+
+def write_inria_layout(out: Path, iteration: int, white_background: bool = False, eval: bool = False) -> list[Path]:
+    """What INRIA's tools open beside ``cameras.json``: ``point_cloud/iteration_N/point_cloud.ply``
+    (a hard link to ``RUN/point_cloud.ply``, a copy where links fail) and ``cfg_args``.
+
+    Their loaders: ``searchForMaxIteration`` (``scene/__init__.py``, utils) takes the largest
+    ``int(name.split("_")[-1])`` over every entry of ``point_cloud/``, so that folder holds only
+    ``iteration_N`` (older ones are removed); N >= 1 since ``Scene`` reads iteration 0 as "none".
+    ``get_combined_args`` (``arguments/__init__.py``) evaluates ``cfg_args`` as a ``Namespace``;
+    the SIBR viewer reads its first line's ``source_path='...'``, ``sh_degree=`` and
+    ``white_background=``, and loads cameras.json from the model folder. ``sh_degree=0``: the PLY
+    has no ``f_rest_*``, which ``GaussianModel.load_ply`` checks against ``3 (sh + 1)^2 - 3``.
+    """
+    import argparse
+    import shutil
+
+    out = Path(out)
+    n = max(int(iteration), 1)
+    folder = out / INRIA_PLY_DIR
+    folder.mkdir(exist_ok=True)
+    for old in folder.iterdir():
+        if old.name.startswith("iteration_") and old.name != f"iteration_{n}":
+            shutil.rmtree(old, ignore_errors=True)
+    dest = folder / f"iteration_{n}" / "point_cloud.ply"
+    dest.parent.mkdir(exist_ok=True)
+    with atomic_path(dest) as tmp:
+        tmp.unlink()  # atomic_path made it: os.link needs the name free
+        try:
+            os.link(out / "point_cloud.ply", tmp)
+        except OSError:  # a file system without hard links
+            shutil.copyfile(out / "point_cloud.ply", tmp)
+    root = str(out.resolve())
+    args = argparse.Namespace(
+        sh_degree=0,
+        source_path=root,
+        model_path=root,
+        images="images",
+        depths="",
+        resolution=-1,
+        white_background=bool(white_background),
+        train_test_exp=False,
+        data_device="cuda",
+        eval=bool(eval),
+    )
+    write_text_atomic(out / CFG_ARGS, repr(args))
+    return [dest, out / CFG_ARGS]
 
 
 def _complete(metrics_path: Path) -> bool:

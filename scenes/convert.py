@@ -13,6 +13,9 @@ with its recorded image (blurry if the frame is) and its pose (when the capture 
 ``--cfa RGGB|BGGR|GRBG|GBRG`` states the Bayer filter of a colour DAVIS in the frames' pixel grid
 when the input does not record it (``--cfa none``: take the events as luminance); a pattern that
 disagrees with the one the input records is an error (``scenes.load``'s ``cfa``).
+``--poses FILE`` takes the frames' poses from a pose file users already have (a COLMAP model,
+``transforms.json``, LLFF ``poses_bounds.npy``, a TUM trajectory; ``scenes.pose_files``), with
+``--pose-format`` when its name does not tell.
 
 Exit status: 0 written; 2 for a user mistake (one line naming the file and field, or the path
 of an OSError); anything else is a bug and shows its traceback.
@@ -32,6 +35,7 @@ from edi import EbadError
 from .capture import POSE_TRUST, Capture, TestView
 from .e2nerf import LLFF_HOLD
 from .format import save
+from .pose_files import POSE_FORMATS, apply_pose_file, read_pose_file
 from .readers import load
 from .synth import check_replaceable
 
@@ -56,7 +60,8 @@ def summary(cap: Capture) -> list[str]:
             if "events_binned" in m
             else ""
         ),
-        f"poses: {'yes' if cap.c2w is not None else 'no (SfM will estimate them)'}",
+        f"poses: {'yes' if cap.c2w is not None else 'no (SfM will estimate them)'}"
+        + (f" (from {m['pose_source']})" if cap.c2w is not None and m.get("pose_source") else ""),
         f"test views: {len(cap.test_views)}"
         + (f" ({len(m['held_out_frames'])} held-out frames)" if m.get("held_out_frames") else ""),
         f"pose trust: {cap.effective_pose_trust}" + ("" if cap.pose_trust is not None else " (unstated)"),
@@ -68,6 +73,8 @@ def summary(cap: Capture) -> list[str]:
         lines.append(f"colour filter: none ({m['cfa_note']})")
     if m.get("K_guessed"):
         lines.append("intrinsics: guessed from a 70-degree field of view (pass --intrinsics FX FY CX CY)")
+    if cap.c2w is not None and m.get("pose_file_focal_differs"):
+        lines.append(f"warning: {m['pose_file_focal_differs']}")
     if m.get("undistorted"):
         lines.append(f"undistorted on load ({m.get('events_dropped_undistort', 0)} events left the sensor)")
     return lines
@@ -178,6 +185,19 @@ def _parser() -> argparse.ArgumentParser:
         help="Bayer filter of a colour DAVIS (RGGB, BGGR, GRBG, GBRG; pixels (0,0) (1,0) (0,1) (1,1)) when the "
         "input does not record it; 'none': events taken as luminance. Default: what the input records",
     )
+    p.add_argument(
+        "--poses",
+        default=None,
+        metavar="FILE",
+        help="the frames' poses from this file: a COLMAP model folder (sparse/0), transforms.json, "
+        "poses_bounds.npy or a TUM trajectory (docs/formats.md)",
+    )
+    p.add_argument(
+        "--pose-format",
+        choices=POSE_FORMATS,
+        default=None,
+        help="the format of --poses (default: from its name: folder colmap, .json transforms, .npy llff, .txt tum)",
+    )
     p.add_argument("--overwrite", action="store_true", help="replace --out if it is an ebad-capture/1 folder")
     return p
 
@@ -203,6 +223,10 @@ def main(argv: list[str] | None = None) -> int:
             llffhold=args.llffhold,
             cfa=args.cfa,
         )
+        if args.poses is not None:
+            cap = apply_pose_file(cap, read_pose_file(args.poses, args.pose_format))
+        elif args.pose_format is not None:
+            raise EbadError("--pose-format needs --poses FILE")
         cap = hold_out(cap, args.test_every, parse_names(args.test_frames), args.pose_trust)
         save(cap, args.out, overwrite=args.overwrite)
     except EbadError as exc:

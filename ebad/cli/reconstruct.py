@@ -12,6 +12,10 @@ only, as ``python -m scenes.convert`` does on disk (``scenes.convert.hold_out``)
 become test views (scored during and after the run), and the poses' trust is stated. The capture's
 files are not changed, so ``ebad eval`` on it sees none of these test views: convert the capture
 with the same options to keep them.
+
+``--tensorboard`` writes TensorBoard event files to ``OUT/tensorboard`` (``tensorboard --logdir
+OUT``): losses, PSNR, Gaussian count, step time, thresholds, and renders every ``train.eval_every``
+steps (``ebad.callbacks.TensorBoardLogger``; needs the ``tensorboard`` package).
 """
 
 from __future__ import annotations
@@ -56,6 +60,11 @@ class Args:
     """hold out these frames (by name, comma-separated) as test views for this run"""
     pose_trust: Literal["exact", "approximate", "none"] | None = None
     """how far the capture's poses are trusted, for this run (motion capture: exact); None: the capture's own"""
+    tensorboard: bool = False
+    (
+        "write TensorBoard event files to OUT/tensorboard: losses, PSNR, Gaussian count, step time, thresholds and "
+        "renders every train.eval_every steps (needs the tensorboard package: pip install 'ebad[tensorboard]')"
+    )
     settings: Annotated[Config, tyro.conf.arg(name=""), tyro.conf.FlagConversionOff] = field(default_factory=Config)
     """the reconstruction settings (ebad.config.Config), one option per field"""
 
@@ -145,6 +154,10 @@ def run(args: Args) -> int:
     cfg, applied = resolve(args)
     out = Path(args.out)
     check_out_dir(out)
+    if args.tensorboard:
+        from ..callbacks import require_tensorboard
+
+        require_tensorboard()
     ckpt = out / "checkpoints" / "last.pt"
     if not args.resume and ckpt.exists():
         raise UserError(f"--out {out} already holds a run; pass --resume to continue it or choose another folder")
@@ -161,7 +174,7 @@ def run(args: Args) -> int:
         (out / "metrics.json").unlink(missing_ok=True)  # the run is unfinished until write_run ends
         save_config(cfg, out / "config.json")
         t0 = time.perf_counter()
-        run_ = reconstruct(capture, cfg, out_dir=out, resume=args.resume)
+        run_ = reconstruct(capture, cfg, out_dir=out, resume=args.resume, callbacks=_loggers(args, cfg, capture, out))
         gt = _gt_trajectories(Path(args.capture), run_.names)
         write_run(run_, out, gt_trajectories=gt)
     m = run_.metrics
@@ -186,6 +199,28 @@ def run(args: Args) -> int:
             file=sys.stderr,
         )
     return 0
+
+
+def _loggers(args: Args, cfg: Config, capture, out: Path) -> list:
+    """The ``TensorBoardLogger`` of ``--tensorboard`` (renders of the test views that have a pose), else none."""
+    if not args.tensorboard:
+        return []
+    from ..callbacks import TensorBoardLogger
+
+    views = [(v.name, v.c2w) for v in capture.test_views if v.c2w is not None]
+    names = capture.names or ["0000"]
+    return [
+        TensorBoardLogger(
+            out / "tensorboard",
+            capture.K,
+            capture.width,
+            capture.height,
+            cfg.model.background,
+            cfg.train.eval_every,
+            views,
+            names[0],
+        )
+    ]
 
 
 def _gt_trajectories(capture: Path, names: list[str]):
