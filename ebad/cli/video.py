@@ -17,8 +17,9 @@ Two modes:
 
 Output by the suffix of ``--out``: ``.mp4`` (H.264, yuv420p, needs ``imageio-ffmpeg``, whose
 wheel ships an ffmpeg binary; odd sizes are padded by one edge pixel), ``.gif`` (Pillow), or
-a folder (no suffix): one PNG per frame. Frames are 8-bit sRGB-encoded from the linear
-renders, like ``ebad render``'s default.
+a folder (no suffix): one PNG per frame. Frames are 8-bit ``round(255 v)`` of the renders in the
+capture's recorded domain (the run's camera response applied, no other curve), like ``ebad render``'s
+default.
 """
 
 from __future__ import annotations
@@ -56,7 +57,7 @@ class Args:
     out: str
     (
         "FILE.mp4 (H.264, needs imageio-ffmpeg), FILE.gif, or a folder (no suffix) for a PNG sequence; frames are "
-        "8-bit sRGB-encoded from the linear renders"
+        "8-bit, the capture's recorded values like ebad render"
     )
     frames: int = DEFAULT_FRAMES
     """frames along a smooth path through the training cameras (their mid-exposure poses)"""
@@ -261,7 +262,8 @@ def render_views(
     height: int | None = None,
     progress: bool = True,
 ) -> np.ndarray:  # [T, 4, 4] -> [T, H, W, D]
-    """Linear renders of ``c2w`` (K [3, 3] or [T, 3, 3]; default the run's), with a progress bar."""
+    """Renders (recorded values, ``Run.render``) of ``c2w`` (K [3, 3] or [T, 3, 3]; default the run's), with a
+    progress bar."""
     from tqdm import tqdm
 
     T = len(c2w)
@@ -297,7 +299,7 @@ def exposure_instants(exposure: tuple[float, float], n: int) -> tuple[np.ndarray
 
 def exposure_frames(
     run, name: str, instants: int, capture=None, progress: bool = True
-) -> tuple[np.ndarray, str]:  # -> [N, H, W', D] linear, description
+) -> tuple[np.ndarray, str]:  # -> [N, H, W', D] recorded values, description
     """The renders of frame ``name`` along its recovered exposure trajectory at ``instants``
     instants; with a capture, [blurry | EDI latent | render] side by side."""
     import torch
