@@ -117,7 +117,7 @@ def write_video(path: str | Path, frames: np.ndarray, fps: float) -> Path:  # [T
     if frames.ndim != 4 or frames.shape[3] not in (1, 3) or frames.dtype != np.uint8 or len(frames) == 0:
         raise ValueError(f"frames must be uint8 [T, H, W, 1|3] with T >= 1, got {frames.dtype} {frames.shape}")
     if not (math.isfinite(fps) and fps > 0):
-        raise UserError(f"--fps must be a positive number, got {fps}")
+        raise UserError(f"--fps must be a positive number, got {fps:g}")
     path = check_out(path)
     suffix = path.suffix.lower()
     from PIL import Image
@@ -219,7 +219,7 @@ def read_camera_path(path: str | Path) -> tuple[np.ndarray, np.ndarray, int, int
         except ValueError:
             raise UserError(f"{path}: camera_path[{i}].camera_to_world must be 16 numbers") from None
         if not (np.isfinite(T).all() and 0 < fov < 180):
-            raise UserError(f"{path}: camera_path[{i}]: non-finite camera_to_world or fov {fov} outside (0, 180)")
+            raise UserError(f"{path}: camera_path[{i}]: non-finite camera_to_world or fov {fov:g} outside (0, 180)")
         f = 0.5 * H / math.tan(math.radians(fov) / 2)
         c2w.append(T @ _GL_TO_CV)
         K.append([[f, 0.0, W / 2], [0.0, f, H / 2], [0.0, 0.0, 1.0]])

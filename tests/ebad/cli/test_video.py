@@ -85,6 +85,11 @@ def test_camera_path_errors_name_file_and_field(tmp_path):
     p.write_text('{"render_width": 8, "camera_path": []}')
     with pytest.raises(EbadError, match="render_height"):
         read_camera_path(p)
+    cam = {"camera_to_world": np.eye(4).ravel().tolist(), "fov": 190.12345678901234}
+    p.write_text(json.dumps({"render_width": 8, "render_height": 6, "camera_path": [cam]}))
+    with pytest.raises(EbadError, match=r"fov 190\.123 outside") as err:
+        read_camera_path(p)
+    assert "190.12345678" not in str(err.value)  # no 16-digit floats in messages
 
 
 def test_exposure_video_panels(tiny_run, tmp_path):
