@@ -1,24 +1,37 @@
 """Files other tools open: display PNGs, 3DGS ``cameras.json``, the web ``.splat``, TUM trajectories.
 
-- **Display images** (``ebad render``, ``ebad video``): renders are linear intensity; image
-  viewers, browsers and video players expect sRGB-encoded 8-bit values. ``to_display8``
-  applies the sRGB transfer curve (IEC 61966-2-1) and rounds; ``write_render`` writes
-  8-bit sRGB by default and 16-bit *linear* (``round(v * 65535)``, the project's codec
-  ``scenes.images.write_png16``) with ``bits=16``.
+**One colour domain** (DESIGN.md): the model renders irradiance; everything ebad writes or shows is in
+the capture's own *recorded* domain, the run's camera response (``ebad.response``, the identity for
+``linear``) applied once and no other curve on top. The frames of a capture are recorded values
+(``scenes.images``: PNG value / 255 or / 65535, no transfer curve), so an output looks like the input
+it came from and a PSNR between a render and a test image needs no decoding.
+
+- **Images** (``ebad render``, ``ebad video``, ``ebad eval --renders``, the run's ``deblurred/``):
+  ``Run.render`` already returns recorded values in [0, 1]; ``write_render`` stores them as they
+  are: 8-bit ``round(255 v)`` or 16-bit ``round(65535 v)`` (``scenes.images.write_png16``), the
+  same encoding as a capture's frames and ``ebad deblur``'s outputs. No gAMA chunk is written
+  either way: the values are the camera's, not sRGB-encoded and not linear light (a viewer shows
+  them as it shows the input frames).
+- **Exported colours** (``point_cloud.ply``'s ``f_dc``, ``.splat``'s RGB bytes, the viewer): each
+  Gaussian's colour through the response (``recorded_colors``; the curve without its saturation
+  at 1 in the PLY, so that ``model_colors`` inverts it exactly when a run folder is read back),
+  so the PLY and the ``.splat`` show the same colours (``to_recorded_params`` / ``from_recorded_params``).
 - **cameras.json**: the layout the 3DGS trainer writes and SIBR-style viewers read: a list of
   ``{"id", "img_name", "width", "height", "position", "rotation", "fx", "fy"}``, position
   and rotation of the camera-to-world pose (OpenCV axes, rotation as three rows). We add
   ``cx``, ``cy`` (ignored by other readers).
 - **.splat**: the antimatter15 web-viewer layout, 32 bytes per Gaussian, little endian:
-  position f32x3, scale f32x3 (activated, ``exp``), colour RGBA u8x4 (sRGB-encoded
-  ``0.5 + SH_C0 * f_dc``; alpha = ``sigmoid(opacity)``), rotation u8x4 (w, x, y, z of the unit
-  quaternion, ``round(q * 128 + 128)`` clipped to 0..255); sorted by
-  ``exp(sum log scale) * sigmoid(opacity)`` descending. A grey model writes its value into
-  R, G and B (the file is for display). Web viewers show the colour bytes as they are, so
-  they are sRGB-encoded like every other display output.
-- **TUM trajectories** (what ``evo`` reads): one line per pose,
+  position f32x3, scale f32x3 (activated, ``exp``), colour RGBA u8x4 (``round(255 v)`` of the
+  recorded colour ``v`` of ``0.5 + SH_C0 * f_dc``, clipped to [0, 1]; alpha =
+  ``sigmoid(opacity)``), rotation u8x4 (w, x, y, z of the unit quaternion, ``round(q * 128 + 128)``
+  clipped to 0..255); sorted by ``exp(sum log scale) * sigmoid(opacity)`` descending. A grey model
+  writes its value into R, G and B (the file is for display).
+- **TUM trajectories** (what ``evo`` reads): one line per timestamp,
   ``timestamp tx ty tz qx qy qz qw``, camera-to-world, seconds on the capture's clock,
   Hamilton quaternion with the real part LAST (TUM's order, unlike the project's w-first).
+  A sharp frame (``t_start == t_end``) gives one line, not one per sample.
+- ``srgb_encode`` / ``srgb_decode`` (IEC 61966-2-1) remain for callers that hold linear light and
+  want a display encoding; no output of ebad applies them.
 """
 
 from __future__ import annotations
@@ -31,7 +44,7 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from .errors import UserError
-from .gaussians import activate
+from .gaussians import SH_C0, activate
 from .io import write_png16
 from .lie import quat_to_rotmat
 
@@ -40,6 +53,10 @@ __all__ = [
     "srgb_decode",
     "to_display8",
     "write_render",
+    "recorded_colors",
+    "model_colors",
+    "to_recorded_params",
+    "from_recorded_params",
     "rotmat_to_quat",
     "write_cameras_json",
     "read_cameras_json",
@@ -87,17 +104,18 @@ def srgb_decode(y: np.ndarray) -> np.ndarray:
     return np.where(y <= _SRGB_ENCODED_LIMIT, y / _SRGB_SLOPE, np.power((y + _SRGB_A) / (1 + _SRGB_A), _SRGB_GAMMA))
 
 
-def to_display8(img: np.ndarray) -> np.ndarray:  # [..., H, W, D] linear -> uint8 sRGB
-    """8-bit sRGB values of linear intensities: ``round(255 * srgb_encode(v))``."""
+def to_display8(img: np.ndarray) -> np.ndarray:  # [..., H, W, D] recorded values -> uint8
+    """8-bit values of images in the recorded domain: ``round(255 * clip(v, 0, 1))`` (no transfer curve:
+    the values are already what the camera recorded, see the module docstring)."""
     a = np.asarray(img)
     if not np.isfinite(a).all():
         raise ValueError("image has non-finite values")
-    return np.round(srgb_encode(a) * 255.0).astype(np.uint8)
+    return np.round(np.clip(np.asarray(a, np.float64), 0.0, 1.0) * 255.0).astype(np.uint8)
 
 
 def write_render(path: str | Path, img: np.ndarray, bits: int = 8) -> Path:  # [H, W, D], D in {1, 3}
-    """Write a linear render as a PNG: ``bits=8`` sRGB-encoded (what viewers expect),
-    ``bits=16`` linear ``round(v * 65535)`` (for measurements)."""
+    """Write a render (recorded values, ``Run.render``'s output) as a PNG: ``bits=8`` ``round(255 v)``,
+    ``bits=16`` ``round(65535 v)``: the encoding of a capture's frames, read back by ``scenes.read_image``."""
     a = np.asarray(img)
     if a.ndim != 3 or a.shape[2] not in (1, 3):
         raise ValueError(f"image must be [H, W, 1|3], got {a.shape}")
@@ -112,6 +130,61 @@ def write_render(path: str | Path, img: np.ndarray, bits: int = 8) -> Path:  # [
     path.parent.mkdir(parents=True, exist_ok=True)
     Image.fromarray(q[..., 0] if q.shape[2] == 1 else q).save(path, format="PNG")
     return path
+
+
+# --------------------------------------------------------------------------- exported colours
+
+
+def _curve(response) -> tuple[float, float, float] | None:  # (black, gain, gamma); None: the identity
+    if response is None or not getattr(response, "learnable", False):
+        return None
+    v = response.values()
+    return float(v["black"]), float(v["gain"]), float(v["gamma"])
+
+
+def recorded_colors(colors, response=None, saturate: bool = True) -> np.ndarray:  # [N, D] -> [N, D] float64
+    """Gaussian colours (irradiance, the activated ``0.5 + SH_C0 * f_dc``) in the recorded domain: through
+    the response's curve ``b + (1 - b) (g E)^gamma`` (``ebad.response``; identity for ``linear`` or None),
+    clipped to [0, 1] with ``saturate``; without it the curve goes on above 1 (``model_colors`` inverts it)."""
+    c = np.clip(
+        np.asarray(colors.detach().cpu().numpy() if isinstance(colors, torch.Tensor) else colors, np.float64), 0, None
+    )
+    curve = _curve(response)
+    if curve is not None:
+        b, g, k = curve
+        c = b + (1 - b) * np.power(g * c, k)
+    return np.clip(c, 0.0, 1.0) if saturate else c
+
+
+def model_colors(recorded, response=None) -> np.ndarray:  # [N, D] -> [N, D] float64
+    """Inverse of ``recorded_colors(..., saturate=False)``: irradiance colours of recorded ones
+    (values below the black level give 0)."""
+    y = np.asarray(recorded, np.float64)
+    curve = _curve(response)
+    if curve is None:
+        return y
+    b, g, k = curve
+    return np.power(np.clip((y - b) / (1 - b), 0.0, None), 1.0 / k) / g
+
+
+def to_recorded_params(params: dict[str, torch.Tensor], response=None) -> dict[str, torch.Tensor]:
+    """``params`` whose DC colours (``colors``, the SH DC coefficient) give the recorded colours of
+    ``recorded_colors(..., saturate=False)``: what ``point_cloud.ply`` stores. The same dict when the
+    response is the identity (bit-exact)."""
+    if _curve(response) is None:
+        return params
+    dc = params["colors"]
+    rec = recorded_colors((0.5 + SH_C0 * dc.detach().double()).clamp_min(0.0), response, saturate=False)
+    return {**params, "colors": torch.from_numpy((rec - 0.5) / SH_C0).to(dc.dtype)}
+
+
+def from_recorded_params(params: dict[str, torch.Tensor], response=None) -> dict[str, torch.Tensor]:
+    """Inverse of ``to_recorded_params``: the model's (irradiance) DC colours from a PLY's."""
+    if _curve(response) is None:
+        return params
+    dc = params["colors"]
+    irr = model_colors(0.5 + SH_C0 * dc.detach().double().numpy(), response)
+    return {**params, "colors": torch.from_numpy((irr - 0.5) / SH_C0).to(dc.dtype)}
 
 
 # --------------------------------------------------------------------------- rotations
@@ -216,8 +289,9 @@ def read_cameras_json(path: str | Path) -> dict:
 # --------------------------------------------------------------------------- .splat
 
 
-def write_splat(path: str | Path, params: dict[str, torch.Tensor]) -> Path:
-    """The antimatter15 ``.splat`` file of a model's parameters (see module docstring)."""
+def write_splat(path: str | Path, params: dict[str, torch.Tensor], response=None) -> Path:
+    """The antimatter15 ``.splat`` file of a model's parameters (see module docstring), colours through
+    the camera ``response`` (None: the identity)."""
     act = {k: v.detach().double().cpu().numpy() for k, v in activate(params).items()}
     N = act["means"].shape[0]
     colors = act["colors"]
@@ -230,7 +304,7 @@ def write_splat(path: str | Path, params: dict[str, torch.Tensor]) -> Path:
     rec = np.zeros(N, _SPLAT_DTYPE)
     rec["position"] = act["means"]
     rec["scale"] = act["scales"]
-    rec["rgba"][:, :3] = np.round(srgb_encode(colors) * 255)
+    rec["rgba"][:, :3] = np.round(recorded_colors(colors, response) * 255)
     rec["rgba"][:, 3] = np.round(np.clip(act["opacities"], 0, 1) * 255)
     rec["rot"] = np.clip(np.round(q * _QUAT_BYTE_SCALE + _QUAT_BYTE_SCALE), 0, 255)
     path = Path(path)
@@ -241,7 +315,8 @@ def write_splat(path: str | Path, params: dict[str, torch.Tensor]) -> Path:
 
 def read_splat(path: str | Path) -> dict[str, np.ndarray]:
     """Read a ``.splat`` file: activated values ``means`` [N, 3], ``scales`` [N, 3] (std),
-    ``colors`` [N, 3] linear, ``opacities`` [N] in [0, 1], ``quats`` [N, 4] unit (w, x, y, z)."""
+    ``colors`` [N, 3] recorded values in [0, 1] (``byte / 255``), ``opacities`` [N] in [0, 1], ``quats`` [N, 4]
+    unit (w, x, y, z)."""
     path = Path(path)
     blob = path.read_bytes()
     if len(blob) % SPLAT_BYTES:
@@ -251,7 +326,7 @@ def read_splat(path: str | Path) -> dict[str, np.ndarray]:
     return {
         "means": rec["position"].astype(np.float64),
         "scales": rec["scale"].astype(np.float64),
-        "colors": srgb_decode(rec["rgba"][:, :3] / 255.0),
+        "colors": rec["rgba"][:, :3] / 255.0,
         "opacities": rec["rgba"][:, 3] / 255.0,
         "quats": q / np.maximum(np.linalg.norm(q, axis=1, keepdims=True), 1e-12),
     }
@@ -306,12 +381,17 @@ def exposure_samples(
     exposures: np.ndarray,
     poses: np.ndarray,  # [F, 2], [F, S, 4, 4]
     u: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray]:  # [S] -> [F*S], [F*S, 4, 4]
-    """Timestamps ``t_start + u (t_end - t_start)`` and poses of every sample, sorted by time."""
+) -> tuple[np.ndarray, np.ndarray]:  # [S] -> [M], [M, 4, 4], M <= F*S
+    """Timestamps ``t_start + u (t_end - t_start)`` and poses of the samples, sorted by time, one per
+    timestamp: samples at an instant already taken (all of a sharp frame's, ``t_start == t_end``, or the
+    end of an exposure touching the next one's start) are dropped, the first in time order kept."""
     ex = np.asarray(exposures, dtype=np.float64)
-    t = ex[:, :1] + np.asarray(u, np.float64)[None] * (ex[:, 1:] - ex[:, :1])  # [F, S]
-    order = np.argsort(t.ravel(), kind="stable")
-    return t.ravel()[order], np.asarray(poses).reshape(-1, 4, 4)[order]
+    t = (ex[:, :1] + np.asarray(u, np.float64)[None] * (ex[:, 1:] - ex[:, :1])).ravel()  # [F*S]
+    order = np.argsort(t, kind="stable")
+    t = t[order]
+    keep = np.ones(len(t), bool)
+    keep[1:] = t[1:] != t[:-1]
+    return t[keep], np.asarray(poses).reshape(-1, 4, 4)[order][keep]
 
 
 # --------------------------------------------------------------------------- run folder
@@ -326,6 +406,6 @@ def write_exports(run, out: str | Path) -> list[Path]:
     times, flat = exposure_samples(run.exposures, poses, u)
     return [
         write_cameras_json(out / CAMERAS_JSON, run.names, mid, run.K, run.width, run.height),
-        write_splat(out / SPLAT_FILE, run.params),
+        write_splat(out / SPLAT_FILE, run.params, run.response),
         write_tum(out / TUM_FILE, times, flat),
     ]

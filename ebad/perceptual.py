@@ -7,9 +7,11 @@ Offline that download fails, so ``lpips_or_none`` never triggers it: it computes
 when the lpips package, torchvision and the backbone file are all present, and otherwise
 returns ``None`` with the reason. It raises only for a wrong argument.
 
-Convention: LPIPS was trained on display-referred (sRGB) photographs in [-1, 1], RGB; our
-linear images are sRGB-encoded first and a grey image is repeated into three channels (the
-network needs RGB).
+Convention: LPIPS was trained on display-referred photographs in [-1, 1], RGB. The images ebad
+scores are in the capture's recorded domain (the camera's response applied, ``ebad.export``), i.e.
+already display values like the frames and test images: they are mapped to [-1, 1] as they are,
+with no second transfer curve, and a grey image is repeated into three channels (the network
+needs RGB).
 """
 
 from __future__ import annotations
@@ -66,22 +68,20 @@ def _model(net: str):
     return lpips.LPIPS(net=net, pretrained=True, verbose=False).eval()
 
 
-def _to_lpips_input(x) -> torch.Tensor:  # [H, W, D] or [B, H, W, D] linear -> [B, 3, H, W] in [-1, 1]
-    from .export import srgb_encode
-
+def _to_lpips_input(x) -> torch.Tensor:  # [H, W, D] or [B, H, W, D] recorded [0, 1] -> [B, 3, H, W] in [-1, 1]
     a = np.asarray(x.detach().cpu().numpy() if isinstance(x, torch.Tensor) else x, dtype=np.float64)
     if a.ndim == 3:
         a = a[None]
     if a.ndim != 4 or a.shape[-1] not in (1, 3):
         raise ValueError(f"images must be [H, W, 1|3] or [B, H, W, 1|3], got {a.shape}")
-    t = torch.from_numpy(srgb_encode(a)).float().permute(0, 3, 1, 2)
+    t = torch.from_numpy(np.clip(a, 0.0, 1.0)).float().permute(0, 3, 1, 2)
     if t.shape[1] == 1:
         t = t.expand(-1, 3, -1, -1)
     return t * 2 - 1
 
 
 def lpips_or_none(pred, target, net: str = "alex") -> tuple[float | None, str | None]:
-    """Mean LPIPS of ``pred`` against ``target`` ([H, W, D] or [B, H, W, D], linear [0, 1]),
+    """Mean LPIPS of ``pred`` against ``target`` ([H, W, D] or [B, H, W, D], recorded values in [0, 1]),
     as ``(value, None)``, or ``(None, reason)`` when the weights are not available offline."""
     reason = lpips_status(net)
     p, t = _to_lpips_input(pred), _to_lpips_input(target)

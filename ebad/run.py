@@ -119,7 +119,9 @@ class Run:
     def render(
         self, c2w, K=None, width: int | None = None, height: int | None = None, batch: int = 8
     ) -> np.ndarray:  # [4, 4] -> [H, W, D]; [C, 4, 4] -> [C, H, W, D]
-        """Render novel views (numpy float32 in [0, 1]); K, width, height default to the capture's."""
+        """Render novel views (numpy float32 in [0, 1]) in the capture's recorded domain: the rendered
+        irradiance through the run's camera ``response`` (the identity for ``linear``), the values every output
+        of ebad stores as they are (``ebad.export``); K, width, height default to the capture's."""
         c2w_t = torch.as_tensor(np.asarray(c2w), dtype=torch.float32)
         single = c2w_t.ndim == 2
         if single:
@@ -146,7 +148,7 @@ class Run:
 
     @torch.no_grad()
     def deblurred_frames(self) -> np.ndarray:  # [F, H, W, D]
-        """Every training frame re-rendered sharp at its mid-exposure pose."""
+        """Every training frame re-rendered sharp at its mid-exposure pose (recorded domain, like ``render``)."""
         return self.render(self.trajectories.mid_poses().numpy())
 
     @torch.no_grad()

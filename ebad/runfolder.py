@@ -4,18 +4,22 @@ Layout::
 
     RUN/config.json            resolved Config (written once, when the run starts)
     RUN/checkpoints/last.pt    resumable TrainState (every train.checkpoint_every steps and at the end)
-    RUN/point_cloud.ply        standard 3DGS layout (see ebad.io)
+    RUN/point_cloud.ply        standard 3DGS layout (see ebad.io), colours in the capture's recorded domain
     RUN/model.json             K, image size, frame names, exposures, V per frame, trajectories
     RUN/history.json           one StepStats per step
     RUN/trajectories.json      camera-to-world poses sampled over every exposure
     RUN/trajectories.png       their plot
     RUN/trajectories_tum.txt   the same poses in TUM format (timestamp tx ty tz qx qy qz qw), for evo
     RUN/cameras.json           training cameras at mid-exposure, 3DGS/SIBR layout
-    RUN/point_cloud.splat      the Gaussians for web splat viewers (antimatter15 layout, sRGB colours)
+    RUN/point_cloud.splat      the Gaussians for web splat viewers (antimatter15 layout, the PLY's colours)
     RUN/point_cloud/iteration_N/point_cloud.ply   INRIA's layout: the same file (a hard link), N = the steps run
     RUN/cfg_args               INRIA's saved arguments (one line, a Python ``Namespace(...)``): sh_degree 0,
                                source_path and model_path = RUN, white_background, eval
-    RUN/deblurred/NAME.png     every training frame rendered sharp at mid-exposure (16-bit)
+    RUN/deblurred/NAME.png     every training frame rendered sharp at mid-exposure (16-bit, round(65535 v))
+
+Every image and exported colour is in the capture's own recorded domain: the run's camera response
+applied once, no other curve (``ebad.export``'s docstring); ``load_run`` inverts the response on the
+PLY's colours to get the model's irradiance colours back.
     RUN/metrics.json           RunMetrics; written LAST: its "complete" says whether the run finished
     RUN/.lock                  while a process writes the run: its pid and host
 
@@ -42,7 +46,7 @@ from scenes.capture import file_in
 
 from .config import Config, load_config, save_config
 from .errors import UserError
-from .export import write_exports
+from .export import from_recorded_params, to_recorded_params, write_exports
 from .io import plot_trajectories, read_ply, write_ply, write_png16, write_trajectories
 from .response import RESPONSES, Response
 from .run import Run, RunMetrics
@@ -215,7 +219,7 @@ def write_run(run: Run, out: str | Path, gt_trajectories: np.ndarray | None = No
         save_config(run.config, out / "config.json")
     write_text_atomic(out / "history.json", json.dumps(json_safe([h.to_dict() for h in run.history])) + "\n")
     with atomic_path(out / "point_cloud.ply") as tmp:
-        write_ply(tmp, run.params)
+        write_ply(tmp, to_recorded_params(run.params, run.response))  # the colours the .splat shows
     model = {
         "K": run.K.tolist(),
         "width": run.width,
@@ -435,9 +439,13 @@ def load_run(path: str | Path) -> Run:
     bad = [k for k, v in ply.items() if not torch.isfinite(v).all()]
     if bad:
         raise UserError(f"{path / 'point_cloud.ply'}: non-finite values in {bad}; the run folder is damaged")
+    response = Response(model["response"]["kind"])
+    with torch.no_grad():
+        response.raw.copy_(torch.tensor(model["response"]["raw"]))
+    if ply["colors"].shape[1] != model["channels"]:
+        ply["colors"] = ply["colors"][:, : model["channels"]].contiguous()
+    ply = from_recorded_params(ply, response)  # the PLY holds recorded colours, the model irradiance
     params: dict[str, Tensor] = {k: nn.Parameter(v) for k, v in ply.items()}
-    if params["colors"].shape[1] != model["channels"]:
-        params["colors"] = nn.Parameter(params["colors"][:, : model["channels"]].contiguous())
     traj = ExposureTrajectories(
         torch.tensor(model["c2w_mid"]),
         model["kind"],
@@ -453,9 +461,6 @@ def load_run(path: str | Path) -> Run:
         )
     with torch.no_grad():
         traj.knots.data = knots.reshape(traj.knots.shape)
-    response = Response(model["response"]["kind"])
-    with torch.no_grad():
-        response.raw.copy_(torch.tensor(model["response"]["raw"]))
     return Run(
         params=params,
         trajectories=traj,

@@ -30,7 +30,8 @@ class Args:
     refine_iters: int = 300
     """at most this many Adam steps per test pose"""
     renders: str | None = None
-    """write each test render (refined when refining) here, one 16-bit linear PNG per view, named by the view"""
+    """write each test render (refined when refining) here, one 16-bit PNG per view (round(65535 v), the capture's
+    recorded values like its frames), named by the view"""
     gt: str | None = None
     """ground-truth folder with gt.json (None: CAPTURE/../gt when present)"""
     out: str | None = None

@@ -1,8 +1,9 @@
 """``ebad render``: PNG renders of a run's test views, training frames or a smooth camera path.
 
-PNGs are 8-bit sRGB-encoded by default (what image viewers and browsers expect: the linear
-renders go through the sRGB transfer curve), or 16-bit linear intensity ``round(v * 65535)``
-with ``--bits 16`` (for measurements; written by ``scenes.images.write_png16``)."""
+PNGs hold the capture's own recorded values (the run's camera response applied, no other curve,
+``ebad.export``): 8-bit ``round(255 v)`` by default, 16-bit ``round(65535 v)`` with ``--bits 16``
+(``scenes.images.write_png16``): the encoding of the capture's frames and of ``ebad deblur``'s
+outputs, so a render reads back with ``scenes.read_image`` next to its input frame."""
 
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ import numpy as np
 import tyro
 
 NAME = "render"
-HELP = "render a run's test views, training frames or a smooth camera path as PNGs (8-bit sRGB or 16-bit linear)"
+HELP = "render a run's test views, training frames or a smooth camera path as PNGs (the capture's recorded values)"
 
 
 @dataclass
@@ -30,7 +31,7 @@ class Args:
     path: Annotated[int, tyro.conf.arg(metavar="N")] = 0
     """instead, N frames along a smooth path through the training cameras"""
     bits: Literal[8, 16] = 8
-    """8: sRGB-encoded 8-bit PNG, shows correctly in any viewer; 16: linear intensity round(v * 65535) to measure"""
+    """PNG bits: 8 (round(255 v)) or 16 (round(65535 v)); values in the capture's recorded domain, like its frames"""
 
 
 def smooth_path(c2w: np.ndarray, n: int) -> np.ndarray:  # [F, 4, 4] -> [n, 4, 4]
@@ -66,7 +67,7 @@ def run(args: Args) -> int:
 
     run_ = load_run(args.run)
     out = Path(args.out)
-    kind = "8-bit sRGB" if args.bits == 8 else "16-bit linear"
+    kind = f"{args.bits}-bit, the capture's recorded values"
     if args.path:
         if args.path < 2:
             raise UserError(f"--path needs at least 2 frames, got {args.path}")

@@ -7,18 +7,20 @@ Two modes:
   slerped), or the cameras
   of a nerfstudio-style ``--camera-path camera_path.json`` (``camera_to_world`` 4x4 row-major
   in nerfstudio's OpenGL axes, vertical ``fov`` in degrees, ``render_width`` /
-  ``render_height``; poses in the run's world frame).
+  ``render_height``; poses in the run's world frame; its ``fps`` is the video's unless ``--fps``).
 * **The sharp video of a blurry exposure**: ``--exposure NAME --instants N``: the frame's
   recovered trajectory rendered at the centres of N equal sub-intervals of its exposure.
   With ``--capture CAPTURE`` each video frame is three panels side by side:
-  the blurry frame | EDI's latent at the same instant | the render at that instant.
+  the blurry frame | EDI's latent at the same instant | the render at that instant, labelled
+  ``PANEL_LABELS`` in a white strip above them (Pillow's default font).
   EDI uses the contrast threshold the run used (``metrics.json``), else one estimated from
   the capture's frames.
 
 Output by the suffix of ``--out``: ``.mp4`` (H.264, yuv420p, needs ``imageio-ffmpeg``, whose
 wheel ships an ffmpeg binary; odd sizes are padded by one edge pixel), ``.gif`` (Pillow), or
-a folder (no suffix): one PNG per frame. Frames are 8-bit sRGB-encoded from the linear
-renders, like ``ebad render``'s default.
+a folder (no suffix): one PNG per frame. Frames are 8-bit ``round(255 v)`` of the renders in the
+capture's recorded domain (the run's camera response applied, no other curve), like ``ebad render``'s
+default.
 """
 
 from __future__ import annotations
@@ -42,6 +44,7 @@ DEFAULT_FPS_PATH = 30.0
 DEFAULT_FPS_EXPOSURE = 10.0
 DEFAULT_INSTANTS = 20
 PANEL_GAP = 2  # white pixels between side-by-side panels
+PANEL_LABELS = ("blurry input", "EDI", "ebad")  # the three panels of the exposure video
 RENDER_BATCH = 8  # views per rasteriser call (one progress-bar step)
 _MP4_QUALITY = 8  # imageio-ffmpeg quality 0..10
 _INSTALL_VIDEO = "pip install imageio-ffmpeg (or the 'video' extra)"
@@ -56,7 +59,7 @@ class Args:
     out: str
     (
         "FILE.mp4 (H.264, needs imageio-ffmpeg), FILE.gif, or a folder (no suffix) for a PNG sequence; frames are "
-        "8-bit sRGB-encoded from the linear renders"
+        "8-bit, the capture's recorded values like ebad render"
     )
     frames: int = DEFAULT_FRAMES
     """frames along a smooth path through the training cameras (their mid-exposure poses)"""
@@ -78,7 +81,7 @@ class Args:
         "(the run's contrast threshold, else one estimated from the capture) | the render"
     )
     fps: float | None = None
-    """frames per second (None: 30; 10 with --exposure)"""
+    """frames per second (None: the camera path's fps when it has one, else 30; 10 with --exposure)"""
     no_progress: bool = False
     """no progress bar"""
 
@@ -114,7 +117,7 @@ def write_video(path: str | Path, frames: np.ndarray, fps: float) -> Path:  # [T
     if frames.ndim != 4 or frames.shape[3] not in (1, 3) or frames.dtype != np.uint8 or len(frames) == 0:
         raise ValueError(f"frames must be uint8 [T, H, W, 1|3] with T >= 1, got {frames.dtype} {frames.shape}")
     if not (math.isfinite(fps) and fps > 0):
-        raise UserError(f"--fps must be a positive number, got {fps}")
+        raise UserError(f"--fps must be a positive number, got {fps:g}")
     path = check_out(path)
     suffix = path.suffix.lower()
     from PIL import Image
@@ -216,11 +219,29 @@ def read_camera_path(path: str | Path) -> tuple[np.ndarray, np.ndarray, int, int
         except ValueError:
             raise UserError(f"{path}: camera_path[{i}].camera_to_world must be 16 numbers") from None
         if not (np.isfinite(T).all() and 0 < fov < 180):
-            raise UserError(f"{path}: camera_path[{i}]: non-finite camera_to_world or fov {fov} outside (0, 180)")
+            raise UserError(f"{path}: camera_path[{i}]: non-finite camera_to_world or fov {fov:g} outside (0, 180)")
         f = 0.5 * H / math.tan(math.radians(fov) / 2)
         c2w.append(T @ _GL_TO_CV)
         K.append([[f, 0.0, W / 2], [0.0, f, H / 2], [0.0, 0.0, 1.0]])
     return np.stack(c2w), np.asarray(K), W, H
+
+
+def camera_path_fps(path: str | Path) -> float | None:
+    """The ``fps`` of a nerfstudio-style ``camera_path.json`` (None when it has none).
+
+    Raises:
+        UserError: ``fps`` is not a positive number; names the file and the field."""
+    path = Path(path)
+    try:
+        doc = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise UserError(f"{path}: not valid JSON ({exc})") from None
+    fps = doc.get("fps") if isinstance(doc, dict) else None
+    if fps is None:
+        return None
+    if isinstance(fps, bool) or not isinstance(fps, (int, float)) or not (math.isfinite(fps) and fps > 0):
+        raise UserError(f"{path}: field 'fps' must be a positive number, got {json.dumps(fps)}")
+    return float(fps)
 
 
 def write_camera_path(
@@ -261,7 +282,8 @@ def render_views(
     height: int | None = None,
     progress: bool = True,
 ) -> np.ndarray:  # [T, 4, 4] -> [T, H, W, D]
-    """Linear renders of ``c2w`` (K [3, 3] or [T, 3, 3]; default the run's), with a progress bar."""
+    """Renders (recorded values, ``Run.render``) of ``c2w`` (K [3, 3] or [T, 3, 3]; default the run's), with a
+    progress bar."""
     from tqdm import tqdm
 
     T = len(c2w)
@@ -276,6 +298,28 @@ def render_views(
                 out.append(np.stack([run.render(c, k, width, height) for c, k in zip(c2w[sl], Ks[sl])]))
             bar.update(len(out[-1]))
     return np.concatenate(out)
+
+
+def label_panels(
+    frames: np.ndarray, labels: list[str] | tuple[str, ...], panel_width: int, gap: int = PANEL_GAP
+) -> np.ndarray:  # [T, H, W, D] uint8 -> [T, h + H, W, D]
+    """A white strip above side-by-side panels (``side_by_side``) with each panel's label in black at its
+    left edge (Pillow's default font, cut at the panel's edge)."""
+    from PIL import Image, ImageDraw, ImageFont
+
+    frames = np.asarray(frames)
+    T, _, W, D = frames.shape
+    font = ImageFont.load_default()
+    left, top, _, bottom = font.getbbox("Ag")
+    h = int(bottom) + 2
+    strip = np.full((h, W), 255, np.uint8)
+    for i, text in enumerate(labels):
+        x0 = i * (panel_width + gap)
+        im = Image.new("L", (max(1, min(panel_width, W - x0)), h), 255)
+        ImageDraw.Draw(im).text((1, 1), text, fill=0, font=font)
+        strip[:, x0 : x0 + im.size[0]] = np.asarray(im)
+    strip_t = np.broadcast_to(strip[None, :, :, None], (T, h, W, D)).astype(frames.dtype)
+    return np.concatenate([strip_t, frames], axis=1)
 
 
 def side_by_side(panels: list[np.ndarray]) -> np.ndarray:  # each [T, H, W, D] -> [T, H, sum W + gaps, D]
@@ -297,7 +341,7 @@ def exposure_instants(exposure: tuple[float, float], n: int) -> tuple[np.ndarray
 
 def exposure_frames(
     run, name: str, instants: int, capture=None, progress: bool = True
-) -> tuple[np.ndarray, str]:  # -> [N, H, W', D] linear, description
+) -> tuple[np.ndarray, str]:  # -> [N, H, W', D] recorded values, description
     """The renders of frame ``name`` along its recovered exposure trajectory at ``instants``
     instants; with a capture, [blurry | EDI latent | render] side by side."""
     import torch
@@ -351,11 +395,13 @@ def run(args: Args) -> int:
             capture = scenes.load(args.capture)
         imgs, what = exposure_frames(run_, args.exposure, args.instants, capture, progress)
         fps = DEFAULT_FPS_EXPOSURE if args.fps is None else args.fps
+        labels = PANEL_LABELS if capture is not None else None
     else:
         if args.capture is not None:
             raise UserError("--capture is only used with --exposure")
         if args.camera_path is not None:
             c2w, K, W, H = read_camera_path(args.camera_path)
+            path_fps = camera_path_fps(args.camera_path)
             imgs = render_views(run_, c2w, K, W, H, progress=progress)
             what = f"{len(c2w)} cameras of {args.camera_path}"
         else:
@@ -366,7 +412,12 @@ def run(args: Args) -> int:
             c2w = smooth_path(run_.trajectories.mid_poses().numpy().astype(np.float64), args.frames)
             imgs = render_views(run_, c2w, progress=progress)
             what = f"smooth path through the {len(run_.names)} training cameras"
-        fps = DEFAULT_FPS_PATH if args.fps is None else args.fps
-    out = write_video(args.out, to_display8(imgs), fps)
-    print(f"ebad video: {len(imgs)} frames {imgs.shape[2]}x{imgs.shape[1]} at {fps:g} fps ({what}) -> {out}")
+            path_fps = None
+        fps = args.fps if args.fps is not None else path_fps if path_fps is not None else DEFAULT_FPS_PATH
+        labels = None
+    frames = to_display8(imgs)
+    if labels is not None:
+        frames = label_panels(frames, labels, run_.width)
+    out = write_video(args.out, frames, fps)
+    print(f"ebad video: {len(frames)} frames {frames.shape[2]}x{frames.shape[1]} at {fps:g} fps ({what}) -> {out}")
     return 0

@@ -69,12 +69,13 @@ def import_viser():
     return viser
 
 
-def splat_arrays(params) -> dict[str, np.ndarray]:
+def splat_arrays(params, response=None) -> dict[str, np.ndarray]:
     """viser's Gaussian-splat inputs from model parameters: centres [N, 3], covariances
-    [N, 3, 3] = R diag(s^2) R^T, colours [N, 3] sRGB-encoded (grey repeated), opacities [N, 1]."""
+    [N, 3, 3] = R diag(s^2) R^T, colours [N, 3] in the capture's recorded domain (through the camera
+    ``response``, None: the identity; the ``.splat``'s colours; grey repeated), opacities [N, 1]."""
     import torch
 
-    from ..export import srgb_encode
+    from ..export import recorded_colors
     from ..gaussians import activate
     from ..lie import quat_to_rotmat
 
@@ -88,7 +89,7 @@ def splat_arrays(params) -> dict[str, np.ndarray]:
     return {
         "centers": act["means"].detach().numpy().astype(np.float32),
         "covariances": cov.numpy().astype(np.float32),
-        "rgbs": srgb_encode(colors).astype(np.float32),
+        "rgbs": recorded_colors(colors, response).astype(np.float32),
         "opacities": act["opacities"].detach().numpy().astype(np.float32)[:, None],
     }
 
@@ -124,7 +125,7 @@ def build_scene(server, run, test_views=()) -> dict:
     (objects with ``name`` and ``c2w``) to a viser server; returns the scene handles."""
     mid = run.trajectories.mid_poses().numpy().astype(np.float64)  # [F, 4, 4]
     poses, _ = run.exposure_poses(TRAJECTORY_SAMPLES)  # [F, S, 4, 4]
-    arrays = splat_arrays(run.params)
+    arrays = splat_arrays(run.params, run.response)
     centres = mid[:, :3, 3]
     target = np.median(arrays["centers"], axis=0).astype(np.float64) if len(arrays["centers"]) else centres.mean(0)
     spread = float(np.linalg.norm(centres - centres.mean(0), axis=1).max()) if len(centres) > 1 else 0.0

@@ -105,9 +105,8 @@ def stub_lpips(monkeypatch, tmp_path):
 
 
 @pytest.mark.parametrize("D", [1, 3])
-def test_lpips_path_feeds_the_network_srgb_rgb_in_minus_one_to_one(stub_lpips, D):
-    from ebad.export import srgb_encode
-
+def test_lpips_path_feeds_the_network_the_recorded_values_rgb_in_minus_one_to_one(stub_lpips, D):
+    """The images are already display values (the capture's recorded domain): no second curve."""
     a, b = _imgs(D=D)
     assert lpips_status("alex") is None
     value, reason = lpips_or_none(a, b)
@@ -116,7 +115,7 @@ def test_lpips_path_feeds_the_network_srgb_rgb_in_minus_one_to_one(stub_lpips, D
     assert net == "alex" and pretrained and not grad
     assert ta.shape == tb.shape == (1, 3, 16, 20) and ta.dtype == torch.float32
     for t, x in ((ta, a), (tb, b)):
-        want = torch.from_numpy(2 * srgb_encode(x) - 1).float().permute(2, 0, 1)  # [D, H, W]
+        want = torch.from_numpy(2 * x - 1).float().permute(2, 0, 1)  # [D, H, W], values as they are
         assert torch.allclose(t[0], want.expand(3, -1, -1), atol=1e-6)  # grey repeated into R, G and B
     assert -1 <= float(ta.min()) and float(ta.max()) <= 1
     assert value == pytest.approx(float(((ta - tb) ** 2).mean()), rel=1e-6)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import sys
 
 import numpy as np
@@ -12,6 +13,8 @@ import scenes
 from ebad.cli import main
 from ebad.cli.video import (
     PANEL_GAP,
+    PANEL_LABELS,
+    camera_path_fps,
     exposure_frames,
     exposure_instants,
     read_camera_path,
@@ -82,6 +85,11 @@ def test_camera_path_errors_name_file_and_field(tmp_path):
     p.write_text('{"render_width": 8, "camera_path": []}')
     with pytest.raises(EbadError, match="render_height"):
         read_camera_path(p)
+    cam = {"camera_to_world": np.eye(4).ravel().tolist(), "fov": 190.12345678901234}
+    p.write_text(json.dumps({"render_width": 8, "render_height": 6, "camera_path": [cam]}))
+    with pytest.raises(EbadError, match=r"fov 190\.123 outside") as err:
+        read_camera_path(p)
+    assert "190.12345678" not in str(err.value)  # no 16-digit floats in messages
 
 
 def test_exposure_video_panels(tiny_run, tmp_path):
@@ -121,7 +129,8 @@ def test_exposure_video_cli_and_errors(tiny_run, tmp_path, capsys):
         "--no-progress",
     ]
     assert main(argv) == 0
-    assert _gif(gif) == (6, (3 * 64 + 2 * PANEL_GAP, 48))
+    n, (w, h) = _gif(gif)
+    assert (n, w) == (6, 3 * 64 + 2 * PANEL_GAP) and h - 48 == 14  # a label strip above the panels
     assert "10 fps" in capsys.readouterr().out
     assert main(["video", str(tiny_run.run), "--out", str(gif), "--exposure", "nope", "--no-progress"]) == 2
     assert "--exposure 'nope'" in capsys.readouterr().err
@@ -163,3 +172,50 @@ def test_a_failed_mp4_write_is_exit_2_naming_the_file_and_leaves_nothing(tiny_ru
 
     with pytest.raises(EbadError, match="v.gif"):  # a gif into a folder that is a file: the same one line
         write_video(tmp_path / "file" / "v.gif", np.zeros((2, 4, 4, 1), np.uint8), 10.0)
+
+
+def test_exposure_video_panels_are_labelled(tiny_run, tmp_path):
+    """The three panels carry their labels (dark text pixels in a white strip above each panel); the
+    frames below the strip are the panels as they were."""
+    run = load_run(tiny_run.run)
+    name = run.names[1]
+    out = tmp_path / "exp"
+    argv = ["video", str(tiny_run.run), "--out", str(out), "--exposure", name, "--instants", "2"]
+    assert main([*argv, "--capture", str(tiny_run.capture), "--no-progress"]) == 0
+    with Image.open(out / "frame_0000.png") as im:
+        got = np.asarray(im)
+    W, H = run.width, run.height
+    strip = got[: got.shape[0] - H]
+    assert strip.shape[0] == 14 and strip.shape[1] == 3 * W + 2 * PANEL_GAP
+    for i in range(len(PANEL_LABELS)):
+        cols = strip[:, i * (W + PANEL_GAP) : i * (W + PANEL_GAP) + W]
+        dark = int((cols < 100).sum())
+        assert 10 < dark < 0.5 * cols.size  # text, not a blank or a black strip
+        assert (cols == 255).mean() > 0.5  # on white
+    from ebad.export import to_display8
+
+    panels, _ = exposure_frames(run, name, 2, scenes.load(tiny_run.capture), progress=False)
+    np.testing.assert_array_equal(got[strip.shape[0] :], to_display8(panels[0])[..., 0])
+
+
+def test_camera_path_fps_sets_the_video_rate(tiny_run, tmp_path, capsys):
+    run = load_run(tiny_run.run)
+    mid = run.trajectories.mid_poses().numpy().astype(np.float64)
+    path = write_camera_path(tmp_path / "cp.json", mid[:3], run.K, run.width, run.height, fps=5.0)
+    assert camera_path_fps(path) == 5.0
+    gif = tmp_path / "cp.gif"
+    argv = ["video", str(tiny_run.run), "--out", str(gif), "--camera-path", str(path), "--no-progress"]
+    assert main(argv) == 0
+    assert "at 5 fps" in capsys.readouterr().out
+    with Image.open(gif) as im:
+        assert im.info["duration"] == 200  # ms per frame
+    assert main([*argv, "--fps", "20"]) == 0  # --fps wins
+    assert "at 20 fps" in capsys.readouterr().out
+    doc = json.loads(path.read_text())
+    doc.pop("fps")
+    path.write_text(json.dumps(doc))
+    assert camera_path_fps(path) is None
+    doc["fps"] = -1
+    path.write_text(json.dumps(doc))
+    with pytest.raises(EbadError, match=r"cp\.json.*'fps'.*-1"):
+        camera_path_fps(path)
