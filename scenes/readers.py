@@ -452,7 +452,7 @@ def load_evdeblurnerf(root: str | os.PathLike) -> Capture:
     if cdavis and 0 < len(sharp) < f:
         # CDAVIS interleaves the sharp ground-truth views (t_start == t_end) with the blurry
         # frames and holds them out (llffhold_end): they are test views, never training frames
-        from .convert import hold_out
+        from .holdout import hold_out
 
         cap = hold_out(cap, test_frames=sharp)
         cap.meta["test_rule"] = "CDAVIS: the sharp images (timestamps_start == timestamps_end) are the test views"
