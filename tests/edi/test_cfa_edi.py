@@ -126,9 +126,9 @@ def test_with_estimated_c_the_cfa_path_beats_events_as_luminance_on_the_mosaic(s
     gt_m = seq.sharp_mosaic(float(ex.mean()))
     L, rep = deblur_with_report(B, ex, seq.events, cfa=CFA)
     lum, rep_l = deblur_with_report(B, ex, seq.events)
-    assert rep.c.mean == pytest.approx(0.2345, abs=5e-4) and rep.c_report is not None
+    assert rep.c.mean == pytest.approx(0.2232, abs=5e-4) and rep.c_report is not None
     assert rep_l.c.mean == pytest.approx(0.3368, abs=5e-4)  # the Bayer pattern read as texture
-    assert psnr(mosaic(L, CFA), gt_m) == pytest.approx(26.38, abs=0.01)
+    assert psnr(mosaic(L, CFA), gt_m) == pytest.approx(26.78, abs=0.01)
     assert psnr(mosaic(lum, CFA), gt_m) == pytest.approx(21.45, abs=0.01)
 
 
@@ -171,7 +171,7 @@ def test_shared_c_estimate_on_the_mosaic_is_near_the_truth(seq):
     assert shared.c.mean == pytest.approx(0.2018, abs=5e-4)
     one = estimate_contrast(seq.frames[1], seq.exposures[1], seq.events, cfa=CFA)
     assert one.method == "single" and one.reliable
-    assert one.c.mean == pytest.approx(0.2345, abs=5e-4)
+    assert one.c.mean == pytest.approx(0.2232, abs=5e-4)  # 16 x 16 patches of the sub-grids: 0.2345
     lum = estimate_contrast(seq.frames, seq.exposures, seq.events, pair=True)
     assert lum.c.mean == pytest.approx(0.2534, abs=5e-4)
     assert edi.estimate_c(seq.frames, seq.exposures, seq.events, pair=True, cfa=CFA) == shared.c
