@@ -51,7 +51,10 @@ if TYPE_CHECKING:
 __all__ = ["LOG_EPS", "SATURATION", "deblur", "deblur_with_report", "DeblurReport"]
 
 #: how ``deblur`` makes the colour latent of an RGB frame with a cfa from its mosaic's per-pixel
-#: latents (``model.colour_latents``), measured against the true sharp RGB (see the tests)
+#: latents (``model.colour_latents``). Against the true sharp RGB of ``moving_texture(cfa="RGGB")``
+#: (40 x 56, true c, 3 runs of seeds 0-4) "latents" gave 21.73 / 21.69 / 21.66 dB, "ratio" 21.66 /
+#: 21.78 / 21.57 (the blurry frame 13.7, events as luminance 11.2, the demosaic of the true sharp
+#: mosaic 23.2): a tie within 0.1 dB, so the simpler one, the camera's demosaic of the sharp mosaic
 COLOUR_FROM_MOSAIC: ColourFromMosaic = "latents"
 
 #: the instants of ``deblur``: None (mid-exposure), one instant, or [F] instants, seconds
