@@ -150,6 +150,16 @@ def test_raw_frames_in_give_raw_latents_out(seq):
     assert a == b
 
 
+def test_with_a_response_the_colour_latent_is_demosaiced_in_recorded_units(seq):
+    g = 0.8
+    B, ex = seq.frames[1] ** g, seq.exposures[1]  # recorded = irradiance ** g
+    raw = mosaic(B, CFA)
+    lat_raw = deblur(raw, ex, seq.events, c=0.2, gamma=g, cfa=CFA)
+    np.testing.assert_allclose(lat_raw, (deblur(raw ** (1 / g), ex, seq.events, c=0.2, cfa=CFA)) ** g, atol=1e-12)
+    lat = deblur(B, ex, seq.events, c=0.2, gamma=g, cfa=CFA)
+    np.testing.assert_allclose(lat, np.clip(demosaic(lat_raw, CFA), 0, 1), atol=1e-12)
+
+
 def test_a_bad_cfa_or_frame_names_it(seq):
     B, ex = seq.frames[1], seq.exposures[1]
     with pytest.raises(InputError, match="cfa"):
@@ -196,3 +206,45 @@ def test_medi_per_pixel_of_the_mosaic(seq):
     lat_raw = medi(raw, seq.exposures, seq.events, c=0.2, cfa=CFA)
     assert lat_raw.shape == raw.shape
     np.testing.assert_allclose(lat_raw, mosaic(lat, CFA), atol=1e-12)
+
+
+# --- the measurements behind the choices (shared c; colour from the demosaiced latents) ----------------
+
+
+@pytest.mark.slow
+def test_shared_c_and_colour_latents_measured_on_five_seeds():
+    """moving_texture(cfa="RGGB") 40 x 56, 3 frames, c = 0.2, seeds 0-4: the shared estimate against one
+    c per filter's sub-grid (same estimator, same patch area), and the two colour latents of
+    ``model.colour_latents`` against the true sharp RGB (true c)."""
+    from edi.contrast import FLOW_SUB_PATCH, FLOW_SUBINTERVALS, _flow_setup, _subgrids
+    from edi.model import colour_latents, edi_log_ratio, latent_from_ratio
+
+    err: dict[str, list[float]] = {"shared1": [], "sharedm": [], "per1": [], "perm": []}
+    dbs: dict[str, list[float]] = {"latents": [], "ratio": []}
+    for seed in range(5):
+        s = moving_texture(height=40, width=56, num_frames=3, channels=3, cfa=CFA, lead=0.05, step_us=100, seed=seed)
+        B, ex = s.frames[1], s.exposures[1]
+        err["shared1"].append(abs(estimate_contrast(B, ex, s.events, cfa=CFA).c.mean - 0.2))
+        err["sharedm"].append(abs(estimate_contrast(s.frames, s.exposures, s.events, pair=True, cfa=CFA).c.mean - 0.2))
+        subs = [_subgrids(mosaic(f, CFA)[..., None], s.events) for f in s.frames]
+        defaults = _flow_setup.__defaults__
+        try:
+            _flow_setup.__defaults__ = (FLOW_SUB_PATCH, FLOW_SUBINTERVALS)  # per channel: the shared path's patches
+            for k in range(4):
+                ev_k = subs[0][k][1]
+                fr_k = np.stack([sub[k][0] for sub in subs])
+                err["per1"].append(abs(estimate_contrast(fr_k[1], ex, ev_k).c.mean - 0.2))
+                err["perm"].append(abs(estimate_contrast(fr_k, s.exposures, ev_k, pair=True).c.mean - 0.2))
+        finally:
+            _flow_setup.__defaults__ = defaults
+        mid = float(ex.mean())
+        r, _ = edi_log_ratio(s.events, (float(ex[0]), float(ex[1])), np.array([mid]), (0.2, 0.2))
+        lat_raw, _ = latent_from_ratio(mosaic(B, CFA)[..., None], r)
+        for how in dbs:
+            lat, _ = colour_latents(B, r, lat_raw, CFA, 1.0, edi.SATURATION, how)
+            dbs[how].append(psnr(lat[0], s.sharp(mid)))
+    m = {k: float(np.mean(v)) for k, v in err.items()}
+    assert m["shared1"] == pytest.approx(0.0053, abs=1e-4) and m["per1"] == pytest.approx(0.0129, abs=1e-4)
+    assert m["sharedm"] == pytest.approx(0.0018, abs=1e-4) and m["perm"] == pytest.approx(0.0021, abs=1e-4)
+    assert np.mean(dbs["latents"]) == pytest.approx(21.69, abs=0.01)
+    assert np.mean(dbs["ratio"]) == pytest.approx(21.78, abs=0.01)  # a tie across setups (edi.deblur)
