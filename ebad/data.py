@@ -210,11 +210,14 @@ def _edi_at(
     events: EventStream,
     c: tuple[float, float],
     times: list[float],
+    cfa: str | None = None,
 ) -> np.ndarray:
-    """EDI latents of one frame at ``times`` (seconds), in one pass: [len(times), H, W, D], in [0, 1]."""
+    """EDI latents of one frame at ``times`` (seconds), in one pass: [len(times), H, W, D], in [0, 1].
+
+    ``cfa``: the capture's Bayer pattern (``Capture.cfa``): EDI per pixel of the mosaic (``edi.deblur``)."""
     import edi
 
-    lat = edi.deblur(frame, (float(exposure[0]), float(exposure[1])), events, times=times, c=c)
+    lat = edi.deblur(frame, (float(exposure[0]), float(exposure[1])), events, times=times, c=c, cfa=cfa)
     return np.clip(np.asarray(lat, dtype=np.float32).reshape(len(times), *frame.shape), 0, 1)
 
 
@@ -229,9 +232,10 @@ def view_latents(
     events: EventStream,
     V: int,
     c: tuple[float, float],
+    cfa: str | None = None,
 ) -> Tensor:  # [V, H, W, D]
     """EDI latents of one frame at its V virtual instants (``virtual_instants``), in [0, 1]."""
-    return torch.from_numpy(_edi_at(frame, exposure, events, c, _view_times(exposure, V)))
+    return torch.from_numpy(_edi_at(frame, exposure, events, c, _view_times(exposure, V), cfa))
 
 
 def _train_indices(capture: Capture) -> list[int]:
@@ -431,7 +435,7 @@ def prepare(capture: Capture, cfg: Config) -> TrainingData:
         else:
             import edi
 
-            est = edi.estimate_c(frames_np, exposures, events, pair=True)
+            est = edi.estimate_c(frames_np, exposures, events, pair=True, cfa=capture.cfa)
             c, c_source = (float(est[0]), float(est[1])), "edi.estimate_c"
 
     V = choose_num_views(
@@ -464,13 +468,14 @@ def prepare(capture: Capture, cfg: Config) -> TrainingData:
         assert c is not None  # set above whenever use_events
 
         if lc.edi_prior == "medi":  # all training frames jointly, at their exposure centres
-            lat = np.asarray(edi.medi(frames_np, exposures, events, c=c), dtype=np.float32).reshape(frames_np.shape)
+            medi_lat = edi.medi(frames_np, exposures, events, c=c, cfa=capture.cfa)
+            lat = np.asarray(medi_lat, dtype=np.float32).reshape(frames_np.shape)
         else:  # per frame, one EDI pass for the mid-exposure latent and (loss.edi_instants views) the views'
             lat, views = [], ([] if lc.w_edi > 0 and lc.edi_instants == "views" else None)
             for f in range(len(idx)):
                 t0, t1 = exposures[f]
                 extra = _view_times(exposures[f], int(V[f])) if views is not None and V[f] > 1 else []
-                out = _edi_at(frames_np[f], exposures[f], events, c, [0.5 * (t0 + t1)] + extra)
+                out = _edi_at(frames_np[f], exposures[f], events, c, [0.5 * (t0 + t1)] + extra, capture.cfa)
                 lat.append(out[0])
                 if views is not None:
                     views.append(torch.from_numpy(out[1:]) if extra else None)

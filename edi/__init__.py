@@ -10,13 +10,16 @@ Public API::
     LOG_EPS, SATURATION                             # log(I + LOG_EPS); saturated pixels
     Contrast(pos, neg), parse_c(c)                  # a threshold pair; float | pair -> Contrast
     linearize(img, gamma), apply_gamma(img, gamma)  # recorded = irradiance ** gamma, both ways
-    deblur(blur, exposure, events, times=None, c=None, gamma=1.0) -> [H, W(, D)] | [F, H, W(, D)]
+    deblur(blur, exposure, events, times=None, c=None, gamma=1.0, cfa=None) -> [H, W(, D)] | [F, H, W(, D)]
         (numpy in, numpy out; torch in, torch out)
     deblur_with_report(...same...) -> (latents, DeblurReport)
-    estimate_c(frames, exposures, events, pair=False, gamma=1.0) -> Contrast   # .mean: the one c
+    estimate_c(frames, exposures, events, pair=False, gamma=1.0, cfa=None) -> Contrast   # .mean: the one c
     estimate_contrast(...same...) -> ContrastReport  # .c, .reliable, .message, ...
-    medi(frames, exposures, events, c=None) -> [F, H, W(, D)]
-    moving_texture(...) -> SyntheticSequence        # seeded synthetic ground truth
+    medi(frames, exposures, events, c=None, cfa=None) -> [F, H, W(, D)]
+    moving_texture(..., cfa=None) -> SyntheticSequence  # seeded synthetic ground truth (cfa: a colour DAVIS)
+    cfa: a colour DAVIS's Bayer pattern ("RGGB", ...): each pixel's events follow its own channel, so
+        EDI, mEDI and the c estimate work per pixel of the frames' mosaic (RGB frames demosaiced
+        by the camera's software, or raw mosaics); RGB in, demosaiced latents out; raw in, raw out
     edi.cfa: CFA_PATTERNS, channel_map, mosaic, demosaic, transform_pattern  # colour DAVIS Bayer filter
 """
 

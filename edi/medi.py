@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, overload
 import numpy as np
 import numpy.typing as npt
 
+from .cfa import demosaic
 from .contrast import estimate_c
 from .errors import InputError
 from .events import EventStream, events_in_window
@@ -29,10 +30,12 @@ from .model import (
     SATURATION,
     ContrastLike,
     ImageArray,
+    check_cfa,
     check_frames,
     edi_log_ratio,
     latent_from_ratio,
     parse_c,
+    to_mosaic,
 )
 
 if TYPE_CHECKING:
@@ -79,6 +82,7 @@ def medi(
     *,
     lam: float = 1.0,
     saturation: float = SATURATION,
+    cfa: str | None = None,
 ) -> np.ndarray: ...
 
 
@@ -91,6 +95,7 @@ def medi(
     *,
     lam: float = 1.0,
     saturation: float = SATURATION,
+    cfa: str | None = None,
 ) -> torch.Tensor: ...
 
 
@@ -102,6 +107,7 @@ def medi(
     *,
     lam: float = 1.0,
     saturation: float = SATURATION,
+    cfa: str | None = None,
 ) -> ImageArray:
     """Sharp latents [F, H, W(, D)] at the exposure centres, all frames solved jointly.
 
@@ -111,6 +117,10 @@ def medi(
         events: the stream covering the frames.
         c: contrast threshold, (c_pos, c_neg), or None (``estimate_c`` on the frames).
         lam: weight of the event links between consecutive frames.
+        cfa: the Bayer pattern of a colour DAVIS (``edi.cfa``), or None. Each pixel's events
+            follow its own channel, so the system is solved per pixel of the frames' mosaic
+            (RGB frames are mosaicked; raw [F, H, W(, 1)] frames are the mosaic) and RGB frames
+            get the demosaiced per-pixel latents, raw frames raw latents (as ``deblur``).
 
     Returns:
         The latents, the input's kind (torch float32 for a tensor), in [0, 1].
@@ -125,12 +135,16 @@ def medi(
     if ex.shape != (np.shape(frames)[0], 2):
         raise InputError(f"exposures must be [F, 2] = [{np.shape(frames)[0]}, 2], got {tuple(ex.shape)}")
     fr, ex = check_frames(frames, ex, events)
+    cfa = check_cfa(cfa)
+    rgb_in = cfa is not None and fr.shape[-1] == 3
+    if cfa is not None:
+        fr = to_mosaic(fr, cfa, "frames")
     centres = ex.mean(axis=1)
     if np.any(np.diff(centres) < 0):
         raise InputError("exposures must be in time order (increasing centres)")
     if not (np.isfinite(lam) and lam >= 0):
         raise InputError(f"lam must be finite and >= 0, got {lam}")
-    cc = estimate_c(fr, ex, events, pair=True) if c is None else parse_c(c)
+    cc = estimate_c(fr, ex, events, pair=True, cfa=cfa) if c is None else parse_c(c)
     F, H, W, D = fr.shape
 
     y = np.empty((F, H, W, D))
@@ -160,6 +174,9 @@ def medi(
         out = solve_tridiagonal(np.full(F - 1, -lam), diag, np.full(F - 1, -lam), rhs)
         out = out.reshape(F, H, W, D)
     lat = np.clip(np.exp(out) - LOG_EPS, 0.0, 1.0)
+    if rgb_in:
+        assert cfa is not None  # rgb_in needs it
+        lat = np.clip(demosaic(lat[..., 0], cfa), 0.0, 1.0)  # as deblur's colour_latents("latents")
     if not np.isfinite(lat).all():
         raise FloatingPointError("medi produced a non-finite latent; please report this")
     if grey_in:

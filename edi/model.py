@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any, Literal, NamedTuple, TypeAlias
 import numpy as np
 
 from ._kernels import edi_pass, edi_pass_binned, edi_pass_reference
+from .cfa import check_pattern, demosaic, mosaic
 from .errors import InputError
 from .events import EventStream, events_in_window, seconds_to_us
 
@@ -45,6 +46,10 @@ __all__ = [
     "ImageArray",
     "ContrastLike",
     "EdiImpl",
+    "check_cfa",
+    "to_mosaic",
+    "colour_latents",
+    "ColourFromMosaic",
 ]
 
 #: Offset in log(I + LOG_EPS) for linear intensities in [0, 1]: a black pixel has log
@@ -70,6 +75,9 @@ ImageArray: TypeAlias = "np.ndarray | torch.Tensor"
 ContrastLike: TypeAlias = "float | tuple[float, float] | Contrast"
 #: the EDI pass: "fast" (numba, exact), "reference" (numpy, exact), "binned" (``n_bins`` bins)
 EdiImpl = Literal["fast", "reference", "binned"]
+
+#: how a colour latent is made from the per-pixel latents of a CFA frame's mosaic (``colour_latents``)
+ColourFromMosaic = Literal["latents", "ratio"]
 
 _IMPLS = {"fast": edi_pass, "reference": edi_pass_reference}
 
@@ -318,3 +326,52 @@ def apply_gamma(
 ) -> np.ndarray:
     """Recorded values ``irradiance ** gamma`` (the inverse of ``linearize``)."""
     return irradiance if gamma == 1.0 else np.power(irradiance, gamma)
+
+
+def check_cfa(cfa: Any, name: str = "cfa") -> str | None:
+    """None or a Bayer pattern of ``edi.cfa`` (``InputError`` naming ``name`` otherwise)."""
+    return None if cfa is None else check_pattern(cfa, name)
+
+
+def to_mosaic(img: np.ndarray, cfa: str, name: str) -> np.ndarray:  # [..., H, W, D] -> [..., H, W, 1]
+    """The mosaic a colour DAVIS recorded: each pixel's own channel of an RGB image (the camera's
+    demosaic keeps it exactly), or a raw mosaic (D = 1) as it is; ``InputError`` naming ``name`` else."""
+    D = img.shape[-1]
+    if D == 1:
+        return img
+    if D != 3:
+        raise InputError(f"{name}: with a cfa, frames must be RGB (3 channels) or a raw mosaic (1), got {D} channels")
+    return np.asarray(mosaic(img, cfa))[..., None]
+
+
+def colour_latents(
+    b: np.ndarray,  # [H, W, 3] the blurry RGB frame, irradiance (linearised)
+    r: np.ndarray,  # [F, H, W] per-pixel log ratios of the frame's mosaic (``edi_log_ratio``)
+    lat_raw: np.ndarray,  # [F, H, W, 1] per-pixel latents of the mosaic, recorded units
+    cfa: str,
+    gamma: float,
+    saturation: float,  # in irradiance units (``latent_from_ratio``)
+    how: ColourFromMosaic = "latents",
+) -> tuple[np.ndarray, np.ndarray]:
+    """[F, H, W, 3] colour latents of a CFA frame (recorded units) and the [H, W] saturated mask.
+
+    Each pixel's events follow its own channel, so the mosaic's per-pixel latents ``lat_raw`` are
+    exact; the other two channels of a pixel have no events of their own. ``how``:
+
+    * "latents": the per-pixel latents demosaiced (``edi.cfa.demosaic``, in recorded units as the
+      camera software demosaics): the colour frame the camera would have given for the sharp mosaic;
+    * "ratio": the per-pixel log ratios r demosaiced and applied to the blurry RGB frame,
+      L_c = (B_c + eps) exp(r_c) - eps (each pixel's own channel is the same as with "latents").
+    """
+    if how == "latents":
+        lat = np.clip(demosaic(lat_raw[..., 0], cfa), 0.0, 1.0)
+        return lat, (np.asarray(mosaic(b, cfa)) >= saturation)
+    if how != "ratio":
+        raise InputError(f"how must be 'latents' or 'ratio', got {how!r}")
+    sat = np.asarray((b >= saturation).any(axis=-1))  # [H, W]
+    r_c = demosaic(r, cfa)  # [F, H, W, 3]
+    r_c = np.minimum(r_c, math.log(2.0 / LOG_EPS))
+    lat = (b[None] + LOG_EPS) * np.exp(r_c) - LOG_EPS
+    if sat.any():
+        lat[:, sat, :] = b[sat][None]
+    return apply_gamma(np.clip(lat, 0.0, 1.0), gamma), sat

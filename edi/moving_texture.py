@@ -15,6 +15,7 @@ from typing import cast
 
 import numpy as np
 
+from .cfa import check_pattern, demosaic, mosaic
 from .errors import InputError
 from .events import EventStream, seconds_to_us
 from .model import LOG_EPS
@@ -30,10 +31,17 @@ class SyntheticSequence:
     c: tuple[float, float]  # (c_pos, c_neg) of the simulated sensor
     velocity: tuple[float, float]  # px / s (x, y)
     texture: Texture
+    cfa: str | None = None  # the Bayer pattern of a simulated colour DAVIS (``edi.cfa``), or None
 
     def sharp(self, t: float) -> np.ndarray:
         """[H, W, D] the sharp image at time t (seconds)."""
         return self.texture.render(t)
+
+    def sharp_mosaic(self, t: float) -> np.ndarray:
+        """[H, W] what each pixel of the colour DAVIS sees at time t (its own channel); needs ``cfa``."""
+        if self.cfa is None:
+            raise InputError("sharp_mosaic: the sequence has no cfa (moving_texture(cfa=...))")
+        return mosaic(self.texture.render(t), self.cfa)
 
 
 @dataclass
@@ -74,6 +82,7 @@ def moving_texture(
     gain: float = 3.0,
     sigma_c: float = 0.0,
     lead: float = 0.0,  # s
+    cfa: str | None = None,
 ) -> SyntheticSequence:
     """A seeded sequence of ``num_frames`` blurry frames, their exposures and ideal events.
 
@@ -84,7 +93,16 @@ def moving_texture(
     fewer events than a camera that was already running would give it (its pixels all sit a
     whole threshold away from firing); a lead of a few frame periods spreads the pixels over
     their thresholds as in a running camera.
+
+    ``cfa`` (a Bayer pattern of ``edi.cfa``, with ``channels=3``) simulates a colour DAVIS: each
+    pixel's events fire on the log of its own channel (not the grey level), and the frames are the
+    bilinear demosaic (``edi.cfa.demosaic``, the camera software's) of the blurry mosaic, so
+    ``mosaic(frames, cfa)`` is the raw blurry mosaic exactly; ``sharp_mosaic(t)`` is the truth per pixel.
     """
+    if cfa is not None:
+        cfa = check_pattern(cfa)
+        if channels != 3:
+            raise InputError(f"moving_texture: cfa={cfa!r} needs channels=3, got channels={channels}")
     if not (np.isfinite(lead) and lead >= 0):
         raise InputError(f"lead must be a finite number of seconds >= 0, got {lead!r}")
     rng = np.random.default_rng(seed)
@@ -109,13 +127,17 @@ def moving_texture(
 
     t_end_us = seconds_to_us(lead + (num_frames - 1) * period + exposure)
     steps = np.arange(0, t_end_us + step_us, step_us, dtype=np.int64)
-    ref = np.log(tex.render(0.0).mean(axis=-1) + LOG_EPS)  # events see the grey level
+
+    def seen(img: np.ndarray) -> np.ndarray:  # [H, W, D] -> [H, W]: what a pixel's events see
+        return img.mean(axis=-1) if cfa is None else mosaic(img, cfa)  # the grey level, or its own channel
+
+    ref = np.log(seen(tex.render(0.0)) + LOG_EPS)
     ts, xs, ys, ps = [], [], [], []
     images = {}
     for tj in steps:
         img = tex.render(tj * 1e-6)
         images[int(tj)] = img
-        lg = np.log(img.mean(axis=-1) + LOG_EPS)
+        lg = np.log(seen(img) + LOG_EPS)
         d = lg - ref
         n_up = np.floor(np.maximum(d, 0) / c_pos_px).astype(np.int64)
         n_dn = np.floor(np.maximum(-d, 0) / c_neg_px).astype(np.int64)
@@ -142,4 +164,7 @@ def moving_texture(
         a, b = seconds_to_us(t0), seconds_to_us(t1)
         sel = [images[int(tj)] for tj in steps if a <= tj < b]
         frames.append(np.mean(sel, axis=0))
-    return SyntheticSequence(np.stack(frames), exposures, ev, (c_pos, c_neg), (vx, vy), tex)
+    fr = np.stack(frames)
+    if cfa is not None:  # what the camera software gives: the blurry mosaic, demosaiced
+        fr = np.clip(demosaic(mosaic(fr, cfa), cfa), 0.0, 1.0)
+    return SyntheticSequence(fr, exposures, ev, (c_pos, c_neg), (vx, vy), tex, cfa)

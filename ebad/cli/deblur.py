@@ -64,6 +64,13 @@ class Args:
     """skip frames without events or with t_start == t_end"""
     bits: Literal[8, 16] = 16
     """bit depth of the sharp frames and instants (side-by-side images are 8-bit)"""
+    cfa: Annotated[str | None, tyro.conf.arg(metavar="PATTERN")] = None
+    (
+        "Bayer pattern of a colour DAVIS (RGGB, BGGR, GRBG, GBRG: the filters of pixels (0,0), (1,0), (0,1), (1,1)) "
+        "for an input that does not say it (a frame image, a recording); a capture's own cfa (capture.json) is used "
+        "otherwise. With it each pixel's events follow its own channel: EDI runs per pixel of the mosaic, RGB frames "
+        "get the demosaiced per-pixel latents, raw mosaics raw latents"
+    )
 
 
 def _parse_c(s: str):
@@ -94,7 +101,7 @@ def _parse_gamma(s: str) -> float:
 
 
 def _load_input(args):
-    """-> frames [F, H, W, D], exposures [F, 2], events, names, the time unit note."""
+    """-> frames [F, H, W, D], exposures [F, 2], events, names, the time unit note, the input's cfa (or None)."""
     import edi
 
     path = Path(args.input)
@@ -106,13 +113,14 @@ def _load_input(args):
         cap = load(path)
         names = list(cap.names) or [f"{i:04d}" for i in range(cap.num_frames)]
         unit = f"capture.json's t_unit ({path / 'capture.json'})"
-        return np.asarray(cap.frames), np.asarray(cap.exposures, np.float64), cap.events, names, unit
+        return np.asarray(cap.frames), np.asarray(cap.exposures, np.float64), cap.events, names, unit, cap.cfa
     ext = path.suffix.lower()
     if ext == ".aedat4":
         rec = edi.read_aedat4(path)
         if rec.frames.shape[0] == 0:
             raise UserError(f"{path}: the recording has no frames")
-        return rec.frames, rec.exposures, rec.events, [f"{i:04d}" for i in range(rec.frames.shape[0])], "us (AEDAT4)"
+        names = [f"{i:04d}" for i in range(rec.frames.shape[0])]
+        return rec.frames, rec.exposures, rec.events, names, "us (AEDAT4)", getattr(rec, "cfa", None)
     if ext in _IMAGE_EXT:
         from scenes.images import read_image
 
@@ -132,7 +140,7 @@ def _load_input(args):
                 raise UserError(f"{args.events}: no events, and no --exposure given")
             t0, t1 = float(ev.t[0]) * 1e-6, (float(ev.t[-1]) + 1.0) * 1e-6
             print(f"ebad deblur: exposure from the events' span: {t0:.6f} .. {t1:.6f} s")
-        return img[None], np.array([[t0, t1]]), ev, [path.stem], note
+        return img[None], np.array([[t0, t1]]), ev, [path.stem], note, None
     raise UserError(f"{path}: INPUT must be a capture folder, an .aedat4 file or a frame image")
 
 
@@ -160,7 +168,51 @@ def _check_events_reach_the_frames(events, exposures: np.ndarray, counts: np.nda
     )
 
 
-def _estimate(frames, exposures, events, counts, c_arg, gamma):
+def _resolve_cfa(given: str | None, recorded: str | None, source: str, channels: int) -> str | None:
+    """--cfa checked (``edi.cfa.check_pattern``) against what the input records and its frames'
+    channels; the pattern in use."""
+    from edi import InputError
+    from edi.cfa import check_pattern
+
+    cfa = recorded
+    if given is not None:
+        try:
+            cfa = check_pattern(given, "--cfa")
+        except InputError as exc:
+            raise UserError(str(exc)) from None
+        if recorded is not None and recorded != cfa:
+            raise UserError(f"--cfa {cfa} disagrees with {source}, which records cfa {recorded}")
+    if cfa is not None and channels not in (1, 3):
+        raise UserError(f"{source}: with cfa {cfa} frames must be RGB or raw mosaics, got {channels} channels")
+    return cfa
+
+
+def _cfa_note(cfa: str | None, channels: int) -> str:
+    """What the summary line says about a colour DAVIS capture ("" without a cfa)."""
+    if cfa is None:
+        return ""
+    out = "raw latents" if channels == 1 else "RGB latents demosaiced"
+    return f"; colour DAVIS (cfa {cfa}): per-pixel EDI on the Bayer mosaic, {out}"
+
+
+def _medi(frames: np.ndarray, exposures: np.ndarray, events, c, gamma: float, cfa: str | None) -> np.ndarray:
+    """mEDI latents of all frames in the frames' recorded units (with a cfa: per pixel of the mosaic,
+    RGB frames demosaiced in recorded units as ``edi.deblur`` does)."""
+    import edi
+    from edi.cfa import demosaic
+    from edi.model import to_mosaic, to_unit_range
+
+    lin = edi.linearize(to_unit_range(frames, "frames"), gamma)
+    if cfa is not None:
+        lin = to_mosaic(lin, cfa, "frames")
+    sat = float(edi.linearize(np.float64(edi.SATURATION), gamma))
+    lat = edi.apply_gamma(edi.medi(lin, exposures, events, c=c, saturation=sat, cfa=cfa), gamma)
+    if cfa is not None and frames.shape[-1] == 3:
+        lat = np.clip(demosaic(lat[..., 0], cfa), 0.0, 1.0)
+    return lat
+
+
+def _estimate(frames, exposures, events, counts, c_arg, gamma, cfa=None):
     """-> (c for the frames or None to estimate per frame, source text, the report or None)."""
     import edi
 
@@ -169,7 +221,7 @@ def _estimate(frames, exposures, events, counts, c_arg, gamma):
     use = counts > 0
     if frames.shape[0] >= 2:
         try:
-            rep = edi.estimate_contrast(frames, exposures, events, pair=True, gamma=gamma)
+            rep = edi.estimate_contrast(frames, exposures, events, pair=True, gamma=gamma, cfa=cfa)
             c = rep.c
         except edi.InputError:
             return None, "estimated on each frame", None
@@ -217,7 +269,9 @@ def run(args: Args) -> int:
         raise UserError(f"--times must be >= 0, got {args.times}")
     if args.max_frames < 0:
         raise UserError(f"--max-frames must be >= 0, got {args.max_frames}")
-    frames, exposures, events, names, unit = _load_input(args)
+    frames, exposures, events, names, unit, recorded_cfa = _load_input(args)
+    cfa = _resolve_cfa(args.cfa, recorded_cfa, str(args.input), frames.shape[-1])
+    cfa_note = _cfa_note(cfa, frames.shape[-1])
     if args.max_frames:
         frames, exposures, names = frames[: args.max_frames], exposures[: args.max_frames], names[: args.max_frames]
     if args.medi and frames.shape[0] < 2:
@@ -234,7 +288,9 @@ def run(args: Args) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
 
-    c_all, c_source, c_rep = _estimate(frames, exposures, events, counts, c_arg, gamma)
+    c_all, c_source, c_rep = _estimate(frames, exposures, events, counts, c_arg, gamma, cfa)
+    if cfa_note:
+        print(f"ebad deblur: the capture has a colour filter array (cfa {cfa}){cfa_note.split(':', 1)[1]}")
     units = (
         f"log-irradiance units, frames linearised with gamma {gamma:g}"
         if gamma != 1.0
@@ -245,15 +301,7 @@ def run(args: Args) -> int:
     _say_unreliable(c_rep, "the joint estimate")
     medi_lat = None
     if args.medi:
-        from edi.model import to_unit_range
-
-        lin = edi.linearize(to_unit_range(frames, "frames"), gamma)
-        medi_lat = edi.apply_gamma(
-            edi.medi(
-                lin, exposures, events, c=c_all, saturation=float(edi.linearize(np.float64(edi.SATURATION), gamma))
-            ),
-            gamma,
-        )
+        medi_lat = _medi(frames, exposures, events, c_all, gamma, cfa)
         c_source += ", mEDI"
         print(f"ebad deblur: mEDI: {frames.shape[0]} frames solved jointly")
     per_frame = []
@@ -262,7 +310,7 @@ def run(args: Args) -> int:
         sharp_frame = t_e <= t_s or counts[i] == 0
         if sharp_frame and args.skip_sharp:
             continue
-        lat, rep = edi.deblur_with_report(frames[i], (t_s, t_e), events, c=c_all, gamma=gamma)
+        lat, rep = edi.deblur_with_report(frames[i], (t_s, t_e), events, c=c_all, gamma=gamma, cfa=cfa)
         if rep.c_report is not None:
             print(f"ebad deblur: {names[i]}: c {rep.c.mean:.4f} ({c_source})")
             _say_unreliable(rep.c_report, names[i])
@@ -272,7 +320,7 @@ def run(args: Args) -> int:
         _save(file_in(out / "side_by_side", names[i], ".png"), np.concatenate([frames[i], lat], axis=1))
         if args.times > 0 and not sharp_frame:
             ts = t_s + (np.arange(args.times) + 0.5) * (t_e - t_s) / args.times
-            lats = edi.deblur(frames[i], (t_s, t_e), events, times=ts, c=rep.c, gamma=gamma)
+            lats = edi.deblur(frames[i], (t_s, t_e), events, times=ts, c=rep.c, gamma=gamma, cfa=cfa)
             for k in range(args.times):
                 _save(file_in(out / "instants", f"{names[i]}_{k:02d}", ".png"), lats[k], args.bits)
         c_report = rep.c_report or c_rep
@@ -298,6 +346,7 @@ def run(args: Args) -> int:
                 "input": str(args.input),
                 "time_unit": unit,
                 "medi": bool(args.medi),
+                "cfa": cfa,
                 "gamma": gamma,
                 "gamma_source": "given (--gamma)"
                 if gamma != 1.0
@@ -315,5 +364,5 @@ def run(args: Args) -> int:
         if unreliable
         else ""
     )
-    print(f"ebad deblur: {len(per_frame)} frame(s) written to {out}{tail}")
+    print(f"ebad deblur: {len(per_frame)} frame(s) written to {out}{cfa_note}{tail}")
     return 0
