@@ -47,7 +47,7 @@ def test_unregistered_views_are_named_and_the_rate_reported(small_capture, monke
         sc.estimate_poses(small_capture, ColmapConfig(num_threads=1, min_registered_fraction=1.0))
 
 
-@pytest.mark.slow  # 58 s to simulate and 35 s of SfM on a loaded 2-core machine
+@pytest.mark.slow  # 53 s on a loaded 2-core machine (58 s to simulate, 35 s of SfM alone before)
 def test_sfm_registers_every_view_of_a_30_view_capture():
     import scenes
     from scenes.colmap import estimate_poses, pose_errors
