@@ -10,6 +10,9 @@ step to a user function, ``TensorBoardLogger`` writes TensorBoard event files (`
 from __future__ import annotations
 
 import importlib.util
+import logging
+import sys
+import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
@@ -32,7 +35,36 @@ __all__ = [
     "StepHook",
     "TensorBoardLogger",
     "require_tensorboard",
+    "say",
+    "Ticker",
 ]
+
+progress_log = logging.getLogger("ebad.progress")
+
+
+def say(show: bool, msg: str) -> None:
+    """A line about a phase before the first step (what it does, how far it is): logged at INFO on
+    ``ebad.progress``; with ``show`` (``train.progress``) printed to stderr as well when no handler
+    shows that log."""
+    if progress_log.isEnabledFor(logging.INFO) and progress_log.hasHandlers():
+        progress_log.info(msg)
+    elif show:
+        print(f"ebad: {msg}", file=sys.stderr, flush=True)
+
+
+class Ticker:
+    """``say`` for a loop of ``total`` items: its first and last item, and one in between at most every
+    ``every`` seconds, with the seconds so far."""
+
+    def __init__(self, show: bool, what: str, total: int, every: float = 5.0):
+        self.show, self.what, self.total, self.every = show, what, total, every
+        self.t0 = self.last = time.perf_counter()
+
+    def __call__(self, done: int) -> None:
+        now = time.perf_counter()
+        if done in (1, self.total) or now - self.last >= self.every:
+            self.last = now
+            say(self.show, f"{self.what}: {done}/{self.total} ({now - self.t0:.1f} s)")
 
 
 class Callback(Protocol):
@@ -75,14 +107,27 @@ class Evaluator:
 
 
 class ProgressBar:
-    """A tqdm bar with the losses, N and the latest (test, else train) PSNR."""
+    """A tqdm bar with the losses, N and the latest (test, else train) PSNR. Under a time budget
+    (``train.max_seconds``) the bar counts training seconds against it, and the steps are shown
+    beside (``step``: done / ``train.iters``); else it counts steps."""
 
-    def __init__(self, cfg: Config, initial: int):
+    def __init__(self, cfg: Config, initial: int, elapsed: float = 0.0):
         from tqdm import tqdm
 
-        self.bar = tqdm(
-            total=cfg.train.iters, initial=initial, desc=f"ebad[{cfg.name}]", dynamic_ncols=True, leave=False
-        )
+        self.iters, self.seconds = cfg.train.iters, cfg.train.max_seconds
+        desc = f"ebad[{cfg.name}]"
+        if self.seconds is None:
+            self.bar = tqdm(total=self.iters, initial=initial, desc=desc, dynamic_ncols=True, leave=False)
+        else:
+            self.bar = tqdm(
+                total=float(self.seconds),
+                initial=min(float(elapsed), float(self.seconds)),
+                desc=desc,
+                unit="s",
+                dynamic_ncols=True,
+                leave=False,
+                bar_format="{desc}: {percentage:3.0f}%|{bar}| {n:.0f}/{total:.0f} s [{elapsed}<{remaining}{postfix}]",
+            )
         self.psnr: float | None = None
 
     def on_step(self, state: TrainState, stats: StepStats) -> None:
@@ -94,8 +139,13 @@ class ProgressBar:
         if stats.test_psnr is not None:
             self.psnr = stats.test_psnr
         post["psnr"] = f"{self.psnr if self.psnr is not None else stats.train_psnr:.2f}"
-        self.bar.set_postfix(post, refresh=False)
-        self.bar.update(1)
+        if self.seconds is None:
+            self.bar.set_postfix(post, refresh=False)
+            self.bar.update(1)
+        else:
+            post["step"] = f"{state.step}/{self.iters}"
+            self.bar.set_postfix(post, refresh=False)
+            self.bar.update(min(float(state.elapsed), float(self.seconds)) - self.bar.n)
 
     def on_end(self, state: TrainState, reason: str) -> None:
         self.bar.close()

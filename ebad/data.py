@@ -17,7 +17,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from edi import EventStream
+from edi import EventStream, seconds_to_us
 
 from .config import Config
 from .errors import UserError
@@ -46,6 +46,9 @@ __all__ = [
     "SPREAD_DEPTH_RANGE",
     "STATIC_SPREAD",
     "STATIC_DEPTH_RANGE",
+    "structured_events_per_pixel",
+    "sharp_views",
+    "SUPPORT_US",
 ]
 
 # Intrinsics outside this horizontal/vertical field of view (degrees) are taken for a mistake
@@ -88,6 +91,11 @@ class PrepareReport:
     anchored_mid_poses: bool | None = None  # the trajectories keep the given mid-exposure poses
     # training frames with an exposure of non-zero length but no event in it (they train as sharp frames)
     frames_without_events: list[str] | None = None
+    # events during each exposure per pixel that a neighbour's event supports (``structured_events_per_pixel``):
+    # what decides sharpness, the sensor's isolated noise events left out
+    structured_events_per_pixel: list[float] | None = None
+    sharp_frames: int | None = None  # training frames given V = 1 (sharp)
+    sharp_reason: str | None = None  # why those frames were treated as sharp
 
 
 @dataclass
@@ -284,6 +292,87 @@ def frames_without_events(events: EventStream, exposures: np.ndarray, names: lis
     return [names[f] for f in empty]
 
 
+#: background-activity filter: an event carries structure when one of its 8 neighbouring pixels fired within this
+#: many microseconds of it (before or after). The realistic sensor's noise (about 1.1 events per pixel and second)
+#: passes at about 8 x 1.1 x 2 x 5 ms = 9%: a still camera's 0.07 noise events per pixel in 50 ms leave 0.006
+SUPPORT_US = 5000
+#: at most this many events of one exposure are tested (evenly strided; the count is scaled back)
+SUPPORT_SAMPLE = 50_000
+
+
+def structured_events_per_pixel(
+    events: EventStream,
+    exposures: np.ndarray,  # [F, 2] seconds
+    support_us: int = SUPPORT_US,
+) -> np.ndarray:  # [F]
+    """Events during each exposure that one of their 8 neighbouring pixels' events supports (within
+    ``support_us`` before or after), per sensor pixel: a background-activity filter. Shot, leak and
+    hot-pixel noise fires alone and is left out; a moving edge fires along itself and stays. Each
+    exposure's events are tested against the events of [t_start - support_us, t_end + support_us),
+    sorted once by (pixel, time); at most ``SUPPORT_SAMPLE`` of them, evenly strided."""
+    W, H = events.width, events.height
+    out = np.zeros(len(exposures))
+    offsets = [(dx, dy) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dx or dy]
+    for f, (a, b) in enumerate(np.asarray(exposures, np.float64)):
+        i0, i1 = events.window(a, b)
+        if i1 == i0:
+            continue
+        j0, j1 = events.index_range(seconds_to_us(a) - support_us, seconds_to_us(b) + support_us)
+        t = events.t[j0:j1].astype(np.int64)
+        pix = events.y[j0:j1].astype(np.int64) * W + events.x[j0:j1]
+        span = (
+            int(t[-1] - t[0]) + 2 * support_us + 1
+        )  # keys pixel * span + time: one pixel's times never overlap another's
+        tt = t - t[0] + support_us
+        keys = np.sort(pix * span + tt)
+        step = max(1, -(-(i1 - i0) // SUPPORT_SAMPLE))
+        q = np.arange(i0 - j0, i1 - j0, step)
+        qx, qy, qt = pix[q] % W, pix[q] // W, tt[q]
+        ok = np.zeros(len(q), bool)
+        for dx, dy in offsets:
+            nx, ny = qx + dx, qy + dy
+            inside = (nx >= 0) & (nx < W) & (ny >= 0) & (ny < H)
+            nk = (ny * W + nx) * span + qt
+            pos = np.minimum(np.searchsorted(keys, nk - support_us), len(keys) - 1)
+            ok |= inside & (keys[pos] >= nk - support_us) & (keys[pos] <= nk + support_us)
+        out[f] = ok.sum() * (i1 - i0) / len(q) / (W * H)
+    return out
+
+
+def sharp_views(
+    exposures: np.ndarray,  # [F, 2] seconds
+    events: EventStream | None,
+    num_views: int,
+    adaptive: bool = True,
+    sharp_events_per_pixel: float = 0.05,
+) -> tuple[np.ndarray, list[float] | None, str]:
+    """V per frame (``choose_num_views``), a frame being sharp (V = 1) when its exposure is empty or,
+    with ``adaptive`` and events, when fewer than ``sharp_events_per_pixel`` of its events per pixel
+    carry structure (``structured_events_per_pixel``: a still camera's noise events do not make it
+    blurry). Returns (V [F], the structured events per pixel or None, why the sharp frames are sharp)."""
+    exposures = np.asarray(exposures, dtype=np.float64)
+    V = choose_num_views(exposures, events if adaptive else None, num_views, adaptive, sharp_events_per_pixel)
+    structured: np.ndarray | None = None
+    if adaptive and events is not None and len(events) > 0:
+        structured = structured_events_per_pixel(events, exposures)
+        V[structured < sharp_events_per_pixel] = 1
+    empty = int((exposures[:, 1] <= exposures[:, 0]).sum())
+    n = int((V == 1).sum())
+    parts = [f"{empty} with an empty exposure"] if empty else []
+    if structured is not None:
+        quiet = int(((V == 1) & (exposures[:, 1] > exposures[:, 0])).sum())
+        if quiet:
+            raw = events_per_pixel(events, exposures)[V == 1]  # type: ignore[arg-type]  # events is set here
+            parts.append(
+                f"{quiet} with fewer than {sharp_events_per_pixel:g} structured events per pixel (events with a "
+                f"neighbour's within {SUPPORT_US / 1000:g} ms; {raw.mean():.3g} events per pixel before this filter)"
+            )
+    elif adaptive and events is not None and n > empty:
+        parts.append(f"{n - empty} as the event sensor saw nothing: the camera did not move")
+    why = f"{n} of {len(V)} frames sharp" + (": " + "; ".join(parts) if parts and n else "")
+    return V, None if structured is None else [round(float(v), 4) for v in structured], why
+
+
 def _poses(capture: Capture, cfg: Config, idx: list[int]):
     """Mid-exposure poses of the training frames, SfM points and test-view poses when SfM ran."""
     src = cfg.trajectory.pose_source
@@ -399,9 +488,17 @@ def focus_depth(c2w: np.ndarray) -> float | None:  # [F, 4, 4]
 
 def prepare(capture: Capture, cfg: Config) -> TrainingData:
     """Validate the capture and make every "skip what is not needed" decision (``TrainingData.report``)."""
+    import time
+
+    from .callbacks import Ticker, say
+
+    show = cfg.train.progress
     _check_capture(capture)
     idx = _train_indices(capture)
+    t0 = time.perf_counter()
+    say(show, f"poses of {len(idx)} training frames (trajectory.pose_source {cfg.trajectory.pose_source})")
     c2w, points, point_colors, pose_src, idx, registered = _poses(capture, cfg, idx)
+    say(show, f"poses: {pose_src}, {len(idx)} frames ({time.perf_counter() - t0:.1f} s)")
     if len(idx) < MIN_TRAIN_FRAMES:
         raise UserError(
             f"the capture has {len(idx)} training frame(s) with a pose; a 3D scene needs at least "
@@ -435,14 +532,20 @@ def prepare(capture: Capture, cfg: Config) -> TrainingData:
         else:
             import edi
 
+            t0 = time.perf_counter()
+            say(show, f"estimating the contrast threshold from {len(idx)} frames and {len(events)} events")
             est = edi.estimate_c(frames_np, exposures, events, pair=True, cfa=capture.cfa)
             c, c_source = (float(est[0]), float(est[1])), "edi.estimate_c"
+            say(show, f"c = ({c[0]:.3f}, {c[1]:.3f}) ({time.perf_counter() - t0:.1f} s)")
 
-    V = choose_num_views(
-        exposures, events if tc.adaptive_views else None, tc.num_views, tc.adaptive_views, tc.sharp_events_per_pixel
+    t0 = time.perf_counter()
+    V, structured, sharp_why = sharp_views(
+        exposures, events, tc.num_views, tc.adaptive_views, tc.sharp_events_per_pixel
     )
     if tc.kind == "fixed":  # no motion model: one render per frame whatever the blur
         V[:] = 1
+        sharp_why = f"{len(V)} of {len(V)} frames sharp: trajectory.kind is 'fixed' (one render per frame)"
+    say(show, f"{sharp_why} ({time.perf_counter() - t0:.1f} s)")
     report = PrepareReport(
         pose_source=pose_src,
         pose_trust=_pose_trust(capture.effective_pose_trust)
@@ -458,6 +561,9 @@ def prepare(capture: Capture, cfg: Config) -> TrainingData:
         skipped="no events: L_ev and L_EDI off, EDI target = frames" if wants_events and not has_events else None,
         events_per_pixel=([round(float(v), 4) for v in events_per_pixel(events, exposures)] if has_events else None),
         frames_without_events=no_events,
+        structured_events_per_pixel=structured,
+        sharp_frames=int((V == 1).sum()),
+        sharp_reason=sharp_why,
     )
 
     latents: Tensor | None = None
@@ -468,10 +574,12 @@ def prepare(capture: Capture, cfg: Config) -> TrainingData:
         assert c is not None  # set above whenever use_events
 
         if lc.edi_prior == "medi":  # all training frames jointly, at their exposure centres
+            say(show, f"mEDI latents of {len(idx)} frames")
             medi_lat = edi.medi(frames_np, exposures, events, c=c, cfa=capture.cfa)
             lat = np.asarray(medi_lat, dtype=np.float32).reshape(frames_np.shape)
         else:  # per frame, one EDI pass for the mid-exposure latent and (loss.edi_instants views) the views'
             lat, views = [], ([] if lc.w_edi > 0 and lc.edi_instants == "views" else None)
+            tick = Ticker(show, "EDI latents", len(idx))
             for f in range(len(idx)):
                 t0, t1 = exposures[f]
                 extra = _view_times(exposures[f], int(V[f])) if views is not None and V[f] > 1 else []
@@ -479,6 +587,7 @@ def prepare(capture: Capture, cfg: Config) -> TrainingData:
                 lat.append(out[0])
                 if views is not None:
                     views.append(torch.from_numpy(out[1:]) if extra else None)
+                tick(f + 1)
         latents = torch.from_numpy(np.clip(np.stack(lat), 0, 1))  # mEDI's are not clipped yet
     frames_t = torch.from_numpy(frames_np)
     targets = latents if (lc.target == "edi" and latents is not None) else frames_t

@@ -19,7 +19,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from .callbacks import Callback, Checkpointer, Evaluator, ProgressBar, StepHook
+from .callbacks import Callback, Checkpointer, Evaluator, ProgressBar, StepHook, say
 from .config import Config, preset
 from .data import PoseSourceUsed, PrepareReport, prepare
 from .errors import ConfigError
@@ -196,9 +196,12 @@ def reconstruct(
     """
     configure_threads()
     cfg = _resolve(config)
+    show = cfg.train.progress
     t_prep = time.perf_counter()
+    say(show, f"preparing the capture ({capture.num_frames} frames, {capture.width}x{capture.height})")
     data = prepare(capture, cfg)
     prep_s = time.perf_counter() - t_prep
+    say(show, f"prepared in {prep_s:.1f} s")
     fingerprint = capture_fingerprint(capture)
     ckpt = Path(out_dir) / "checkpoints" / "last.pt" if out_dir is not None else None
     resumed_from = None
@@ -206,17 +209,29 @@ def reconstruct(
         state = TrainState.load(ckpt, data, cfg, fingerprint)
         resumed_from = state.step
     else:
+        t_init = time.perf_counter()
+        say(show, "initialising the Gaussians and the trajectories")
         state = TrainState.create(data, cfg)
+        say(show, f"initialised {state.num_gaussians} Gaussians in {time.perf_counter() - t_init:.1f} s")
     strategy = make_strategy(cfg.strategy, data.scale, max_gaussians(cfg, data), state.generator)
     strategy.check_sanity(state.params, state.optimizers)
     if resumed_from is None:
         state.strategy_state = strategy.initialize_state(state.num_gaussians)
     views = data.test_views if gt_views is None else gt_views  # poses from data.test_c2w where known
     evaluator = Evaluator(data, cfg, views, cfg.train.eval_every, cfg.train.iters)
-    init_eval = evaluator.scores(state) if state.step == 0 else None
+    init_eval = None
+    if state.step == 0 and evaluator.views:
+        t_eval = time.perf_counter()
+        say(show, f"scoring {len(evaluator.views)} test view(s) at initialisation")
+        init_eval = evaluator.scores(state)
+        say(show, f"scored in {time.perf_counter() - t_eval:.1f} s")
     built: list[Callback] = [evaluator]
     if cfg.train.progress:
-        built.append(ProgressBar(cfg, state.step))
+        built.append(ProgressBar(cfg, state.step, state.elapsed))
+    say(
+        show,
+        "training; the first step loads numba's compiled kernels (compiles them on a cold cache: a minute or more)",
+    )
     if on_step is not None:
         built.append(StepHook(on_step))
     if ckpt is not None:

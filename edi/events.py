@@ -16,12 +16,14 @@ import numpy.typing as npt
 
 from .errors import EventError
 
-__all__ = ["EventStream", "EventError", "seconds_to_us", "events_in_window"]
+__all__ = ["EventStream", "EventError", "seconds_to_us", "events_in_window", "coord_dtype", "time_dtype"]
 
 
 def _to_numpy(a: Any, name: str) -> np.ndarray:
     if hasattr(a, "detach"):  # torch tensor
         a = a.detach().cpu().numpy()
+    if not isinstance(a, np.ndarray) and getattr(a, "ndim", None) == 1 and hasattr(a, "dtype"):
+        return a  # a field read block by block (an h5py dataset, ``edi.io``'s lazy fields): sliced per CHUNK below
     try:
         arr = np.asarray(a)
     except Exception as exc:  # pragma: no cover - exotic inputs
@@ -35,19 +37,96 @@ def _first_bad(mask: np.ndarray) -> int:
     return int(np.flatnonzero(mask)[0])
 
 
-def _as_int_coords(a: np.ndarray, name: str) -> np.ndarray:
+#: events converted and checked per block of this many (bounds the temporaries of a large stream)
+CHUNK = 1 << 17
+#: stored times are int32 when every relative time lies in [-T32, T32) (spans to 2^31 us stay exact in int32
+#: arithmetic; 2^30 us is 17.9 minutes), else int64
+T32 = 1 << 30
+
+
+def _blocks(n: int):
+    for a in range(0, n, CHUNK):
+        yield a, min(n, a + CHUNK)
+
+
+def coord_dtype(size: int) -> np.dtype:
+    """The stored dtype of pixel indices on a sensor side of ``size`` pixels: uint16 when it fits."""
+    return np.dtype(np.uint16) if size <= 1 << 16 else np.dtype(np.int32)
+
+
+def time_dtype(first: int, last: int) -> np.dtype:
+    """The stored dtype of relative times from ``first`` to ``last`` us: int32 when they fit, else int64."""
+    return np.dtype(np.int32) if -T32 <= first and last < T32 else np.dtype(np.int64)
+
+
+def _t_block(a: np.ndarray, t0: int) -> np.ndarray:
+    """Raw times (float whole microseconds or integers) of one block -> int64 us relative to t0."""
     if a.dtype.kind == "f":
         bad = ~np.isfinite(a)
         if bad.any():
-            raise EventError(f"events field '{name}' has a non-finite value at index {_first_bad(bad)}")
-        frac = a != np.round(a)
-        if frac.any():
-            i = _first_bad(frac)
-            raise EventError(f"events field '{name}' must hold integer pixel indices; index {i} is {a[i]!r}")
-        return a.astype(np.int32)
-    if a.dtype.kind not in "iub":
+            raise EventError(f"events field 't' has a non-finite value at index {_first_bad(bad)}")
+        if len(a) and np.abs(a).max() > 2**52:
+            raise EventError("events field 't' is a float too large to hold exact microseconds; pass int64")
+        out = np.round(a).astype(np.int64)
+    elif a.dtype.kind in "iub":
+        out = a.astype(np.int64)
+    else:
+        raise EventError(f"events field 't' must be numeric, got dtype {a.dtype}")
+    if t0:
+        out -= np.int64(t0)
+    return out
+
+
+def _coords_into(a: np.ndarray, out: np.ndarray, name: str, lim: int) -> None:
+    """Pixel indices a [M] checked (whole numbers inside [0, lim)) and written into ``out``, per block."""
+    if a.dtype.kind not in "iubf":
         raise EventError(f"events field '{name}' must be numeric, got dtype {a.dtype}")
-    return a.astype(np.int32)
+    for s, e in _blocks(len(a)):
+        b = a[s:e]
+        if b.dtype.kind == "f":
+            bad = ~np.isfinite(b)
+            if bad.any():
+                raise EventError(f"events field '{name}' has a non-finite value at index {s + _first_bad(bad)}")
+            frac = b != np.round(b)
+            if frac.any():
+                i = _first_bad(frac)
+                raise EventError(f"events field '{name}' must hold integer pixel indices; index {s + i} is {b[i]!r}")
+        bad = (b < 0) | (b >= lim)
+        if bad.any():
+            i = _first_bad(bad)
+            raise EventError(
+                f"events field '{name}' is outside the sensor at index {s + i}: {int(b[i])} not in [0, {lim})"
+            )
+        out[s:e] = b
+
+
+def _polarity_into(a: np.ndarray, out: np.ndarray) -> None:
+    """Polarities a [M] in {0, 1} or {-1, +1} (bool: {0, 1}) written into ``out`` as int8 {-1, +1}."""
+    if a.dtype.kind not in "iubf":
+        raise EventError(f"events field 'p' must be numeric, got dtype {a.dtype}")
+    any_neg = any_zero = False
+    for s, e in _blocks(len(a)):
+        b = a[s:e].view(np.int8) if a.dtype == bool else a[s:e]
+        if b.dtype.kind == "f" and not (b == np.round(b)).all():
+            bad = b != np.round(b)
+        elif len(b) and (b.min() < -1 or b.max() > 1):
+            bad = (b < -1) | (b > 1)
+        else:
+            bad = None
+        if bad is not None:
+            i = s + _first_bad(bad)
+            raise EventError(f"events field 'p' must be in {{0, 1}} or {{-1, +1}}; index {i} is {a[i]!r}")
+        out[s:e] = b
+        any_neg = any_neg or bool(len(b) and out[s:e].min() < 0)
+        any_zero = any_zero or np.count_nonzero(out[s:e]) < e - s
+    if any_neg and any_zero:
+        i = _first_bad(out == -1)
+        raise EventError(f"events field 'p' must be in {{0, 1}} or {{-1, +1}}; index {i} is {a[i]!r}")
+    if any_zero:  # {0, 1} -> {-1, +1}
+        for s, e in _blocks(len(out)):
+            blk = out[s:e]
+            blk *= 2
+            blk -= 1
 
 
 @dataclass(frozen=True, eq=False)
@@ -55,7 +134,7 @@ class EventStream:
     """A sorted stream of M polarity events on a ``width`` x ``height`` sensor.
 
     Args:
-        t: [M] int64 microseconds (float arrays are accepted when they hold whole microseconds).
+        t: [M] integer microseconds (float arrays are accepted when they hold whole microseconds).
         x: [M] column indices in [0, width).
         y: [M] row indices in [0, height).
         p: [M] polarities, {0, 1} or {-1, +1}; stored as {-1, +1}.
@@ -63,15 +142,21 @@ class EventStream:
         t0: microseconds subtracted from ``t`` (int64, exact) before storing; use it for raw
             epoch timestamps. The stored ``t`` is relative; ``t0`` is kept for reference.
 
+    Storage (9 bytes an event where 17 were): ``t`` int32 when every relative time lies in
+    [-2^30, 2^30) us (``time_dtype``; 17.9 minutes), else int64; ``x``/``y`` uint16 (int32 on a
+    sensor side above 65536, ``coord_dtype``); ``p`` int8. Inputs are converted and checked per
+    block of ``CHUNK`` events, so no full-length temporary is made beyond the stored arrays.
+    Slicing (``events[i0:i1]``, ``window``) gives views, not copies.
+
     Raises:
         EventError: unequal lengths, unsorted or non-finite times, events outside the sensor,
             polarities outside {0, 1} / {-1, +1}. The message names the field and the first
             offending index.
     """
 
-    t: np.ndarray  # [M] int64 us
-    x: np.ndarray  # [M] int32
-    y: np.ndarray  # [M] int32
+    t: np.ndarray  # [M] int32 (or int64) us
+    x: np.ndarray  # [M] uint16 (or int32)
+    y: np.ndarray  # [M] uint16 (or int32)
     p: np.ndarray  # [M] int8 in {-1, +1}
     width: int
     height: int
@@ -94,54 +179,44 @@ class EventStream:
         lens = {"t": len(t_a), "x": len(x_a), "y": len(y_a), "p": len(p_a)}
         if len(set(lens.values())) != 1:
             raise EventError(f"events fields must have equal lengths, got {lens}")
-        # times: exact int64 microseconds
-        if t_a.dtype.kind == "f":
-            bad = ~np.isfinite(t_a)
-            if bad.any():
-                raise EventError(f"events field 't' has a non-finite value at index {_first_bad(bad)}")
-            if len(t_a) and np.abs(t_a).max() > 2**52:
-                raise EventError("events field 't' is a float too large to hold exact microseconds; pass int64")
-            t_i = np.round(t_a).astype(np.int64)
-        elif t_a.dtype.kind in "iu":
-            t_i = t_a.astype(np.int64)
-        else:
-            raise EventError(f"events field 't' must be numeric, got dtype {t_a.dtype}")
-        t_i = t_i - np.int64(t0)
-        if len(t_i) > 1:
-            dec = np.diff(t_i) < 0
-            if dec.any():
-                i = _first_bad(dec) + 1
+        M = len(t_a)
+        t0 = int(t0)
+        # times: exact integer microseconds, sorted; the stored dtype from the first and last (sorted) times
+        try:
+            ends = _t_block(np.concatenate([t_a[0:1], t_a[M - 1 : M]]), t0) if M else None
+        except EventError:  # the block loop below names the offending index
+            ends = None
+        t_i = np.empty(M, np.int64 if ends is None else time_dtype(int(ends[0]), int(ends[-1])))
+        prev: int | None = None
+        for s, e in _blocks(M):
+            b = _t_block(t_a[s:e], t0)
+            dec = np.flatnonzero(b[1:] < b[:-1])
+            if prev is not None and b[0] < prev:
+                i = s
                 raise EventError(
-                    f"events field 't' is not sorted: index {i} ({t_i[i]}) comes before index {i - 1} ({t_i[i - 1]})"
+                    f"events field 't' is not sorted: index {i} ({b[0]}) comes before index {i - 1} ({prev})"
                 )
-        x_i = _as_int_coords(x_a, "x")
-        y_i = _as_int_coords(y_a, "y")
-        for arr, name, lim in ((x_i, "x", int(width)), (y_i, "y", int(height))):
-            bad = (arr < 0) | (arr >= lim)
-            if bad.any():
-                i = _first_bad(bad)
+            if dec.size:
+                i = int(dec[0]) + 1
                 raise EventError(
-                    f"events field '{name}' is outside the sensor at index {i}: {arr[i]} not in [0, {lim})"
+                    f"events field 't' is not sorted: index {s + i} ({b[i]}) comes before "
+                    f"index {s + i - 1} ({b[i - 1]})"
                 )
-        if p_a.dtype == bool:
-            p_a = p_a.astype(np.int8)
-        p_f = np.asarray(p_a, dtype=np.float64)
-        zero_one = np.isin(p_f, (0.0, 1.0))
-        pm_one = np.isin(p_f, (-1.0, 1.0))
-        if zero_one.all():
-            p_i = np.where(p_f > 0, 1, -1).astype(np.int8)
-        elif pm_one.all():
-            p_i = p_f.astype(np.int8)
-        else:
-            i = _first_bad(~(zero_one | pm_one)) if (~(zero_one | pm_one)).any() else _first_bad(~zero_one)
-            raise EventError(f"events field 'p' must be in {{0, 1}} or {{-1, +1}}; index {i} is {p_a[i]!r}")
+            t_i[s:e] = b
+            prev = int(b[-1])
+        x_i = np.empty(M, coord_dtype(int(width)))
+        y_i = np.empty(M, coord_dtype(int(height)))
+        _coords_into(x_a, x_i, "x", int(width))
+        _coords_into(y_a, y_i, "y", int(height))
+        p_i = np.empty(M, np.int8)
+        _polarity_into(p_a, p_i)
         object.__setattr__(self, "t", t_i)
         object.__setattr__(self, "x", x_i)
         object.__setattr__(self, "y", y_i)
         object.__setattr__(self, "p", p_i)
         object.__setattr__(self, "width", int(width))
         object.__setattr__(self, "height", int(height))
-        object.__setattr__(self, "t0", int(t0))
+        object.__setattr__(self, "t0", t0)
         object.__setattr__(self, "_checked", True)
 
     @classmethod
@@ -159,9 +234,19 @@ class EventStream:
 
     def index_range(self, t_start_us: int, t_end_us: int) -> tuple[int, int]:
         """Indices [i0, i1) of events with t_start_us <= t < t_end_us; O(log M)."""
-        i0 = int(np.searchsorted(self.t, np.int64(t_start_us), side="left"))
-        i1 = int(np.searchsorted(self.t, np.int64(t_end_us), side="left"))
+        i0 = int(np.searchsorted(self.t, self._as_t(t_start_us), side="left"))
+        i1 = int(np.searchsorted(self.t, self._as_t(t_end_us), side="left"))
         return i0, max(i0, i1)
+
+    def _as_t(self, t_us: int) -> np.integer:
+        """A time in the stored dtype, clamped to its range (a search with another dtype would cast the
+        whole array)."""
+        info = np.iinfo(self.t.dtype)
+        return self.t.dtype.type(min(max(int(t_us), info.min), info.max))
+
+    def nbytes(self) -> int:
+        """Bytes held by the stored arrays."""
+        return int(self.t.nbytes + self.x.nbytes + self.y.nbytes + self.p.nbytes)
 
     def window(self, t_start: float, t_end: float) -> tuple[int, int]:
         """Index bounds [i0, i1) of the events of the exposure window [t_start, t_end) in

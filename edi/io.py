@@ -32,7 +32,7 @@ import xml.etree.ElementTree as ET
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal, overload
+from typing import Any, Literal, cast, overload
 
 import numpy as np
 
@@ -137,13 +137,6 @@ def to_us(t: np.ndarray, unit: str, name: str = "t") -> np.ndarray:
     return q + ((r > 500) | ((r == 500) & (q % 2 == 1)))
 
 
-def _to_us(t: np.ndarray, unit: str, path: str) -> tuple[np.ndarray, int]:
-    """raw times -> (int64 us, t0 in us to subtract: the first time when it is an epoch reading)."""
-    t_us = to_us(t, unit, path)
-    t0 = int(t_us.min()) if len(t_us) and int(t_us.min()) > _EPOCH_US else 0
-    return t_us, t0
-
-
 def _pick(keys: set[str], field: str, path: str) -> str:
     for a in _ALIASES[field]:
         if a in keys:
@@ -153,7 +146,73 @@ def _pick(keys: set[str], field: str, path: str) -> str:
     )
 
 
-def _load_arrays(path: Path) -> dict[str, np.ndarray]:
+class _Lazy:
+    """A 1-D field read block by block: ``raw`` (an ndarray, a memory map of an .npz member, an
+    h5py dataset) with ``fn`` applied to each block read (the time unit's conversion)."""
+
+    ndim = 1
+
+    def __init__(self, raw, fn: Callable[[np.ndarray], np.ndarray] | None = None, dtype=None) -> None:
+        self.raw, self.fn = raw, fn
+        self.shape = (int(raw.shape[0]),)
+        self.dtype = np.dtype(dtype if dtype is not None else raw.dtype)
+
+    def __len__(self) -> int:
+        return self.shape[0]
+
+    def __getitem__(self, sl):
+        if not isinstance(sl, slice):  # one value, for a message: the raw one
+            return self.raw[sl]
+        a = np.asarray(self.raw[sl])
+        return self.fn(a) if self.fn is not None else a
+
+    def blocks(self):
+        from .events import CHUNK
+
+        for s in range(0, len(self), CHUNK):
+            yield self[s : s + CHUNK]
+
+    def min(self):
+        return min(b.min() for b in self.blocks())
+
+    def max(self):
+        return max(b.max() for b in self.blocks())
+
+
+def _npz_member_map(path: Path, name: str) -> np.ndarray | None:
+    """A read-only memory map of an uncompressed .npz member's array (None when it is compressed or
+    not a plain array): the file is then read as it is used, never copied whole."""
+    import struct
+    import zipfile
+
+    with zipfile.ZipFile(path) as zf:
+        info = zf.getinfo(name + ".npy")
+        if info.compress_type != zipfile.ZIP_STORED:
+            return None
+    with open(path, "rb") as f:
+        f.seek(info.header_offset)
+        local = f.read(30)
+        if local[:4] != b"PK\x03\x04":
+            return None
+        n_name, n_extra = struct.unpack("<HH", local[26:30])
+        f.seek(info.header_offset + 30 + n_name + n_extra)
+        version = np.lib.format.read_magic(f)
+        if version == (1, 0):
+            shape, fortran, dtype = np.lib.format.read_array_header_1_0(f)
+        elif version == (2, 0):
+            shape, fortran, dtype = np.lib.format.read_array_header_2_0(f)
+        else:
+            return None
+        offset = f.tell()
+    if fortran or dtype.hasobject or len(shape) > 1 and shape[1:] != (1,) * (len(shape) - 1):
+        return None
+    n = int(np.prod(shape)) if shape else 1
+    if n == 0:
+        return np.zeros(0, dtype)
+    return np.memmap(path, dtype=dtype, mode="r", offset=offset, shape=(n,))
+
+
+def _load_arrays(path: Path) -> dict[str, Any]:
     """The arrays of an event file; a file its parser cannot read raises EventError naming it."""
     import zipfile
     import zlib
@@ -174,7 +233,7 @@ def _load_arrays(path: Path) -> dict[str, np.ndarray]:
         raise CorruptFileError(f"{path}: not a readable {kind[ext]} file ({type(exc).__name__}: {exc})") from exc
 
 
-def _parse_arrays(path: Path, ext: str) -> dict[str, np.ndarray]:
+def _parse_arrays(path: Path, ext: str) -> dict[str, Any]:
     if ext == ".npz":
         with np.load(path, allow_pickle=False) as z:
             keys = list(z.keys())
@@ -183,17 +242,27 @@ def _parse_arrays(path: Path, ext: str) -> dict[str, np.ndarray]:
             if len(keys) == 1 and z[keys[0]].ndim == 2 and z[keys[0]].shape[1] == 4:
                 a = z[keys[0]]
                 return {"t": a[:, 0], "x": a[:, 1], "y": a[:, 2], "p": a[:, 3]}
-            return {k: z[k] for k in keys}
+            fields = {n for f in "txyp" for n in _ALIASES[f]}
+            out: dict[str, Any] = {}
+            for k in keys:  # the event fields mapped when stored uncompressed (np.savez), else read whole
+                mapped = _npz_member_map(path, k) if k in fields else None
+                out[k] = mapped if mapped is not None else z[k]
+            return out
     if ext in (".h5", ".hdf5"):
         import h5py
 
-        with h5py.File(path, "r") as f:
-            grp = f["events"] if "events" in f and isinstance(f["events"], h5py.Group) else f
-            out = {k: grp[k][()] for k in grp.keys() if isinstance(grp[k], h5py.Dataset)}
-            if "events" in f and isinstance(f["events"], h5py.Dataset) and f["events"].ndim == 2:
-                a = f["events"][()]
-                out = {"t": a[:, 0], "x": a[:, 1], "y": a[:, 2], "p": a[:, 3]}
-            return out
+        f = h5py.File(path, "r")  # kept open: its event datasets are read block by block (closed with the file)
+        grp = f["events"] if "events" in f and isinstance(f["events"], h5py.Group) else f
+        fields = {n for fl in "txyp" for n in _ALIASES[fl]}
+        out = {
+            k: (grp[k] if k in fields and grp[k].ndim == 1 else grp[k][()])
+            for k in grp.keys()
+            if isinstance(grp[k], h5py.Dataset)
+        }
+        if "events" in f and isinstance(f["events"], h5py.Dataset) and f["events"].ndim == 2:
+            a = f["events"][()]
+            out = {"t": a[:, 0], "x": a[:, 1], "y": a[:, 2], "p": a[:, 3]}
+        return out
     if ext == ".mat":
         from scipy.io import loadmat
 
@@ -289,22 +358,23 @@ def read_events(
         return (ev, "us", "AEDAT4 timestamps are microseconds") if return_unit else ev
     arrs = _load_arrays(path)
     keys = set(arrs)
-    t = np.asarray(arrs[_pick(keys, "t", str(path))]).reshape(-1)
-    x = np.asarray(arrs[_pick(keys, "x", str(path))]).reshape(-1)
-    y = np.asarray(arrs[_pick(keys, "y", str(path))]).reshape(-1)
-    p = np.asarray(arrs[_pick(keys, "p", str(path))]).reshape(-1)
+    t_raw, x, y, p = (_field(arrs[_pick(keys, f, str(path))]) for f in "txyp")
     if t_unit is None:
         if path.suffix.lower() == ".txt":
             unit, reason = "s", "events.txt stores seconds"
         else:
             try:
-                unit, reason = (infer or infer_time_unit)(t)
+                unit, reason = (infer or infer_time_unit)(_whole(t_raw))
             except EventError as exc:
                 raise EventError(f"{path}: {exc}") from None
         log.info("read_events %s: time unit %r (inferred: %s)", path, unit, reason)
     else:
         unit, reason = t_unit, "given"
-    t_us, t0 = _to_us(t, unit, str(path))
+    if unit not in UNITS_US:
+        raise EventError(f"{path}: t_unit must be one of {sorted(UNITS_US)}, got {unit!r}")
+    t_us = _Lazy(t_raw.raw, lambda a: to_us(a, unit, str(path)), np.int64)
+    t_min = int(t_us.min()) if len(t_us) else 0
+    t0 = t_min if t_min > _EPOCH_US else 0
     w_f = next((int(np.asarray(arrs[k]).reshape(-1)[0]) for k in ("width", "sensor_width") if k in arrs), None)
     h_f = next((int(np.asarray(arrs[k]).reshape(-1)[0]) for k in ("height", "sensor_height") if k in arrs), None)
     if "sensor_size" in arrs:
@@ -314,16 +384,35 @@ def read_events(
         _check_declared(path, (w_f, h_f), width, height)
     if width is None or height is None:
         if w_f is None or h_f is None:
-            w_f = int(np.max(x)) + 1 if len(x) else 1
-            h_f = int(np.max(y)) + 1 if len(y) else 1
+            w_f = int(x.max()) + 1 if len(x) else 1
+            h_f = int(y.max()) + 1 if len(y) else 1
             log.warning("read_events %s: no sensor size in the file; using %dx%d from the coordinates", path, w_f, h_f)
         width = width if width is not None else w_f
         height = height if height is not None else h_f
     try:
-        ev = EventStream(t_us, x, y, p, int(width), int(height), t0=t0)
+        ev = EventStream(t_us, x, y, p, int(width), int(height), t0=t0)  # type: ignore[arg-type]  # read per block
     except EventError as exc:
         raise EventError(f"{path}: {exc}") from exc
+    finally:
+        for v in arrs.values():  # an HDF5 file was kept open for its datasets
+            if type(v).__module__.startswith("h5py"):
+                cast(Any, v).file.close()
+                break
     return (ev, unit, reason) if return_unit else ev
+
+
+def _field(a) -> _Lazy:
+    """An event field, flattened (a 2-D [M, 1] array) and read block by block."""
+    if isinstance(a, np.ndarray):
+        a = a.reshape(-1)
+    elif getattr(a, "ndim", 1) != 1:
+        a = np.asarray(a[()]).reshape(-1)
+    return _Lazy(a)
+
+
+def _whole(f: _Lazy) -> np.ndarray:
+    """A field as one array (a memory map or an array as read; an h5py dataset read whole)."""
+    return f.raw if isinstance(f.raw, np.ndarray) else np.asarray(f.raw[()])
 
 
 def _check_declared(path: Path, declared: tuple[int, int], width: int | None, height: int | None) -> None:

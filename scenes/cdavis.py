@@ -28,6 +28,8 @@ from edi.cfa import channel_map
 
 from .errors import CaptureError
 
+EPOCH_US = 10**12  # converted times above this (~11.6 days) are raw epoch readings (edi.io)
+
 __all__ = ["CDAVIS_CFA", "EV_MAP", "read_cdavis_events", "snap_to_channel"]
 
 CDAVIS_CFA = "RGGB"  # the filter Ev-DeblurNeRF's loader assumes over the sensor grid
@@ -92,7 +94,7 @@ def read_cdavis_events(ev_file: Path, ev_map: Path, width: int, height: int) -> 
         CaptureError: naming the file and field: unreadable files, maps of another size, an
             event whose coordinates no sensor pixel maps to, bad times or polarities.
     """
-    from edi.io import _to_us, infer_time_unit
+    from edi.io import infer_time_unit, to_us
 
     try:
         with np.load(ev_map, allow_pickle=False) as z:
@@ -127,7 +129,8 @@ def read_cdavis_events(ev_file: Path, ev_map: Path, width: int, height: int) -> 
     tx, ty, ok = snap_to_channel(pu, pv, own, channel_map(CDAVIS_CFA, height, width))
     try:
         unit, _ = infer_time_unit(a["t"])
-        t_us, t0 = _to_us(a["t"], unit, str(ev_file))
+        t_us = to_us(np.asarray(a["t"]), unit, str(ev_file))
+        t0 = int(t_us.min()) if len(t_us) and int(t_us.min()) > EPOCH_US else 0  # an epoch clock
         events = EventStream(t_us[ok], tx[ok], ty[ok], a["p"][ok], width, height, t0=t0)
     except ValueError as exc:
         raise CaptureError(str(ev_file), "events", str(exc).replace(f"{ev_file}: ", "")) from None

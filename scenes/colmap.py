@@ -16,6 +16,7 @@ No truth is read: the contrast threshold for EDI is estimated from the capture
 
 from __future__ import annotations
 
+import logging
 import math
 import shutil
 import tempfile
@@ -36,6 +37,7 @@ from .errors import CaptureError
 from .poses import interpolate_poses
 
 __all__ = [
+    "choose_matcher",
     "ColmapConfig",
     "PoseEstimate",
     "SfMError",
@@ -45,6 +47,8 @@ __all__ = [
     "rotation_errors_deg",
     "pose_errors",
 ]
+
+log = logging.getLogger(__name__)
 
 AXIS_LENGTH = 1.0  # align_similarity: camera axis tips at this x the RMS spread of the centres
 
@@ -59,7 +63,10 @@ class ColmapConfig:
     """Settings of ``estimate_poses``."""
 
     deblur: bool = True  # EDI-deblur blurry frames with their events before feature extraction
-    matcher: Literal["auto", "sequential", "exhaustive"] = "auto"  # auto: exhaustive up to 40 frames
+    # auto: exhaustive up to ``exhaustive_max`` images (frames and test views), else sequential in time (the frames
+    # are named in the order of their exposures, so a video-like capture pairs neighbours in time)
+    matcher: Literal["auto", "sequential", "exhaustive"] = "auto"
+    exhaustive_max: int = 20  # 190 pairs at 20 images; 30 would be 435, 40 780 (sequential, overlap 10: 245, 345)
     overlap: int = 10  # sequential matcher: neighbours matched per frame
     max_num_features: int = 4096  # SIFT features per frame
     min_registered_fraction: float = 0.5  # fewer registered frames than this raise SfMError
@@ -153,6 +160,20 @@ def _interp_missing(c2w: np.ndarray, registered: np.ndarray, t: np.ndarray) -> n
     return out
 
 
+def choose_matcher(cfg: ColmapConfig, n_images: int) -> Literal["sequential", "exhaustive"]:
+    """The matcher ``estimate_poses`` uses: the configured one, or with "auto" exhaustive up to
+    ``cfg.exhaustive_max`` images (every pair: n (n - 1) / 2), sequential beyond (each frame with its
+    ``cfg.overlap`` neighbours in time; about n x overlap pairs, test views matched against every frame)."""
+    if cfg.matcher != "auto":
+        return cfg.matcher
+    return "exhaustive" if n_images <= cfg.exhaustive_max else "sequential"
+
+
+def _view_names(capture: Capture, idx: np.ndarray, which: np.ndarray) -> str:
+    """The capture's names (or indices) of frames idx[which], for a message."""
+    return ", ".join(capture.names[int(i)] if capture.names else f"frame {int(i)}" for i in idx[which])
+
+
 def _failure_hint(cfg: ColmapConfig, capture: Capture, report: dict) -> str:
     """What to try when too few frames register (the usual cause: too few features in blurry frames)."""
     tips = []
@@ -209,7 +230,13 @@ def estimate_poses(
     idx, tests = _sfm_inputs(capture, cfg, frames)
     report: dict = {"frames_used": len(idx), "test_views_used": len(tests)}
     t_start = time.perf_counter()
+    log.info("SfM: EDI-deblurring the frames for features (%d frames, %d test views)", len(idx), len(tests))
     imgs = _sfm_frames(capture, cfg.deblur, report, cfg.c_polarity)[idx]
+    log.info(
+        "SfM: deblurred %d frames in %.1f s; extracting SIFT features",
+        report["deblurred"],
+        time.perf_counter() - t_start,
+    )
     scale = 2 if capture.width < cfg.upsample_below else 1
     K = np.asarray(capture.K, dtype=np.float64)
     root = Path(workdir) if workdir else Path(tempfile.mkdtemp(prefix="ebad-colmap-"))
@@ -219,7 +246,10 @@ def estimate_poses(
     try:
         img_dir = root / "images"
         img_dir.mkdir(parents=True, exist_ok=True)
-        names = [f"{i:05d}.png" for i in range(len(idx))]
+        # named by their rank in time: the sequential matcher pairs neighbours in time, whatever the frames' order
+        rank = np.empty(len(idx), int)
+        rank[np.argsort(capture.exposures[idx, 0], kind="stable")] = np.arange(len(idx))
+        names = [f"{int(r):05d}.png" for r in rank]
         test_names = [f"test_{j:05d}.png" for j in range(len(tests))]
         for name, im in zip(names, imgs):
             _write_png(img_dir / name, im, scale)
@@ -254,7 +284,14 @@ def estimate_poses(
         mopt.num_threads = cfg.num_threads
         mopt.use_gpu = False
         n_img = len(names) + len(test_names)
-        matcher = cfg.matcher if cfg.matcher != "auto" else ("exhaustive" if n_img <= 40 else "sequential")
+        matcher = choose_matcher(cfg, n_img)
+        log.info(
+            "SfM: features of %d images in %.1f s; matching them (%s%s)",
+            n_img,
+            t_feat - t_start,
+            matcher,
+            f", overlap {cfg.overlap}" if matcher == "sequential" else f", {n_img * (n_img - 1) // 2} pairs",
+        )
         if matcher == "exhaustive":
             pycolmap.match_exhaustive(db, matching_options=mopt, device=pycolmap.Device.cpu)
         else:
@@ -282,8 +319,10 @@ def estimate_poses(
         opt.mapper.random_seed = cfg.seed
         out_dir = root / "sparse"
         out_dir.mkdir(exist_ok=True)
+        log.info("SfM: matched in %.1f s; incremental mapping of %d images", t_match - t_feat, n_img)
         recs = pycolmap.incremental_mapping(db, img_dir, out_dir, options=opt)
         t_map = time.perf_counter()
+        log.info("SfM: mapped in %.1f s", t_map - t_match)
     finally:
         pycolmap.logging.minloglevel = old_level
         if not workdir:
@@ -301,7 +340,16 @@ def estimate_poses(
     if n_reg < need:
         raise SfMError(
             f"SfM registered only {n_reg} of {len(idx)} frames (need {need}) in its largest model "
-            f"({len(recs)} model(s))" + _failure_hint(cfg, capture, report)
+            f"({len(recs)} model(s)); not registered: {_view_names(capture, idx, ~registered)}"
+            + _failure_hint(cfg, capture, report)
+        )
+    if n_reg < len(idx):
+        log.warning(
+            "SfM registered %d of %d frames (%.0f%%); not registered (poses interpolated in time): %s",
+            n_reg,
+            len(idx),
+            100.0 * n_reg / len(idx),
+            _view_names(capture, idx, ~registered),
         )
     t_mid = capture.exposures[idx].mean(axis=1)
     c2w = _interp_missing(c2w, registered, t_mid)
@@ -310,7 +358,9 @@ def estimate_poses(
     report.update(
         {
             "registered": n_reg,
+            "registration_rate": n_reg / len(idx),
             "unregistered": np.flatnonzero(~registered).tolist(),
+            "unregistered_names": _view_names(capture, idx, ~registered).split(", ") if n_reg < len(idx) else [],
             "test_registered": len(test_c2w),
             "test_unregistered": test_unreg,
             "points": len(points),

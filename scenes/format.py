@@ -447,13 +447,9 @@ def _write(cap: Capture, root: Path) -> None:
             d["file"] = out.relative_to(root).as_posix()
         tvs.append(d)
     ev = cap.events
-    np.savez(
-        root / "events.npz",
-        t=ev.t.astype(np.int64),
-        x=ev.x.astype(np.int16 if max(cap.width, cap.height) < 32767 else np.int32),
-        y=ev.y.astype(np.int16 if max(cap.width, cap.height) < 32767 else np.int32),
-        p=ev.p.astype(np.int8),
-    )
+    # stored as held (edi.EventStream: t int32 relative us when the span fits, x/y uint16, p int8; 9 bytes an
+    # event), uncompressed: edi.read_events maps the file and converts it block by block
+    np.savez(root / "events.npz", t=ev.t, x=ev.x, y=ev.y, p=ev.p)
     K = np.asarray(cap.K, dtype=np.float64)
     doc: dict[str, Any] = {
         "format": FORMAT,

@@ -7,7 +7,7 @@ from edi import EventError, EventStream
 def test_polarity_zero_one_is_stored_signed():
     ev = EventStream([0, 1, 2], [0, 1, 2], [0, 0, 1], [0, 1, 1], width=3, height=2)
     assert ev.p.tolist() == [-1, 1, 1]
-    assert ev.t.dtype == np.int64
+    assert ev.t.dtype == np.int32 and ev.x.dtype == ev.y.dtype == np.uint16 and ev.p.dtype == np.int8
 
 
 def test_raw_epoch_times_are_reduced_exactly():

@@ -68,7 +68,7 @@ def test_epoch_nanoseconds_are_read_as_nanoseconds(tmp_path, frame_and_events, c
     """Issue 13, row 2: epoch-ns timestamps spanning 40 ms were read as microseconds."""
     png, npz, s = frame_and_events
     z = dict(np.load(npz))
-    z["t"] = z["t"] * 1000 + 1_700_000_000_000_000_000
+    z["t"] = z["t"].astype(np.int64) * 1000 + 1_700_000_000_000_000_000  # stored int32 (edi.EventStream)
     np.savez(tmp_path / "ns.npz", **z)
     rc = main(["deblur", str(png), "--events", str(tmp_path / "ns.npz"), "--out", str(tmp_path / "o")])
     out = capsys.readouterr().out

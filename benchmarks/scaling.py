@@ -1,0 +1,312 @@
+"""The paper's scale (issue 31): how ebad's cost grows with the views, the events and the pixels.
+
+    python -m benchmarks.scaling [--size davis] [--views 10,20,40] [--test-views 8] [--presets ebad,bad]
+                                 [--poses noisy,sfm] [--seconds 900] [--marks 8] [--refine-iters 200]
+                                 [--events 50e6] [--name scaling]
+    python -m benchmarks.scaling --size tiny --views 4 --seconds 20        # a check that it runs
+
+For each number of training views, a realistic capture (``scenes.make_scene("boxes", size,
+sensor="realistic")``, ``--test-views`` held-out views) is simulated once and written to disk; every
+(preset, poses) pair then runs in its own subprocess, which loads the capture (``scenes.load``) and
+reconstructs it under a wall-time budget of ``--seconds`` of training: ``noisy`` trains from the
+capture's noisy given poses, ``sfm`` finds them with pycolmap (``trajectory.pose_source colmap``).
+Per run:
+
+* every phase before the first step timed separately, from the lines ``ebad.progress`` and
+  ``scenes.colmap`` log (loading, poses/SfM with features, matching and mapping, c estimation,
+  sharpness, latents, initialisation, the initial scoring), the first step (numba's kernels loaded
+  or compiled) and the steps/s after it;
+* test PSNR (poses refined against the images, ``ebad.evaluate``) of snapshots at ``--marks``
+  instants against wall time (the prepare time included);
+* the subprocess's peak RSS and the stored stream's bytes per event.
+
+``--events N`` also measures one stream of N events (default 50M, 0: skip) in a subprocess: written
+as an uncompressed .npz, read with ``edi.read_events`` (peak RSS, seconds, bytes per event), and
+windowed per frame (30 windows: ``EventStream.window`` views and the counts per virtual window).
+Writes ``benchmarks/results/NAME.json`` and a plot ``NAME.png``. Timings are noisy on a shared
+machine: compare within one run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import json
+import logging
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from ._common import RESULTS, config_spec, write_json
+
+if TYPE_CHECKING:
+    from ebad.config import PoseSource
+
+POSES: dict[str, PoseSource] = {"noisy": "capture", "sfm": "colmap"}  # --poses -> trajectory.pose_source
+
+
+class Timeline(logging.Handler):
+    """The (seconds since ``t0``, message) of every line of the progress and SfM logs."""
+
+    def __init__(self, t0: float):
+        super().__init__(logging.INFO)
+        self.t0 = t0
+        self.lines: list[tuple[float, str]] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.lines.append((round(time.perf_counter() - self.t0, 3), record.getMessage()))
+
+
+class FirstStep:
+    """A ``Callback`` noting the wall time of the first step's end."""
+
+    def __init__(self, t0: float):
+        self.t0 = t0
+        self.at: float | None = None
+
+    def on_step(self, state, stats) -> None:
+        if self.at is None:
+            self.at = time.perf_counter() - self.t0
+
+    def on_end(self, state, reason: str) -> None:
+        return None
+
+
+def run_child(spec: dict) -> dict:
+    """One reconstruction of a written capture; what the module docstring lists."""
+    import resource
+
+    import scenes
+    from ebad.evaluate import evaluate
+    from ebad.run import reconstruct
+
+    from .time_to_quality import Snapshots
+
+    t0 = time.perf_counter()
+    timeline = Timeline(t0)
+    for name in ("ebad.progress", "scenes.colmap"):
+        lg = logging.getLogger(name)
+        lg.setLevel(logging.INFO)
+        lg.addHandler(timeline)
+    capture = scenes.load(spec["capture"])
+    load_s = time.perf_counter() - t0
+    ev = capture.events
+    cfg = config_spec(spec["preset"])
+    cfg.train.iters, cfg.train.max_seconds = 1_000_000, float(spec["seconds"])
+    cfg.train.progress, cfg.train.eval_every = False, 0
+    cfg.trajectory.pose_source = POSES[spec["poses"]]
+    marks = int(spec["marks"])
+    snaps = Snapshots([spec["seconds"] * (k + 1) / marks for k in range(marks - 1)])
+    first = FirstStep(t0)
+    run = reconstruct(capture, cfg, callbacks=[first, snaps])
+    wall = time.perf_counter() - t0
+    m = run.metrics
+    assert m is not None  # reconstruct sets it
+    before_train = wall - m.train_seconds  # loading, prepare, initialisation, the initial scoring
+    points = []
+    for snap in snaps.taken:
+        r = copy.copy(run)
+        r.params, r.trajectories, r.response = snap["params"], snap["trajectories"], snap["response"]
+        res = evaluate(r, capture, refine=True, refine_iters=int(spec["refine_iters"]))
+        points.append(
+            {
+                "train_seconds": snap["seconds"],
+                "wall_seconds": before_train + snap["seconds"],
+                "step": snap["step"],
+                "gaussians": snap["gaussians"],
+                "test_psnr_refined": res["test_refined"].psnr if "test_refined" in res else None,
+                "test_psnr": res["test"].psnr if "test" in res else None,
+            }
+        )
+    first_step = None if first.at is None else first.at - before_train
+    later = (m.train_seconds - (first_step or 0.0)) / max(m.steps - 1, 1)
+    return {
+        **spec,
+        "load_seconds": load_s,
+        "timeline": timeline.lines,  # (seconds since start, what began or ended)
+        "prepare_seconds": m.prepare_seconds,
+        "before_first_step_seconds": before_train + (first_step or 0.0),
+        "first_step_seconds": first_step,  # numba's kernels loaded (or compiled) and one step
+        "steps": m.steps,
+        "steps_per_second": 1.0 / later if later > 0 else None,
+        "train_seconds": m.train_seconds,
+        "wall_seconds": wall,
+        "gaussians": m.gaussians,
+        "events": len(ev),
+        "bytes_per_event": ev.nbytes() / max(len(ev), 1),
+        "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+        "sharp_frames": m.prepare.sharp_frames,
+        "sharp_reason": m.prepare.sharp_reason,
+        "points": points,
+        "final_psnr_refined": points[-1]["test_psnr_refined"] if points else None,
+    }
+
+
+def events_measure(n: int, path: str, frames: int = 30) -> dict:
+    """Read n events (already written to ``path``) and window them per frame; peak RSS of this process."""
+    import resource
+
+    import numpy as np
+
+    from ebad.virtual_views import event_counts
+    from edi.io import read_events
+
+    t0 = time.perf_counter()
+    ev = read_events(path, t_unit="us")
+    read_s = time.perf_counter() - t0
+    rss_read = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    span = ev.duration_s
+    t1 = time.perf_counter()
+    counts = 0
+    for f in range(frames):
+        a = f * span / frames
+        win = ev[slice(*ev.window(a, a + 0.05))]
+        counts += int(event_counts(ev, (a, a + 0.05), 5).sum())
+        assert np.shares_memory(win.t, ev.t) or len(win) == 0
+    win_s = time.perf_counter() - t1
+    return {
+        "events": len(ev),
+        "bytes_per_event": ev.nbytes() / len(ev),
+        "dtypes": {k: str(getattr(ev, k).dtype) for k in "txyp"},
+        "read_seconds": read_s,
+        "peak_rss_mb_after_read": rss_read,
+        "window_seconds": win_s,
+        "windowed_events": counts,
+        "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+    }
+
+
+def write_events(n: int, path: str, seed: int = 0) -> None:
+    """n events on a 346x260 sensor over 60 s, raw epoch microseconds (t int64, x/y int16, p int8), as
+    ``np.savez`` writes them (uncompressed), built in blocks."""
+    import numpy as np
+
+    rng = np.random.default_rng(seed)
+    t = np.sort(rng.integers(0, 60_000_000, n)) + 1_600_000_000_000_000
+    np.savez(
+        path,
+        t=t,
+        x=rng.integers(0, 346, n).astype(np.int16),
+        y=rng.integers(0, 260, n).astype(np.int16),
+        p=rng.integers(0, 2, n).astype(np.int8),
+        width=np.array(346),
+        height=np.array(260),
+    )
+
+
+def _subprocess(args: list[str]) -> dict:
+    out = subprocess.run([sys.executable, "-m", "benchmarks.scaling", *args], capture_output=True, text=True)
+    if out.returncode != 0:
+        return {"error": out.stderr.strip().splitlines()[-5:]}
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def plot(results: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    sizes = list(results["runs"])
+    fig, axes = plt.subplots(1, max(len(sizes), 1), figsize=(5 * max(len(sizes), 1), 3.8), squeeze=False)
+    for ax, views in zip(axes[0], sizes):
+        for r in results["runs"][views]:
+            if "points" not in r:
+                continue
+            xs = [p["wall_seconds"] for p in r["points"]]
+            ys = [p["test_psnr_refined"] for p in r["points"]]
+            ax.plot(xs, ys, marker="o", label=f"{r['preset']} ({r['poses']})")
+        ax.set(xlabel="wall seconds (everything before the first step included)", ylabel="test PSNR dB (refined)")
+        ax.set_title(f"{views} training views")
+        ax.grid(alpha=0.3)
+        ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--size", default="davis", help="scene size: tiny, small or davis (346x260)")
+    ap.add_argument("--views", default="10,20,40", help="training views per capture, comma-separated")
+    ap.add_argument("--test-views", type=int, default=8, help="held-out test views per capture")
+    ap.add_argument("--presets", default="ebad,bad")
+    ap.add_argument("--poses", default="noisy,sfm", help="noisy (the capture's noisy poses) and/or sfm (pycolmap)")
+    ap.add_argument("--seconds", type=float, default=900.0, help="training budget per run")
+    ap.add_argument("--marks", type=int, default=8, help="snapshots per run")
+    ap.add_argument("--refine-iters", type=int, default=200)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--events", type=float, default=50e6, help="events of the stream measured on its own (0: skip)")
+    ap.add_argument("--name", default="scaling", help="results file benchmarks/results/NAME.json (+ .png)")
+    ap.add_argument("--workdir", default=None, help="where the captures are written (default a temporary folder)")
+    ap.add_argument("--child", default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--events-child", nargs=2, default=None, help=argparse.SUPPRESS)
+    a = ap.parse_args(argv)
+    if a.child is not None:
+        print(json.dumps(run_child(json.loads(a.child))))
+        return 0
+    if a.events_child is not None:
+        print(json.dumps(events_measure(int(float(a.events_child[0])), a.events_child[1])))
+        return 0
+    views = [int(v) for v in a.views.split(",") if v]
+    presets = [p for p in a.presets.split(",") if p]
+    poses = [p for p in a.poses.split(",") if p]
+    for p in poses:
+        if p not in POSES:
+            ap.error(f"--poses: unknown {p!r} (choose from {', '.join(POSES)})")
+    if any(v < 2 for v in views) or a.test_views < 1:
+        ap.error("--views: every capture needs >= 2 training views, and --test-views >= 1")
+    import scenes
+
+    work = Path(a.workdir) if a.workdir else Path(tempfile.mkdtemp(prefix="ebad-scaling-"))
+    results: dict = {"args": vars(a), "runs": {}, "simulate_seconds": {}}
+    for n in views:
+        t0 = time.perf_counter()
+        sc = scenes.make_scene("boxes", a.size, seed=a.seed, n_frames=n, n_test=a.test_views, sensor="realistic")
+        cap_dir = work / f"{a.size}_{n}"
+        scenes.write_scene(sc, cap_dir)
+        results["simulate_seconds"][n] = time.perf_counter() - t0
+        del sc
+        rows = []
+        for preset in presets:
+            for pose in poses:
+                spec = {
+                    "capture": str(cap_dir / "capture"),
+                    "views": n,
+                    "preset": preset,
+                    "poses": pose,
+                    "seconds": a.seconds,
+                    "marks": a.marks,
+                    "refine_iters": a.refine_iters,
+                }
+                r = _subprocess(["--child", json.dumps(spec)])
+                rows.append({**spec, **r})
+                print(
+                    f"{n:3d} views {preset:>6} {pose:>5}: "
+                    + (
+                        f"before the first step {r['before_first_step_seconds']:.1f} s, "
+                        f"{r['steps_per_second']:.2f} steps/s, peak RSS {r['peak_rss_mb']:.0f} MB, "
+                        f"PSNR {r['final_psnr_refined']} after {r['wall_seconds']:.0f} s"
+                        if "error" not in r
+                        else f"failed: {r['error']}"
+                    ),
+                    flush=True,
+                )
+        results["runs"][n] = rows
+    if a.events > 0:
+        path = work / "events.npz"
+        write_events(int(a.events), str(path))
+        results["events"] = _subprocess(["--events-child", str(int(a.events)), str(path)])
+        path.unlink()
+        print(f"events: {results['events']}", flush=True)
+    out = write_json(a.name, results)
+    plot(results, RESULTS / f"{a.name}.png")
+    print(f"wrote {out} and {a.name}.png")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
