@@ -103,6 +103,13 @@ class ModelConfig:
     gamma learnt with the scene"""
     lr_response: float = 1e-3
     """Adam learning rate of the response curve's parameters"""
+    sh_degree: int = 0
+    """view-dependent colour: spherical harmonics up to this degree (0..3, the INRIA / gsplat convention); 0: one
+    colour per Gaussian. The higher coefficients start at 0 and learn at train.lr_colors / 20 (INRIA's ratio)"""
+    sh_degree_interval: int = 1000
+    """the SH degree used rises by one every this many steps (gsplat's sh_degree_interval), or every this fraction
+    of 30000 steps (gsplat's default run) of the budget when that comes sooner: a run of 3000 steps raises it every
+    100 (ebad.schedule)"""
 
     def check(self) -> None:
         _finite(self, "model")
@@ -128,6 +135,10 @@ class ModelConfig:
         )
         _require(0 <= self.background <= 1, "model.background", f"must be in [0, 1], got {self.background}")
         _require(self.lr_response >= 0, "model.lr_response", f"must be >= 0, got {self.lr_response}")
+        _require(0 <= self.sh_degree <= 3, "model.sh_degree", f"must be in 0..3, got {self.sh_degree}")
+        _require(
+            self.sh_degree_interval >= 1, "model.sh_degree_interval", f"must be >= 1, got {self.sh_degree_interval}"
+        )
 
 
 @dataclass

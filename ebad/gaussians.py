@@ -8,7 +8,12 @@ densification strategy can replace them together with their Adam state:
 - ``quats`` [N, 4] (w, x, y, z), normalised by the rasteriser,
 - ``opacities`` [N] logits,
 - ``colors`` [N, D] spherical-harmonic DC coefficients: colour = 0.5 + SH_C0 * f_dc, clamped at 0
-  (the 3DGS convention, so ``point_cloud.ply`` opens in splat viewers). D = 1 for grey scenes.
+  (the 3DGS convention, so ``point_cloud.ply`` opens in splat viewers). D = 1 for grey scenes;
+- ``sh_rest`` [N, K - 1, D], only when ``model.sh_degree`` > 0: the coefficients of degrees 1..sh_degree
+  (K = (sh_degree + 1)^2, INRIA's order), so that colour = max(SH(d) . coeffs + 0.5, 0) for the unit view
+  direction d from the camera centre to the mean (``splat_cpu.rasterize``'s ``sh_degree``). They start at 0 and
+  learn at ``train.lr_colors / SH_REST_LR_RATIO``. A render at degree 0 (or of a model without them) passes
+  ``activate``'s colours to the rasteriser, exactly as a model without view-dependent colour.
 """
 
 from __future__ import annotations
@@ -26,7 +31,10 @@ from .lie import viewmat_from_c2w
 
 __all__ = [
     "SH_C0",
+    "SH_REST_LR_RATIO",
     "init_params",
+    "sh_degree_of",
+    "resize_sh",
     "points_from_frames",
     "plane_sweep_points",
     "knn_scale",
@@ -38,6 +46,7 @@ __all__ = [
 ]
 
 SH_C0 = 0.28209479177387814
+SH_REST_LR_RATIO = 20.0  # the higher SH coefficients learn at lr_colors / this (INRIA's feature_lr / 20)
 # plane-sweep stereo needs parallax: cameras whose baseline moves a point over the depth range by less
 # than this many pixels give every depth plane the same cost, so random depths are used instead
 MIN_PARALLAX_PX = 1.0
@@ -135,6 +144,33 @@ def scene_scale(c2w: np.ndarray, depth_range: tuple[float, float] | None = None)
     return max(spread, 1e-3)
 
 
+def sh_degree_of(params: Mapping[str, Tensor]) -> int:
+    """The SH degree a model carries: 0 without ``sh_rest``, else from its K - 1 = (degree + 1)^2 - 1 rows."""
+    rest = params.get("sh_rest")
+    if rest is None:
+        return 0
+    degree = math.isqrt(rest.shape[1] + 1) - 1 if rest.ndim == 3 else -1
+    if degree < 1 or (degree + 1) ** 2 != rest.shape[1] + 1:
+        raise ValueError(f"sh_rest must be [N, (degree + 1)^2 - 1, D], got {tuple(rest.shape)}")
+    return degree
+
+
+def resize_sh(params: dict[str, nn.Parameter], degree: int) -> None:
+    """Give ``params`` the SH coefficients of ``degree`` in place: ``sh_rest`` added as zeros, padded with zeros or
+    cut to fewer rows; removed at degree 0. The DC ``colors`` are kept as they are."""
+    k = (degree + 1) ** 2 - 1
+    old = params.get("sh_rest")
+    if degree <= 0:
+        params.pop("sh_rest", None)
+        return
+    n, d = params["colors"].shape
+    new = torch.zeros(n, k, d, dtype=params["colors"].dtype)
+    if old is not None:
+        keep = min(k, old.shape[1])
+        new[:, :keep] = old.detach()[:, :keep]
+    params["sh_rest"] = nn.Parameter(new)
+
+
 def num_gaussians(params: Mapping[str, Tensor]) -> int:
     return int(params["means"].shape[0])
 
@@ -179,27 +215,37 @@ def render(
     width: int,
     height: int,
     background: float = 0.0,
+    sh_degree: int | None = None,
 ) -> tuple[Tensor, Tensor, dict]:  # images [C, H, W, D], alphas [C, H, W, 1], meta
-    """Render the Gaussians from C cameras in one batched rasteriser call."""
+    """Render the Gaussians from C cameras in one batched rasteriser call.
+
+    ``sh_degree``: the spherical-harmonic degree to render with, at most the model's (``sh_degree_of``); None: the
+    model's. At degree 0 the colours are ``activate``'s, view-independent (the rasteriser's SH path is not used)."""
     import splat_cpu
 
     C = c2w.shape[0]
     Ks = K.float().expand(C, 3, 3) if K.ndim == 2 else K.float()
+    degree = sh_degree_of(params) if sh_degree is None else min(int(sh_degree), sh_degree_of(params))
     a = activate(params)
     D = a["colors"].shape[1]
     bg = torch.full((D,), float(background))
     viewmats = viewmat_from_c2w(c2w.float())
+    colors = a["colors"]
+    if degree > 0:  # [N, K, D]: the DC coefficients, then those of degrees 1..degree
+        k = (degree + 1) ** 2
+        colors = torch.cat([params["colors"][:, None, :], params["sh_rest"][:, : k - 1]], dim=1)
     return splat_cpu.rasterize(
         a["means"],
         a["quats"],
         a["scales"],
         a["opacities"],
-        a["colors"],
+        colors,
         viewmats,
         Ks,
         int(width),
         int(height),
         background=bg,
+        sh_degree=degree if degree > 0 else None,
     )
 
 

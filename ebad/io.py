@@ -4,9 +4,13 @@ PNG: ``scenes.images.write_png16`` (a tiny encoder: Pillow cannot write 16-bit c
 values are linear intensity, ``round(v * 65535)``.
 
 PLY (through ``plyfile``): the standard 3DGS layout (binary little-endian float32): ``x y z nx ny nz f_dc_0 f_dc_1
-f_dc_2 opacity scale_0 scale_1 scale_2 rot_0 rot_1 rot_2 rot_3``, opacity as a logit, scales
-as logs, rotation (w, x, y, z). A grey model writes its single DC value into all three f_dc
-so viewers show grey, and records ``comment ebad channels 1`` so it reads back as grey.
+f_dc_2 f_rest_0 .. f_rest_44 opacity scale_0 scale_1 scale_2 rot_0 rot_1 rot_2 rot_3``, opacity as a logit, scales
+as logs, rotation (w, x, y, z). ``f_rest_*`` are the SH coefficients of degrees 1..3 in INRIA's layout: channel-major
+(the 15 of R, then G, then B), always 45 of them, zero above the model's degree, so that INRIA's ``load_ply`` at its
+default degree 3 (and viewers reading degree 3) open every model; ``comment ebad sh_degree D`` records the model's
+own degree so it reads back as it was. A grey model writes its single value into all three f_dc (and its
+coefficients into each channel's f_rest) so viewers show grey, and records ``comment ebad channels 1`` so it reads
+back as grey.
 """
 
 from __future__ import annotations
@@ -26,11 +30,15 @@ __all__ = ["write_png16", "read_png16", "write_ply", "read_ply", "write_trajecto
 
 # --------------------------------------------------------------------------- PLY
 
+PLY_SH_DEGREE = 3  # the degree of the f_rest_* layout written (INRIA's default max_sh_degree)
+_REST_PER_CHANNEL = (PLY_SH_DEGREE + 1) ** 2 - 1  # 15
+_REST_FIELDS = [f"f_rest_{i}" for i in range(3 * _REST_PER_CHANNEL)]
 _PLY_FIELDS = (
     ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2", "opacity"]
     + [f"scale_{i}" for i in range(3)]
     + [f"rot_{i}" for i in range(4)]
 )
+_WRITE_FIELDS = _PLY_FIELDS[:9] + _REST_FIELDS + _PLY_FIELDS[9:]  # INRIA's order: f_rest after f_dc
 
 
 def write_ply(path: str | Path, params: dict[str, torch.Tensor]) -> Path:
@@ -45,19 +53,30 @@ def write_ply(path: str | Path, params: dict[str, torch.Tensor]) -> Path:
         f_dc = colors
     else:
         raise ValueError(f"write_ply supports D = 1 or 3 colour channels, got {D}")
+    rest = np.zeros((N, _REST_PER_CHANNEL, 3), np.float32)  # [N, 15, 3], zero above the model's degree
+    degree = 0
+    if params.get("sh_rest") is not None:
+        sh = params["sh_rest"].detach().float().cpu().numpy()  # [N, K - 1, D]
+        degree = int(round((sh.shape[1] + 1) ** 0.5)) - 1
+        if sh.shape[1] > _REST_PER_CHANNEL:
+            raise ValueError(f"write_ply supports SH degrees up to {PLY_SH_DEGREE}, got {degree}")
+        rest[:, : sh.shape[1]] = sh  # a grey model's one channel broadcast to the three
+    f_rest = rest.transpose(0, 2, 1).reshape(N, 3 * _REST_PER_CHANNEL)  # channel-major (INRIA): R, G, B
     cols = [
         means,
         np.zeros((N, 3), np.float32),
         f_dc,
+        f_rest,
         params["opacities"].detach().float().cpu().numpy()[:, None],
         params["scales"].detach().float().cpu().numpy(),
         params["quats"].detach().float().cpu().numpy(),
     ]
     data = np.concatenate(cols, axis=1).astype("<f4")
-    vertex = np.empty(N, dtype=[(name, "<f4") for name in _PLY_FIELDS])
-    for k, name in enumerate(_PLY_FIELDS):
+    vertex = np.empty(N, dtype=[(name, "<f4") for name in _WRITE_FIELDS])
+    for k, name in enumerate(_WRITE_FIELDS):
         vertex[name] = data[:, k]
-    ply = PlyData([PlyElement.describe(vertex, "vertex")], text=False, byte_order="<", comments=[f"ebad channels {D}"])
+    comments = [f"ebad channels {D}", f"ebad sh_degree {degree}"]
+    ply = PlyData([PlyElement.describe(vertex, "vertex")], text=False, byte_order="<", comments=comments)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     ply.write(str(path))
@@ -66,6 +85,9 @@ def write_ply(path: str | Path, params: dict[str, torch.Tensor]) -> Path:
 
 def read_ply(path: str | Path) -> dict[str, torch.Tensor]:
     """Read a 3DGS ``point_cloud.ply`` (float32 properties; the layout of ``write_ply``) with ``plyfile``.
+
+    ``f_rest_*`` (INRIA's layout), when present, become ``sh_rest`` [N, K - 1, D] of the degree ``comment ebad
+    sh_degree`` records, else of the degree their count says; no ``sh_rest`` at degree 0.
 
     Raises:
         ValueError: not a binary little-endian PLY, no ``vertex`` element or one of no vertices, a
@@ -91,22 +113,38 @@ def read_ply(path: str | Path) -> dict[str, torch.Tensor]:
     if missing:
         raise ValueError(f"{path}: missing properties {missing}")
     D = 3
+    degree: int | None = None
     for comment in ply.comments:
         parts = comment.split()
         if parts[:2] == ["ebad", "channels"]:
             D = int(parts[2])
+        if parts[:2] == ["ebad", "sh_degree"]:
+            degree = int(parts[2])
     col = {n: np.asarray(vertex[n]) for n in names}
 
     def stack(keys: list[str]) -> torch.Tensor:
         return torch.from_numpy(np.stack([col[k] for k in keys], 1).astype(np.float32))
 
-    return {
+    out = {
         "means": stack(["x", "y", "z"]),
         "colors": stack([f"f_dc_{i}" for i in range(D)]),
         "opacities": torch.from_numpy(col["opacity"].astype(np.float32).copy()),
         "scales": stack([f"scale_{i}" for i in range(3)]),
         "quats": stack([f"rot_{i}" for i in range(4)]),
     }
+    rest_names = sorted((n for n in names if n.startswith("f_rest_")), key=lambda n: int(n.split("_")[-1]))
+    if rest_names:
+        per_channel = len(rest_names) // 3
+        have = int(round((per_channel + 1) ** 0.5)) - 1
+        if 3 * ((have + 1) ** 2 - 1) != len(rest_names) or rest_names != [
+            f"f_rest_{i}" for i in range(len(rest_names))
+        ]:
+            raise ValueError(f"{path}: {len(rest_names)} f_rest properties are not the SH coefficients of a degree")
+        degree = have if degree is None else min(degree, have)
+        rest = stack(rest_names).reshape(-1, 3, per_channel).transpose(1, 2)  # [N, per_channel, 3]
+        if degree > 0:
+            out["sh_rest"] = rest[:, : (degree + 1) ** 2 - 1, :D].contiguous()
+    return out
 
 
 # --------------------------------------------------------------------------- trajectories

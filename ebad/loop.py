@@ -66,6 +66,7 @@ LR_OPTIONS = {
     "quats": "--train.lr_quats",
     "opacities": "--train.lr_opacities",
     "colors": "--train.lr_colors",
+    "sh_rest": "--train.lr_colors",
     "poses": "--trajectory.lr",
     "contrast": "--loss.lr_contrast",
     "response": "--model.lr_response",
@@ -129,9 +130,10 @@ class FrameLosses:
     alpha: float | None = None  # largest alpha of the renders (in the first train.empty_render_steps steps only)
 
 
-def frame_losses(data: TrainingData, state: TrainState, f: int, cfg: Config) -> FrameLosses:
+def frame_losses(data: TrainingData, state: TrainState, f: int, cfg: Config, sh_degree: int = 0) -> FrameLosses:
     """Losses of frame ``f``: its V virtual views (plus the mid view when V is even and L_EDI
-    compares at mid-exposure only) rendered in one batched call."""
+    compares at mid-exposure only) rendered in one batched call, with the SH degree ``sh_degree``
+    (the schedule's, ``Phase.sh_degree``; 0: view-independent colours)."""
     lc = cfg.loss
     V = int(data.V[f])
     u = virtual_instants(V)
@@ -142,7 +144,9 @@ def frame_losses(data: TrainingData, state: TrainState, f: int, cfg: Config) -> 
     t0 = time.perf_counter()
     poses = state.trajectories(torch.tensor([f]), u)[0]  # [V', 4, 4]
     t1 = time.perf_counter()
-    images, alphas, meta = render(state.params, poses, data.K, data.width, data.height, cfg.model.background)
+    images, alphas, meta = render(
+        state.params, poses, data.K, data.width, data.height, cfg.model.background, sh_degree=sh_degree
+    )
     t2 = time.perf_counter()
     mid = V if need_mid else V // 2  # the render L_EDI compares with a mid-exposure latent
     edi_target = None
@@ -246,7 +250,7 @@ def train_step(
         for group in opt.param_groups:
             for p in group["params"]:
                 p.grad = None
-    out = frame_losses(data, state, f, cfg)
+    out = frame_losses(data, state, f, cfg, sh_degree=phase.sh_degree)
     if not torch.isfinite(out.total):
         raise _diverged(state.step, f"the loss (frame {data.names[f]})", [LR_OPTIONS["means"], "--train.lr_*"])
     out.info.progress, out.info.resets = phase.fraction, phase.resets
@@ -297,8 +301,8 @@ def train_step(
     )
 
 
-RASTER_FORWARD = ("project_ms", "bin_ms", "composite_ms")  # splat_cpu's meta["timings"] of its forward
-RASTER_BACKWARD = ("backward_project_ms", "backward_composite_ms")  # and of its backward
+RASTER_FORWARD = ("sh_ms", "project_ms", "bin_ms", "composite_ms")  # splat_cpu's meta["timings"] of its forward
+RASTER_BACKWARD = ("backward_sh_ms", "backward_project_ms", "backward_composite_ms")  # and of its backward
 
 
 def step_profile(history: Sequence[StepStats]) -> dict[str, float] | None:

@@ -14,7 +14,11 @@ run is a function of that number, read from one ``Schedule``:
 - opacity resets may fire only below ``reset_until`` (``strategy.reset_until``; when they fire
   within that is the strategy's ``reset_every``);
 - from ``average_from`` on, the knots are averaged (``trajectory.average_from``), judged at the
-  fraction where a step ENDS (after it), every other item where it starts.
+  fraction where a step ENDS (after it), every other item where it starts;
+- the spherical-harmonic degree used (``model.sh_degree``) rises by one every ``model.sh_degree_interval``
+  steps (gsplat's rule), or every ``sh_degree_interval / SH_REFERENCE_ITERS`` of the budget when that comes
+  sooner: the rise is spread over a short run as over gsplat's default 30000-step run (there degree 3 is
+  reached at step 3000, a tenth of the run; in a 3000-step run at step 300; in a time budget, at a tenth of it).
 
 ``Schedule.at(step, elapsed)`` gives the ``Phase`` of one step: all of the above, decided.
 """
@@ -25,7 +29,9 @@ from dataclasses import dataclass
 
 from .config import Config
 
-__all__ = ["Schedule", "Phase"]
+__all__ = ["Schedule", "Phase", "SH_REFERENCE_ITERS"]
+
+SH_REFERENCE_ITERS = 30000  # gsplat's default run, over which its sh_degree_interval is counted
 
 
 @dataclass(frozen=True)
@@ -39,6 +45,7 @@ class Phase:
     averaging: bool  # knots are averaged (meaningful at the fraction where a step ends)
     lr_means: float  # the means' learning rate (times the scene scale)
     lr_poses: float  # the knots' learning rate
+    sh_degree: int = 0  # the spherical-harmonic degree the renders use
 
 
 @dataclass(frozen=True)
@@ -55,6 +62,8 @@ class Schedule:
     lr_means_final: float  # ratio at fraction 1
     lr_poses: float
     lr_poses_final: float
+    sh_degree: int = 0  # the model's (model.sh_degree)
+    sh_degree_interval: int = 1000
 
     @classmethod
     def from_config(
@@ -75,6 +84,8 @@ class Schedule:
             lr_means_final=tc.lr_means_final,
             lr_poses=tj.lr,
             lr_poses_final=tj.lr_final,
+            sh_degree=cfg.model.sh_degree,
+            sh_degree_interval=cfg.model.sh_degree_interval,
         )
 
     def fraction(self, step: int, elapsed: float) -> float:
@@ -83,6 +94,13 @@ class Schedule:
         if self.max_seconds:
             frac = max(frac, elapsed / self.max_seconds)
         return min(frac, 1.0)
+
+    def sh_degree_at(self, step: int, fraction: float) -> int:
+        """The SH degree of the step after ``step`` steps, ``fraction`` of the budget (module docstring)."""
+        if self.sh_degree <= 0:
+            return 0
+        level = max(step // self.sh_degree_interval, int(fraction * SH_REFERENCE_ITERS / self.sh_degree_interval))
+        return min(self.sh_degree, level)
 
     def at(self, step: int, elapsed: float) -> Phase:
         """The phase of the step that starts after ``step`` steps and ``elapsed`` seconds (or, for
@@ -96,4 +114,5 @@ class Schedule:
             averaging=self.average_from is not None and frac >= self.average_from,
             lr_means=self.lr_means * self.lr_means_final**frac,
             lr_poses=self.lr_poses * self.lr_poses_final**frac,
+            sh_degree=self.sh_degree_at(step, frac),
         )

@@ -25,9 +25,17 @@ from scenes._atomic import atomic_path
 from .config import Config
 from .data import TrainingData
 from .errors import UserError
-from .gaussians import init_params, num_gaussians, plane_sweep_points, points_from_frames
+from .gaussians import (
+    SH_REST_LR_RATIO,
+    init_params,
+    num_gaussians,
+    plane_sweep_points,
+    points_from_frames,
+    resize_sh,
+    sh_degree_of,
+)
 from .response import Response
-from .strategy import PARAM_NAMES, RefineReport, StrategyState
+from .strategy import OPTIONAL_PARAM_NAMES, PARAM_NAMES, RefineReport, StrategyState
 from .trajectory import ExposureTrajectories
 
 if TYPE_CHECKING:
@@ -94,7 +102,14 @@ def max_gaussians(cfg: Config, data: TrainingData) -> int:
 
 def init_gaussians(data: TrainingData, cfg: Config) -> dict[str, nn.Parameter]:
     """From SfM points when there are at least ``model.min_sfm_points``, else from the frames
-    (plane-sweep stereo or random depths, ``model.init``)."""
+    (plane-sweep stereo or random depths, ``model.init``); with zero SH coefficients of degrees
+    1..``model.sh_degree`` (``gaussians.resize_sh``)."""
+    params = _init_gaussians(data, cfg)
+    resize_sh(params, cfg.model.sh_degree)
+    return params
+
+
+def _init_gaussians(data: TrainingData, cfg: Config) -> dict[str, nn.Parameter]:
     mc = cfg.model
     if data.points is not None and len(data.points) >= mc.min_sfm_points:
         cols = data.point_colors
@@ -135,7 +150,9 @@ def make_optimizers(
     response: Response | None = None,
 ) -> dict[str, torch.optim.Optimizer]:
     """One Adam per Gaussian parameter (so densification can edit its moments), one for poses,
-    and one each for the contrast threshold and the response curve when they are learnt."""
+    and one each for the contrast threshold and the response curve when they are learnt. The SH
+    coefficients above the DC (``sh_rest``, when the model has them) learn at ``train.lr_colors /
+    gaussians.SH_REST_LR_RATIO``."""
     tc = cfg.train
     lrs = {
         "means": tc.lr_means * scale,
@@ -144,6 +161,8 @@ def make_optimizers(
         "opacities": tc.lr_opacities,
         "colors": tc.lr_colors,
     }
+    if "sh_rest" in params:
+        lrs["sh_rest"] = tc.lr_colors / SH_REST_LR_RATIO
     opts: dict[str, torch.optim.Optimizer] = {k: _adam([params[k]], lr=lrs[k], eps=1e-15) for k in lrs}
     if traj.knots.numel() > 0 and bool(traj.moving.any()):
         opts["poses"] = _adam([traj.knots], lr=cfg.trajectory.lr)
@@ -284,7 +303,14 @@ class TrainState:
         Raises ``UserError`` naming the file when it is not a readable checkpoint, and naming
         the difference when it was made from another capture (``fingerprint``)."""
         doc = read_checkpoint(path, fingerprint)
-        params = {k: nn.Parameter(doc["params"][k].clone()) for k in PARAM_NAMES}
+        saved = doc["params"]
+        params = {k: nn.Parameter(saved[k].clone()) for k in PARAM_NAMES + OPTIONAL_PARAM_NAMES if k in saved}
+        missing = [k for k in PARAM_NAMES if k not in params]
+        if missing:
+            raise UserError(f"{path}: the checkpoint has no Gaussian parameters {missing}; delete it to start over")
+        saved_degree = sh_degree_of(params)
+        if saved_degree != cfg.model.sh_degree:  # an older checkpoint (no SH) or another --model.sh_degree
+            resize_sh(params, cfg.model.sh_degree)
         generator = torch.Generator()
         traj = _trajectories(data, cfg, None, 0.0)
         traj.load_state_dict(doc["trajectories"])
@@ -296,7 +322,7 @@ class TrainState:
         response.load_state_dict(doc["response"])
         optimizers = make_optimizers(params, traj, cfg, data.scale, log_c, response)
         for k, sd in doc["optimizers"].items():
-            if k in optimizers:
+            if k in optimizers and not (k == "sh_rest" and saved_degree != cfg.model.sh_degree):
                 optimizers[k].load_state_dict(sd)
         order_rng = np.random.default_rng()
         order_rng.bit_generator.state = doc["order_rng"]

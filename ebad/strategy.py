@@ -44,11 +44,13 @@ __all__ = [
     "reset_opacity",
     "screen_grads",
     "PARAM_NAMES",
+    "OPTIONAL_PARAM_NAMES",
 ]
 
 Params = dict[str, nn.Parameter]
 Optims = dict[str, torch.optim.Optimizer]
 PARAM_NAMES = ("means", "scales", "quats", "opacities", "colors")  # a Gaussian's parameters, each [N, ...]
+OPTIONAL_PARAM_NAMES = ("sh_rest",)  # and those a model may have (view-dependent colour: ebad.gaussians)
 
 
 @dataclass
@@ -110,7 +112,7 @@ def _check_params(params: Params, optimizers: Optims) -> None:
     if missing:
         raise ValueError(f"strategy: Gaussian parameters {missing} are missing")
     n = params["means"].shape[0]
-    for k in PARAM_NAMES:
+    for k in PARAM_NAMES + tuple(k for k in OPTIONAL_PARAM_NAMES if k in params):
         if params[k].shape[0] != n:
             raise ValueError(f"strategy: params['{k}'] has {params[k].shape[0]} rows, means has {n}")
         opt = optimizers.get(k)

@@ -29,6 +29,7 @@ from torch import Tensor
 
 from . import _numba_kernels as K
 from . import _numba_project as P
+from . import _numba_sh as S
 from ._omp import choose_threading_layer
 from .constants import TILE
 
@@ -128,9 +129,47 @@ class _Project(torch.autograd.Function):
 _PROJECT_CHUNKS = 16  # per-chunk partial sums of the pose gradient (deterministic, no atomics)
 
 
+class _SHColors(torch.autograd.Function):
+    """(means [N, 3], SH coefficients [N, K, D], viewmats [C, 4, 4]) -> colours [C, N, D] (`_sh.sh_colors`).
+
+    The camera centres -R^-1 t and R^-1 come from numpy (C tiny 3 x 3 inverses); the kernels are `_numba_sh`.
+    The backward adds its time to the dict `timings` (key "backward_sh_ms")."""
+
+    @staticmethod
+    def forward(ctx, means, coeffs, viewmats, degree: int, timings: dict):
+        vm = _np(viewmats).astype(np.float64)
+        rinv = np.linalg.inv(vm[:, :3, :3])  # [C, 3, 3]
+        campos = np.ascontiguousarray(-np.einsum("cij,cj->ci", rinv, vm[:, :3, 3]))
+        arrs = (_np(means), _np(coeffs))
+        out = np.empty((vm.shape[0], coeffs.shape[0], coeffs.shape[2]), dtype=arrs[1].dtype)
+        S.sh_forward(arrs[0], arrs[1], campos, degree, out)
+        ctx.arrs, ctx.rinv, ctx.campos, ctx.degree, ctx.timings = arrs, rinv, campos, degree, timings
+        return torch.from_numpy(out)
+
+    @staticmethod
+    def backward(ctx, v_colors):
+        t0 = time.perf_counter()
+        means, coeffs = ctx.arrs
+        n, n_cam = means.shape[0], ctx.campos.shape[0]
+        v_means = np.empty((n, 3))
+        v_coeffs = np.zeros(coeffs.shape)
+        v_campos = np.empty((max(min(n, S.CHUNKS), 1), n_cam, 3))
+        v_campos[:] = 0.0
+        S.sh_backward(means, coeffs, ctx.campos, ctx.degree, _np(v_colors), v_means, v_coeffs, v_campos)
+        # campos = -A t, A = R^-1: v_t = -A^T v_c, v_R = -(A^T v_c) campos^T
+        w = np.einsum("cji,cj->ci", ctx.rinv, v_campos.sum(axis=0))
+        v_vm = np.zeros((n_cam, 4, 4))
+        v_vm[:, :3, 3] = -w
+        v_vm[:, :3, :3] = -w[:, :, None] * ctx.campos[:, None, :]
+        dt = v_colors.dtype
+        ctx.timings["backward_sh_ms"] = 1e3 * (time.perf_counter() - t0)
+        return _tensor(v_means, dt), _tensor(v_coeffs, dt), _tensor(v_vm, dt), None, None
+
+
 class _Composite(torch.autograd.Function):
     """Screen-space Gaussians -> images [C, H, W, D], alphas [C, H, W, 1]; hand-written backward.
 
+    Colours are [N, D] (shared by the cameras) or [C, N, D] (per camera: view-dependent colours).
     Gradients go to means2d, conics, opacities, colors and background; the projection's
     autograd graph carries them on to means, quats, scales and viewmats. The backward adds its
     time to the dict `timings` (key "backward_composite_ms").
@@ -140,8 +179,9 @@ class _Composite(torch.autograd.Function):
     def forward(ctx, means2d, conics, opacities, colors, background, plan: _Plan, timings: dict):  # noqa: D401
         p = plan
         c_n = means2d.shape[0]
-        d = colors.shape[1]
-        arrs = (_np(means2d), _np(conics), _np(opacities), _np(colors), _np(background))
+        d = colors.shape[-1]
+        col = _np(colors)
+        arrs = (_np(means2d), _np(conics), _np(opacities), col[None] if col.ndim == 2 else col, _np(background))
         img = np.empty((c_n, p.height, p.width, d), dtype=arrs[0].dtype)
         t_final = np.empty((c_n, p.height, p.width), dtype=arrs[0].dtype)
         last = np.empty((c_n, p.height, p.width), dtype=np.int32)
@@ -150,7 +190,7 @@ class _Composite(torch.autograd.Function):
                 *arrs, p.rows, p.tile_start, p.gid, p.width, p.height, p.tiles_x, p.tiles_y, img, t_final, last
             )
         ctx.plan, ctx.arrs, ctx.t_final, ctx.last = plan, arrs, t_final, last
-        ctx.dtype, ctx.timings = means2d.dtype, timings
+        ctx.dtype, ctx.timings, ctx.shared = means2d.dtype, timings, colors.ndim == 2
         alphas = torch.from_numpy((1.0 - t_final)[..., None])
         return torch.from_numpy(img), alphas
 
@@ -160,7 +200,7 @@ class _Composite(torch.autograd.Function):
         p, arrs = ctx.plan, ctx.arrs
         means2d, conics, opac, colors, bg = arrs
         c_n, n = means2d.shape[0], means2d.shape[1]
-        d = colors.shape[1]
+        d = colors.shape[2]
         v_img_np = _np(v_img) if v_img is not None else np.zeros((c_n, p.height, p.width, d), dtype=means2d.dtype)
         v_al_np = (
             _np(v_alphas[..., 0]) if v_alphas is not None else np.zeros((c_n, p.height, p.width), dtype=means2d.dtype)
@@ -190,7 +230,9 @@ class _Composite(torch.autograd.Function):
         v_o = np.zeros((c_n, n))
         v_col = np.zeros((c_n, n, d))
         K.reduce_grads(p.tile_start, p.gid, p.tiles_x * p.tiles_y, geo, col, v_m, v_c, v_o, v_col)
-        v_o, v_col = v_o.sum(axis=0), v_col.sum(axis=0)
+        v_o = v_o.sum(axis=0)
+        if ctx.shared:  # colours shared by the cameras: their gradient is the sum over the cameras
+            v_col = v_col.sum(axis=0)
         # background: image += T_final * bg
         v_bg = np.einsum("chw,chwd->d", ctx.t_final, v_img_np, dtype=np.float64)
         dt = ctx.dtype
@@ -210,12 +252,16 @@ def rasterize_numba(
     width: int,
     height: int,
     background: Tensor | None = None,  # [D]
+    sh_degree: int | None = None,
 ) -> tuple[Tensor, Tensor, dict]:
     """Inputs already validated, CPU tensors. See `splat_cpu.rasterize` for the contract."""
     choose_threading_layer()  # before the first parallel kernel, unless a set-up chose already (splat_cpu._omp)
     t0 = time.perf_counter()
     pr: dict = {}
     timings: dict = {}  # the forward's stages now, the backward's when it runs
+    if sh_degree is not None:  # view-dependent colours [C, N, D] from the SH coefficients [N, K, D]
+        colors = _SHColors.apply(means, colors, viewmats, sh_degree, timings)
+    tsh = time.perf_counter()
     means2d, conics = _Project.apply(means, quats, scales, opacities, viewmats, Ks, width, height, pr, timings)
     t1 = time.perf_counter()
     valid = pr["valid"]
@@ -229,7 +275,7 @@ def rasterize_numba(
     )
     plan = _Plan(rows, tile_start, gid, width, height, tiles_x, tiles_y)
     t2 = time.perf_counter()
-    bg = background if background is not None else torch.zeros(colors.shape[1], dtype=colors.dtype)
+    bg = background if background is not None else torch.zeros(colors.shape[-1], dtype=colors.dtype)
     images, alphas = _Composite.apply(means2d, conics, opacities, colors, bg, plan, timings)
     t3 = time.perf_counter()
     meta = {
@@ -241,5 +287,7 @@ def rasterize_numba(
         "n_isect": int(gid.shape[0]),
         "timings": timings,
     }
-    timings.update(project_ms=1e3 * (t1 - t0), bin_ms=1e3 * (t2 - t1), composite_ms=1e3 * (t3 - t2))
+    timings.update(
+        sh_ms=1e3 * (tsh - t0), project_ms=1e3 * (t1 - tsh), bin_ms=1e3 * (t2 - t1), composite_ms=1e3 * (t3 - t2)
+    )
     return images, alphas, meta

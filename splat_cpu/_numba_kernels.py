@@ -325,7 +325,7 @@ def forward_tiles(
     means2d,  # [C, N, 2]
     conics,  # [C, N, 3]
     opacities,  # [N]
-    colors,  # [N, D]
+    colors,  # [C, N, D] per camera, or [1, N, D] shared by every camera
     background,  # [D]
     rows,  # [n_isect, 4] int8: rows of each half tile each entry may touch (from bin_tiles)
     tile_start,  # [C * n_tiles + 1] int64
@@ -341,7 +341,7 @@ def forward_tiles(
     """Composite every tile front to back, in the float type of the inputs (all of one dtype)."""
     n_tiles = tiles_x * tiles_y
     n_all = tile_start.shape[0] - 1
-    d = colors.shape[1]
+    d = colors.shape[2]
     npx = TILE * TILE
     fdt = means2d.dtype
     f = fdt.type
@@ -350,6 +350,7 @@ def forward_tiles(
     pix_x, pix_y = _pixel_offsets(fdt)
     for t in prange(n_all):
         cam, px0, py0, pw, ph = _tile_origin(t, tiles_x, n_tiles, width, height)
+        ccam = min(cam, colors.shape[0] - 1)  # the camera's colours (0 when shared)
         start, end = tile_start[t], tile_start[t + 1]
         # flat per-tile state (pixel order of `_pixel`): one long vectorisable loop per Gaussian and half tile
         # T per pixel, negated once the pixel is spent (and -1 outside the image): no separate mask
@@ -372,7 +373,7 @@ def forward_tiles(
             ca, cb, cc = f(conics[cam, g, 0]), f(conics[cam, g, 1]), f(conics[cam, g, 2])
             ha, hc = half * ca, half * cc
             op = f(opacities[g])
-            c0 = f(colors[g, 0])
+            c0 = f(colors[ccam, g, 0])
             for h in range(2):
                 ya, yb = np.int64(rows[k, 2 * h]), np.int64(rows[k, 2 * h + 1])
                 if ya > yb:
@@ -402,7 +403,7 @@ def forward_tiles(
                     n_stop += one if stop else zero
                 n_active -= np.int64(n_stop)
                 for ch in range(1, d):
-                    cv = f(colors[g, ch])
+                    cv = f(colors[ccam, g, ch])
                     ach = acc[ch * npx + i0 : ch * npx + i1]
                     for j in range(i1 - i0):
                         ach[j] += wb[j] * cv
@@ -422,7 +423,7 @@ def backward_tiles(  # noqa: C901  (one fused numba pass over each tile, for spe
     means2d,  # [C, N, 2]
     conics,  # [C, N, 3]
     opacities,  # [N]
-    colors,  # [N, D]
+    colors,  # [C, N, D] per camera, or [1, N, D] shared by every camera
     background,  # [D]
     rows,  # [n_isect, 4] int8: rows of each half tile each entry may touch (from bin_tiles)
     tile_start,  # [C * n_tiles + 1] int64
@@ -441,7 +442,7 @@ def backward_tiles(  # noqa: C901  (one fused numba pass over each tile, for spe
     """Walk each tile's list back from its last contributing Gaussian; every entry's row is written."""
     n_tiles = tiles_x * tiles_y
     n_all = tile_start.shape[0] - 1
-    d = colors.shape[1]
+    d = colors.shape[2]
     npx = TILE * TILE
     fdt = means2d.dtype
     f = fdt.type
@@ -453,6 +454,7 @@ def backward_tiles(  # noqa: C901  (one fused numba pass over each tile, for spe
         if end == start:
             continue
         cam, px0, py0, pw, ph = _tile_origin(t, tiles_x, n_tiles, width, height)
+        ccam = min(cam, colors.shape[0] - 1)  # the camera's colours (0 when shared)
         trans = np.ones(npx, fdt)
         # rest: sum over later Gaussians of (c . v_C) alpha T, plus T_N (bg . v_C) - T_N v_alpha
         rest = np.zeros(npx, fdt)
@@ -486,7 +488,7 @@ def backward_tiles(  # noqa: C901  (one fused numba pass over each tile, for spe
             ca, cb, cc = f(conics[cam, g, 0]), f(conics[cam, g, 1]), f(conics[cam, g, 2])
             ha, hc = half * ca, half * cc
             op = f(opacities[g])
-            c0 = f(colors[g, 0])
+            c0 = f(colors[ccam, g, 0])
             k32 = np.int32(kk)
             # sums of v_sigma times dx, dy, dx^2, dx dy, dy^2: d sigma / d (mx, my, a, b, c) are linear in them
             g_x = zero
@@ -515,7 +517,7 @@ def backward_tiles(  # noqa: C901  (one fused numba pass over each tile, for spe
                     for j in range(i1 - i0):
                         cd[j] = c0 * v0[j]
                     for ch in range(1, d):
-                        cv = f(colors[g, ch])
+                        cv = f(colors[ccam, g, ch])
                         vch = vc[ch * npx + i0 : ch * npx + i1]
                         for j in range(i1 - i0):
                             cd[j] += cv * vch[j]

@@ -18,6 +18,7 @@ import torch
 from torch import Tensor
 
 from ._project import Projected, depth_order, project
+from ._sh import sh_colors
 from .constants import ALPHA_MAX, ALPHA_MIN, T_MIN, TILE
 
 
@@ -49,7 +50,7 @@ def composite_dense(
 def composite_tiles(
     proj: Projected,
     opacities: Tensor,  # [N]
-    colors: Tensor,  # [N, D]
+    colors: Tensor,  # [N, D] or [C, N, D] (per camera)
     width: int,
     height: int,
     background: Tensor | None,  # [D]
@@ -57,7 +58,7 @@ def composite_tiles(
 ) -> tuple[Tensor, Tensor]:  # images [C, H, W, D], alphas [C, H, W, 1]
     """Per camera, per tile: gather the Gaussians whose pixel box meets the tile, composite densely."""
     n_cam = proj.means2d.shape[0]
-    d = colors.shape[1]
+    d = colors.shape[-1]
     dev, dt = colors.device, colors.dtype
     images = torch.zeros(n_cam, height, width, d, device=dev, dtype=dt)
     t_final = torch.ones(n_cam, height, width, device=dev, dtype=dt)
@@ -77,7 +78,8 @@ def composite_tiles(
                     indexing="ij",
                 )
                 pix = torch.stack([xs.reshape(-1), ys.reshape(-1)], dim=-1) + 0.5
-                col, tf = composite_dense(pix, proj.means2d[cam, g], proj.conics[cam, g], opacities[g], colors[g])
+                cols = colors[cam, g] if colors.ndim == 3 else colors[g]
+                col, tf = composite_dense(pix, proj.means2d[cam, g], proj.conics[cam, g], opacities[g], cols)
                 images[cam, ty:y1, tx:x1] = col.reshape(y1 - ty, x1 - tx, d)
                 t_final[cam, ty:y1, tx:x1] = tf.reshape(y1 - ty, x1 - tx)
     # keep the outputs in the graph even when no Gaussian is visible (zero gradients, not an error)
@@ -98,9 +100,12 @@ def rasterize_reference(
     width: int,
     height: int,
     background: Tensor | None = None,  # [D]
+    sh_degree: int | None = None,
 ) -> tuple[Tensor, Tensor, dict]:
     """Inputs already validated. See `splat_cpu.rasterize` for the contract."""
     t0 = time.perf_counter()
+    if sh_degree is not None:
+        colors = sh_colors(means, colors, viewmats, sh_degree)  # [C, N, D]
     proj = project(means, quats, scales, opacities, viewmats, Ks, width, height)
     t1 = time.perf_counter()
     images, alphas = composite_tiles(proj, opacities, colors, width, height, background)

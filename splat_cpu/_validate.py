@@ -11,6 +11,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from ._sh import SH_MAX_DEGREE, num_sh_bases
 from .constants import SCALE_MAX
 
 
@@ -59,6 +60,7 @@ def validate_inputs(  # noqa: C901  (one check per argument, in the signature's 
     width: int,
     height: int,
     background: Tensor | None,  # [D]
+    sh_degree: int | None = None,
 ) -> None:
     """Raise ValueError naming the first argument that is not what `rasterize` expects."""
     for name, v in (("width", width), ("height", height)):
@@ -71,25 +73,41 @@ def validate_inputs(  # noqa: C901  (one check per argument, in the signature's 
     _check_tensor("quats", quats, 2, (4,), means)
     _check_tensor("scales", scales, 2, (3,), means)
     _check_tensor("opacities", opacities, 1, (), means)
-    _check_tensor("colors", colors, 2, (None,), means)
+    if sh_degree is not None:
+        if isinstance(sh_degree, bool) or not isinstance(sh_degree, int) or not 0 <= sh_degree <= SH_MAX_DEGREE:
+            raise ValueError(f"sh_degree: expected None or an int in 0..{SH_MAX_DEGREE}, got {sh_degree!r}")
+        _check_tensor("colors", colors, 3, (None, None), means)
+        if colors.shape[1] < num_sh_bases(sh_degree):
+            raise ValueError(
+                f"colors: SH degree {sh_degree} needs [N, K, D] coefficients with K >= {num_sh_bases(sh_degree)}, "
+                f"got shape {tuple(colors.shape)}"
+            )
+    elif isinstance(colors, Tensor) and colors.dim() == 3:
+        _check_tensor("colors", colors, 3, (None, None), means)
+    else:
+        _check_tensor("colors", colors, 2, (None,), means)
     _check_tensor("viewmats", viewmats, 3, (4, 4), means)
     _check_tensor("Ks", Ks, 3, (3, 3), means)
-    for name, x in (("quats", quats), ("scales", scales), ("opacities", opacities), ("colors", colors)):
+    per_camera = sh_degree is None and colors.dim() == 3  # [C, N, D]
+    for name, x in (("quats", quats), ("scales", scales), ("opacities", opacities)):
         if x.shape[0] != n:
             raise ValueError(f"{name}: expected {n} rows (one per Gaussian, as means), got shape {tuple(x.shape)}")
-    if colors.shape[1] < 1:
+    if colors.shape[1 if per_camera else 0] != n:
+        raise ValueError(f"colors: expected {n} Gaussians (as means), got shape {tuple(colors.shape)}")
+    d = colors.shape[-1]
+    if d < 1:
         raise ValueError(f"colors: expected at least one channel, got shape {tuple(colors.shape)}")
     c = viewmats.shape[0]
     if c < 1:
         raise ValueError("viewmats: expected at least one camera, got shape [0, 4, 4]")
     if Ks.shape[0] != c:
         raise ValueError(f"Ks: expected {c} cameras (as viewmats), got shape {tuple(Ks.shape)}")
+    if per_camera and colors.shape[0] != c:
+        raise ValueError(f"colors: per-camera colours need {c} cameras (as viewmats), got shape {tuple(colors.shape)}")
     if background is not None:
         _check_tensor("background", background, 1, (), means)
-        if background.shape[0] != colors.shape[1]:
-            raise ValueError(
-                f"background: expected {colors.shape[1]} channels (as colors), got shape {tuple(background.shape)}"
-            )
+        if background.shape[0] != d:
+            raise ValueError(f"background: expected {d} channels (as colors), got shape {tuple(background.shape)}")
     if n > 0:
         sv, ov, qv = _values(scales), _values(opacities), _values(quats)
         if bool((sv <= 0).any()):
@@ -107,6 +125,10 @@ def validate_inputs(  # noqa: C901  (one check per argument, in the signature's 
     vv, kv = _values(viewmats), _values(Ks)
     if bool((vv[:, 3, :3] != 0).any()) or bool((vv[:, 3, 3] != 1).any()):
         raise ValueError("viewmats: the last row of every 4x4 must be [0, 0, 0, 1]")
+    if sh_degree is not None:
+        rot = np.asarray(vv[:, :3, :3].cpu() if isinstance(vv, Tensor) else vv, dtype=np.float64)
+        if not bool((np.abs(np.linalg.det(rot)) > 1e-12).all()):
+            raise ValueError("viewmats: a rotation part is singular: no camera centre for view-dependent colours")
     if bool((kv[:, 0, 0] <= 0).any()) or bool((kv[:, 1, 1] <= 0).any()):
         raise ValueError("Ks: focal lengths fx = K[0, 0] and fy = K[1, 1] must be > 0")
     if (

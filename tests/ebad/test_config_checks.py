@@ -26,6 +26,8 @@ RULES: dict[str, tuple[tuple, tuple]] = {
     "model.stereo_patch": ((0, 4, -1), (1, 3)),
     "model.max_gaussians": ((-1,), (0, 1)),
     "model.background": ((-0.01, 1.01), (0.0, 1.0)),
+    "model.sh_degree": ((-1, 4), (0, 3)),
+    "model.sh_degree_interval": ((0, -1), (1,)),
     "model.lr_response": ((-1e-6,), (0.0,)),
     "trajectory.num_views": ((0,), (1,)),
     "trajectory.sharp_events_per_pixel": ((-1e-6,), (0.0,)),

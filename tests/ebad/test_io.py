@@ -26,25 +26,27 @@ def test_ply_roundtrip(tmp_path, D):
     for k in p:
         assert torch.equal(back[k], p[k].detach()), k
     if D == 1:  # viewers see grey: the DC value in all three f_dc
-        raw = np.frombuffer(path.read_bytes().split(b"end_header\n", 1)[1], "<f4").reshape(7, 17)
+        raw = np.frombuffer(path.read_bytes().split(b"end_header\n", 1)[1], "<f4").reshape(7, 17 + 45)
         assert np.array_equal(raw[:, 6], raw[:, 7]) and np.array_equal(raw[:, 6], raw[:, 8])
 
 
 @pytest.mark.parametrize("D", [1, 3])
 def test_ply_bytes_are_the_inria_layout(tmp_path, D):
-    """The file byte for byte: the 3DGS header (with ebad's channel comment) and float32 rows."""
+    """The file byte for byte: the 3DGS header (with ebad's channel and SH degree comments; the 45 f_rest of
+    degree 3, zero for a model without view-dependent colour) and float32 rows."""
     n = 5
     p = _params(n, D=D)
     blob = write_ply(tmp_path / "point_cloud.ply", p).read_bytes()
     names = (
-        ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2", "opacity"]
+        ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
+        + [f"f_rest_{i}" for i in range(45)]
+        + ["opacity"]
         + [f"scale_{i}" for i in range(3)]
         + [f"rot_{i}" for i in range(4)]
     )
     header = (
-        f"ply\nformat binary_little_endian 1.0\ncomment ebad channels {D}\nelement vertex {n}\n"
-        + "".join(f"property float {name}\n" for name in names)
-        + "end_header\n"
+        f"ply\nformat binary_little_endian 1.0\ncomment ebad channels {D}\ncomment ebad sh_degree 0\n"
+        f"element vertex {n}\n" + "".join(f"property float {name}\n" for name in names) + "end_header\n"
     ).encode("ascii")
     assert blob[: len(header)] == header
     colors = p["colors"].detach().numpy()
@@ -53,6 +55,7 @@ def test_ply_bytes_are_the_inria_layout(tmp_path, D):
             p["means"].detach().numpy(),
             np.zeros((n, 3)),
             np.repeat(colors, 3 // D, axis=1),
+            np.zeros((n, 45)),
             p["opacities"].detach().numpy()[:, None],
             p["scales"].detach().numpy(),
             p["quats"].detach().numpy(),
