@@ -10,9 +10,6 @@ step to a user function, ``TensorBoardLogger`` writes TensorBoard event files (`
 from __future__ import annotations
 
 import importlib.util
-import logging
-import sys
-import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
@@ -21,6 +18,7 @@ import numpy as np
 
 from .config import Config
 from .data import TrainingData
+from .progress import Ticker, say
 from .scoring import ViewScores, evaluate_views, render_images, scorable_views, with_poses
 from .state import StepStats, TrainState
 
@@ -38,33 +36,6 @@ __all__ = [
     "say",
     "Ticker",
 ]
-
-progress_log = logging.getLogger("ebad.progress")
-
-
-def say(show: bool, msg: str) -> None:
-    """A line about a phase before the first step (what it does, how far it is): logged at INFO on
-    ``ebad.progress``; with ``show`` (``train.progress``) printed to stderr as well when no handler
-    shows that log."""
-    if progress_log.isEnabledFor(logging.INFO) and progress_log.hasHandlers():
-        progress_log.info(msg)
-    elif show:
-        print(f"ebad: {msg}", file=sys.stderr, flush=True)
-
-
-class Ticker:
-    """``say`` for a loop of ``total`` items: its first and last item, and one in between at most every
-    ``every`` seconds, with the seconds so far."""
-
-    def __init__(self, show: bool, what: str, total: int, every: float = 5.0):
-        self.show, self.what, self.total, self.every = show, what, total, every
-        self.t0 = self.last = time.perf_counter()
-
-    def __call__(self, done: int) -> None:
-        now = time.perf_counter()
-        if done in (1, self.total) or now - self.last >= self.every:
-            self.last = now
-            say(self.show, f"{self.what}: {done}/{self.total} ({now - self.t0:.1f} s)")
 
 
 class Callback(Protocol):

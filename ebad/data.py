@@ -490,7 +490,7 @@ def prepare(capture: Capture, cfg: Config) -> TrainingData:
     """Validate the capture and make every "skip what is not needed" decision (``TrainingData.report``)."""
     import time
 
-    from .callbacks import Ticker, say
+    from .progress import Ticker, say
 
     show = cfg.train.progress
     _check_capture(capture)

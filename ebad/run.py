@@ -19,12 +19,13 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from .callbacks import Callback, Checkpointer, Evaluator, ProgressBar, StepHook, say
+from .callbacks import Callback, Checkpointer, Evaluator, ProgressBar, StepHook
 from .config import Config, preset
 from .data import PoseSourceUsed, PrepareReport, prepare
 from .errors import ConfigError
 from .gaussians import num_gaussians
 from .loop import StopReason, train
+from .progress import say
 from .response import Response
 from .scoring import ViewScores, render_images
 from .state import StepStats, TrainState, capture_fingerprint, max_gaussians
