@@ -234,7 +234,9 @@ class LossConfig:
     always filter)"""
     cfa_frames: CfaFrames = "rgb"
     """a colour DAVIS capture with RGB (demosaiced) frames: L_blur and L_EDI compare RGB, or each pixel's own channel
-    of the frame and of the render (mosaic); raw mosaic frames always compare the render's mosaic"""
+    of the frame and of the render (mosaic); raw mosaic frames always compare the render's mosaic. Measured equal
+    within noise (tiny synthetic colour DAVIS, 600 steps, seeds 0-2: rgb 18.75 / 20.00 / 19.34 dB, mosaic 18.58 /
+    20.12 / 19.60; ``python -m tests.ebad.cfa_world 600 0 1 2``)"""
 
     def check(self) -> None:
         _finite(self, "loss")
