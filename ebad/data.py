@@ -125,6 +125,42 @@ class TrainingData:
     # per frame [V, H, W, D] EDI latents at its virtual instants (loss.edi_instants views; None for a sharp
     # frame), else None
     view_latents: list[Tensor | None] | None = None
+    # a colour DAVIS's Bayer pattern (capture.cfa, edi.cfa), or None; with it the model renders RGB
+    cfa: str | None = None
+    # [H, W, 3] the losses' cfa weights at this data's resolution (ebad.losses.cfa_weights: one-hot at the sensor's,
+    # the blocks' channel fractions after ``downscale``): L_ev on each pixel's own channel, and L_blur / L_EDI through
+    # ``losses.cfa_project`` when the frames are one-channel mosaics; None: no cfa, or loss.cfa_events luminance
+    cfa_weights: Tensor | None = None
+
+    @property
+    def c_recorded(self) -> bool:
+        """The contrast thresholds are in the recorded frames' log units: estimated from the frames
+        (``edi.estimate_c`` on the recorded, possibly non-linear values, where a response
+        b + (1 - b) (g E)^gamma shows gamma x c_true). A configured c (``loss.contrast``) is the
+        events' own, log irradiance. With a learnt response L_ev compares in the units of c
+        (``ebad.loop``, ``ebad.response``)."""
+        return self.report.c_source == "edi.estimate_c"
+
+    @property
+    def channels(self) -> int:
+        """The channels the model renders: 3 for a colour DAVIS (whatever its frames), else the frames'."""
+        return 3 if self.cfa is not None else int(self.frames.shape[-1])
+
+    @property
+    def raw_mosaic(self) -> bool:
+        """The frames (and targets, latents) are one-channel Bayer mosaics: L_blur and L_EDI compare the render's."""
+        return self.cfa is not None and int(self.frames.shape[-1]) == 1
+
+    @property
+    def init_images(self) -> Tensor:
+        """[F, H, W, channels] the images the Gaussians' colours start from: the latents (else the
+        targets), demosaiced (``edi.cfa.demosaic``) when they are raw mosaics."""
+        src = self.latents if self.latents is not None else self.targets
+        if self.raw_mosaic and self.cfa is not None and src.shape[-1] == 1:
+            from edi.cfa import demosaic
+
+            return torch.from_numpy(np.ascontiguousarray(demosaic(src[..., 0].numpy(), self.cfa), dtype=np.float32))
+        return src
 
     def set_views(self, V: np.ndarray) -> None:
         """New V per frame, in place: the event counts between the new virtual instants are
@@ -185,7 +221,11 @@ def downscale(data: TrainingData, factor: int) -> TrainingData:
     ``train.coarse_scale``): frames, targets and latents area-averaged over ``factor`` x
     ``factor`` blocks (the top-left H // factor x W // factor of them), event counts as the mean
     count per pixel of a block, intrinsics scaled (pixel centres at +0.5, so u' = u / factor).
-    Poses, V, c and the test views are shared with ``data`` (test views are scored at full size)."""
+    A colour DAVIS's ``cfa_weights`` become each block's channel fractions (1/4 R, 1/2 G, 1/4 B):
+    L_ev compares a block's mean count with the fraction-weighted log change of the render's
+    channels, L_blur / L_EDI a raw frame's block mean with the same weighting of the render
+    (``ebad.losses``). Poses, V, c and the test views are shared with ``data`` (test views are
+    scored at full size)."""
     if factor == 1:
         return data
     if factor < 1 or min(data.height, data.width) < MIN_DOWNSCALED_SIDE * factor:
@@ -202,6 +242,7 @@ def downscale(data: TrainingData, factor: int) -> TrainingData:
         if data.view_latents is None
         else [None if v is None else _pool_hwd(v, factor) for v in data.view_latents],
         ev_counts=[None if e is None else _pool(e, factor) for e in data.ev_counts],
+        cfa_weights=None if data.cfa_weights is None else _pool_hwd(data.cfa_weights[None], factor)[0],
     )
 
 
@@ -401,7 +442,7 @@ def _poses(capture: Capture, cfg: Config, idx: list[int]):
         rgb = np.asarray(est.colors, dtype=np.float32)
         if rgb.max() > 1.0:
             rgb = rgb / 255.0
-        if capture.channels == 1 and rgb.shape[1] == 3:
+        if capture.channels == 1 and capture.cfa is None and rgb.shape[1] == 3:  # a raw mosaic's model is RGB
             rgb = rgb.mean(1, keepdims=True)
         cols = torch.from_numpy(rgb)
     return np.asarray(est.c2w, dtype=np.float64)[keep], pts, cols, "colmap", keep, dict(est.test_c2w)
@@ -552,7 +593,7 @@ def prepare(capture: Capture, cfg: Config) -> TrainingData:
         if pose_src == "capture"
         else ("exact" if pose_src == "static" else "approximate"),
         train_frames=len(idx),
-        channels=int(frames_np.shape[-1]),
+        channels=3 if capture.cfa is not None else int(frames_np.shape[-1]),
         views=V.tolist(),
         renders_per_pass=int(V.sum()),
         renders_without_skip=int(tc.num_views * len(V)),
@@ -596,24 +637,58 @@ def prepare(capture: Capture, cfg: Config) -> TrainingData:
         for f in range(len(idx))
     ]
     d_range = depth_range(cfg, c2w, points)
-    return TrainingData(
-        frames=frames_t,
-        targets=targets,
-        latents=latents if lc.w_edi > 0 else None,
-        exposures=exposures,
-        names=names,
-        c2w=torch.from_numpy(c2w).float(),
-        K=torch.from_numpy(np.asarray(capture.K, dtype=np.float32)),
-        V=V,
-        ev_counts=ev,
-        c=c,
-        scale=scene_scale(c2w, d_range),
-        depth_range=d_range,
-        report=report,
-        points=points,
-        point_colors=point_colors,
-        test_views=[v for v in capture.test_views if v.image is not None],
-        test_c2w=test_poses(capture, pose_src, idx, c2w, registered),
-        events=events if use_events and (lc.w_event > 0 or views is not None) else None,
-        view_latents=views,
+    return _with_cfa(
+        capture,
+        cfg,
+        TrainingData(
+            frames=frames_t,
+            targets=targets,
+            latents=latents if lc.w_edi > 0 else None,
+            exposures=exposures,
+            names=names,
+            c2w=torch.from_numpy(c2w).float(),
+            K=torch.from_numpy(np.asarray(capture.K, dtype=np.float32)),
+            V=V,
+            ev_counts=ev,
+            c=c,
+            scale=scene_scale(c2w, d_range),
+            depth_range=d_range,
+            report=report,
+            points=points,
+            point_colors=point_colors,
+            test_views=[v for v in capture.test_views if v.image is not None],
+            test_c2w=test_poses(capture, pose_src, idx, c2w, registered),
+            events=events if use_events and (lc.w_event > 0 or views is not None) else None,
+            view_latents=views,
+        ),
     )
+
+
+def _with_cfa(capture: Capture, cfg: Config, data: TrainingData) -> TrainingData:
+    """``data`` of a colour DAVIS capture (``capture.cfa``): its pattern and the losses' cfa weights
+    (None with ``loss.cfa_events luminance`` and RGB frames: today's events of the channel mean);
+    with ``loss.cfa_frames mosaic`` RGB frames, targets and latents become their mosaics (each
+    pixel's own channel, exact for a camera's demosaic that keeps it, as bilinear does)."""
+    if capture.cfa is None:
+        return data
+    from edi.cfa import mosaic
+
+    from .losses import cfa_weights
+
+    lc = cfg.loss
+    pattern = data.cfa = capture.cfa
+    raw = data.frames.shape[-1] == 1
+    if lc.cfa_frames == "mosaic" and not raw:
+
+        def m(x: Tensor) -> Tensor:
+            return mosaic(x, pattern)[..., None].contiguous()
+
+        data.frames, data.targets = m(data.frames), m(data.targets)
+        data.latents = None if data.latents is None else m(data.latents)
+        data.view_latents = (
+            None if data.view_latents is None else [None if v is None else m(v) for v in data.view_latents]
+        )
+        raw = True
+    if raw or lc.cfa_events == "filter":
+        data.cfa_weights = cfa_weights(pattern, data.height, data.width)
+    return data

@@ -28,7 +28,7 @@ from .config import Config
 from .data import MIN_DOWNSCALED_SIDE, TrainingData, downscale
 from .errors import UserError
 from .gaussians import normalise_quats_, num_gaussians, render
-from .losses import event_loss, exposure_losses, l1_ssim_each
+from .losses import cfa_project, event_loss, exposure_losses, l1_ssim_each
 from .metrics import psnr
 from .response import Response
 from .schedule import Phase, Schedule
@@ -165,7 +165,18 @@ def frame_losses(data: TrainingData, state: TrainState, f: int, cfg: Config, sh_
             counts, event_views = frame_counts, tuple(range(V))
     if state.response.learnable:
         blur, edi, ev, mean_render = _losses_through_response(
-            images, V, data.targets[f], edi_target, mid, counts, event_views, c, state.response, cfg
+            images,
+            V,
+            data.targets[f],
+            edi_target,
+            mid,
+            counts,
+            event_views,
+            c,
+            state.response,
+            cfg,
+            data.cfa_weights,
+            data.c_recorded,
         )
     else:  # the three losses in one autograd node (``losses.exposure_losses``)
         blur, edi, ev, mean_render = exposure_losses(
@@ -180,6 +191,7 @@ def frame_losses(data: TrainingData, state: TrainState, f: int, cfg: Config, sh_
             lc.ssim_weight,
             lc.ssim_window,
             norm=lc.event_norm,
+            cfa=data.cfa_weights,
         )
     total = lc.w_blur * blur
     if ev is not None:
@@ -211,22 +223,30 @@ def _losses_through_response(
     c,
     response: Response,
     cfg: Config,
+    cfa: Tensor | None = None,
+    c_recorded: bool = False,
 ) -> tuple[Tensor, Tensor | None, Tensor | None, Tensor]:
     """``losses.exposure_losses`` with a learnt camera response, composed from torch operations:
     L_blur and L_EDI compare the response of the renders (``images`` [V', H, W, D], irradiance)
-    with the recorded frame and latents, L_ev the renders themselves. -> L_blur, L_EDI, L_ev and
+    with the recorded frame and latents. L_ev compares in the units of ``c``: the log of the
+    renders themselves for a c in log irradiance (the events' units), the log of their response
+    when ``c_recorded`` (c estimated from the recorded frames: ``TrainingData.c_recorded``,
+    ``ebad.response``). With ``cfa`` weights and one-channel (raw mosaic) frames, the renders'
+    ``cfa_project`` is what the response maps for L_blur and L_EDI. -> L_blur, L_EDI, L_ev and
     the recorded mean render [H, W, D] (detached)."""
     lc = cfg.loss
-    renders = images[:V]
+    compared = cfa_project(images, cfa) if cfa is not None and blurry.shape[-1] == 1 else images
+    renders = compared[:V]
     recorded_blur = response(renders.mean(0, keepdim=True))  # what the APS records of the exposure
     pairs = [(recorded_blur, blurry)]  # L_blur and L_EDI (each l1_ssim) from one kernel call
     if edi_target is not None:
-        pairs.append((response(renders if edi_target.ndim == 4 else images[mid]), edi_target))
+        pairs.append((response(renders if edi_target.ndim == 4 else compared[mid]), edi_target))
     blur, *edi = l1_ssim_each(pairs, lc.ssim_weight, lc.ssim_window)
     ev = None
     if event_views:
         assert counts is not None  # given with event_views (frame_losses)
-        ev = event_loss(images[list(event_views)], counts, c, norm=lc.event_norm)
+        seen = images[list(event_views)]
+        ev = event_loss(response(seen) if c_recorded else seen, counts, c, norm=lc.event_norm, cfa=cfa)
     return blur, (edi[0] if edi else None), ev, recorded_blur.detach()[0]
 
 

@@ -4,6 +4,22 @@ Convention: images are [B, H, W, D] (or [H, W, D]) linear intensity; events ente
 per-pixel sums ``E`` [P, H, W] between consecutive virtual instants; ``c`` is the contrast
 threshold in natural-log units; log intensities are ``log(I + eps)`` with ``eps = edi.LOG_EPS``.
 
+Colour DAVIS (a capture with ``cfa``, DESIGN.md): every sensor pixel sits behind one filter of a
+Bayer array, its events fire on the log of that one channel and its APS records that one channel.
+The losses take the filter as ``cfa`` weights F [H, W, 3] (``cfa_weights``): the fraction of each
+training pixel's sensor pixels behind the R, G and B filters (one-hot at the sensor's resolution;
+at 1/s of it, ``ebad.data.downscale``, the fractions of the s x s block, 1/4 R, 1/2 G, 1/4 B for
+s = 2). Then
+
+- L_ev's log signal is ``sum_d F_d log(I_d + eps)``: at full resolution the log of the pixel's own
+  channel of the render (the render's mosaic); on a pooled pixel the mean of its sensor pixels'
+  log changes, which is what its pooled (mean per sensor pixel) event count measures;
+- L_blur and L_EDI against one-channel (raw mosaic) frames and latents compare ``sum_d F_d I_d``
+  (``cfa_project``: the render's mosaic at full resolution, its block mean at 1/s, the block
+  mean of the raw frame there); against RGB frames they compare RGB.
+
+Without ``cfa`` a colour render's events are those of its luminance (``LUMA``, the channel mean).
+
 Each loss below is written in torch as what it computes (the SSIM is kornia's). On CPU tensors the
 same values and gradients come from ``ebad.kernels`` instead (numba passes with hand-written
 adjoints, one autograd node each way), chosen in one place, ``ebad.kernels.use_kernels``; inside
@@ -29,6 +45,8 @@ from .kernels import LUMA, use_kernels
 
 __all__ = [
     "luminance",
+    "cfa_weights",
+    "cfa_project",
     "ssim_map",
     "ssim_map_kornia",
     "l1_ssim",
@@ -58,6 +76,40 @@ def luminance(img: Tensor) -> Tensor:  # [..., D] -> [..., 1]
         raise ValueError(f"luminance needs D = 1 or 3 channels, got {D}")
     w = torch.tensor(LUMA, dtype=img.dtype, device=img.device)
     return (img * w).sum(-1, keepdim=True)
+
+
+def cfa_weights(pattern: str, height: int, width: int, factor: int = 1, dtype=torch.float32) -> Tensor:
+    """[height // factor, width // factor, 3]: the fraction of each pixel's sensor pixels behind the R,
+    G and B filters of a Bayer ``pattern`` (``edi.cfa``), for frames ``factor`` times smaller than
+    the ``height`` x ``width`` sensor (the top-left blocks, as ``ebad.data.downscale``): one-hot at
+    factor 1; 1/4, 1/2, 1/4 on every 2 x 2 (or any even) block."""
+    from edi.cfa import channel_map
+
+    onehot = torch.nn.functional.one_hot(torch.from_numpy(channel_map(pattern, height, width)), 3).to(dtype)
+    if factor == 1:
+        return onehot
+    pooled = torch.nn.functional.avg_pool2d(onehot.permute(2, 0, 1)[None], factor)[0]
+    return pooled.permute(1, 2, 0).contiguous()
+
+
+def cfa_project(img: Tensor, cfa: Tensor) -> Tensor:  # [..., H, W, 3] x [H, W, 3] -> [..., H, W, 1]
+    """What a colour DAVIS's APS records of a (linear) RGB image: ``sum_d F_d img_d`` with the
+    ``cfa_weights`` F, the image's mosaic at full resolution (``edi.cfa.mosaic``) and its block mean on
+    downscaled frames."""
+    if img.shape[-1] != 3 or tuple(cfa.shape) != (*img.shape[-3:-1], 3):
+        raise ValueError(
+            f"cfa_project needs [..., H, W, 3] and cfa [H, W, 3], got {tuple(img.shape)}, {tuple(cfa.shape)}"
+        )
+    return (img * cfa.to(img.dtype)).sum(-1, keepdim=True)
+
+
+def _check_cfa(cfa: Tensor | None, H: int, W: int, D: int) -> None:
+    if cfa is None:
+        return
+    if D != 3:
+        raise ValueError(f"a cfa needs colour renders (D = 3), got D = {D}")
+    if tuple(cfa.shape) != (H, W, 3):
+        raise ValueError(f"cfa must be [H, W, 3] = {(H, W, 3)}, got {tuple(cfa.shape)}")
 
 
 def _window_for(h: int, w: int, window: int) -> int:
@@ -156,13 +208,16 @@ def event_loss(
     c: float | tuple[float, float] | Tensor,
     eps: float | None = None,
     norm: EventNorm = "l1",
+    cfa: Tensor | None = None,  # [H, W, 3] cfa_weights of a colour DAVIS (renders D = 3)
 ) -> Tensor:
     """L_ev: the mean over pixels and consecutive instants of |r| (``norm="l1"``) or r^2 (``"l2"``),
-    r = log L(t_{k+1}) - log L(t_k) - (c_pos N_on,k - c_neg N_off,k).
+    r = l(t_{k+1}) - l(t_k) - (c_pos N_on,k - c_neg N_off,k).
 
-    ``L`` is the render's luminance (the render itself when grey); ``c`` one threshold or the pair
-    (c_pos, c_neg) (a float, a 2-tuple, or a tensor of one or two values, differentiable).
-    L1 is ebad's default (robust to noise events), L2 the paper's; one window (t_i, t_j) is
+    ``l`` is log L with ``L`` the render's luminance (the render itself when grey); with ``cfa``
+    (the ``cfa_weights`` F of a colour DAVIS) ``l = sum_d F_d log(I_d + eps)``, the log of each pixel's
+    own channel (the module docstring). ``c`` one threshold or the pair (c_pos, c_neg) (a float, a
+    2-tuple, or a tensor of one or two values, differentiable). L1 is ebad's default (robust to
+    noise events), L2 the paper's; one window (t_i, t_j) is
     ``event_loss(renders[[i, j]], virtual_views.window_counts(counts, i, j), c)``.
     """
     if norm not in typing.get_args(EventNorm):
@@ -172,19 +227,23 @@ def event_loss(
         raise ValueError(
             f"counts must be [V - 1, 2, H, W] = {(V - 1, 2) + tuple(renders.shape[1:3])}, got {tuple(counts.shape)}"
         )
+    _check_cfa(cfa, renders.shape[1], renders.shape[2], renders.shape[3])
     if V < 2:
         return renders.sum() * 0.0
     eps = LOG_EPS if eps is None else eps
-    L = luminance(renders)[..., 0]  # [V, H, W]
+    L = luminance(renders)[..., 0] if cfa is None else renders  # [V, H, W] or [V, H, W, 3]
     if L.dtype not in (torch.float32, torch.float64):
         L = L.float()
     cc = torch.as_tensor(c, dtype=L.dtype).reshape(-1)
     counts = counts.to(L.dtype)
-    if use_kernels(L, counts, cc):
+    F = None if cfa is None else cfa.to(L.dtype)
+    if use_kernels(L, counts, cc, F):
         from .kernels import losses as fast
 
-        return fast.event_loss(L, counts, cc[0], cc[-1], float(eps), norm == "l2")
+        return fast.event_loss(L, counts, cc[0], cc[-1], float(eps), norm == "l2", F)
     log_L = torch.log(L.clamp_min(0) + eps)  # a negative render (no light) counts as 0
+    if F is not None:
+        log_L = (log_L * F).sum(-1)  # each pixel's own channel (the fractions of a pooled block)
     r = log_L[1:] - log_L[:-1] - (cc[0] * counts[:, 0] - cc[-1] * counts[:, 1])  # [V - 1, H, W]
     return r.abs().mean() if norm == "l1" else r.square().mean()
 
@@ -203,7 +262,7 @@ def edi_loss(
 def exposure_losses(
     images: Tensor,  # [V', H, W, D] one exposure's renders (irradiance), its V virtual views first
     V: int,
-    blurry: Tensor,  # [H, W, D] L_blur's target
+    blurry: Tensor,  # [H, W, D] L_blur's target ([H, W, 1] raw mosaic with a cfa)
     latents: Tensor | None = None,  # [H, W, D] (against images[mid]) or [V, H, W, D] (against images[:V])
     mid: int | None = None,  # index in images of the render compared with a [H, W, D] latent
     counts: Tensor | None = None,  # [E - 1, 2, H, W] ON / OFF counts between consecutive event_views
@@ -213,10 +272,13 @@ def exposure_losses(
     window: int = 7,
     eps: float | None = None,
     norm: EventNorm = "l1",
+    cfa: Tensor | None = None,  # [H, W, 3] cfa_weights of a colour DAVIS (images D = 3)
 ) -> tuple[Tensor, Tensor | None, Tensor | None, Tensor]:
     """L_blur, L_EDI and L_ev of one exposure's renders, for a linear response: the reference is
     ``blur_loss(images[:V], blurry)``, ``edi_loss(images[mid], latents)`` (or ``edi_loss(images[:V],
-    latents)`` for a latent per view) and ``event_loss(images[event_views], counts, c)``.
+    latents)`` for a latent per view) and ``event_loss(images[event_views], counts, c, cfa=cfa)``.
+    With ``cfa`` and one-channel (raw mosaic) ``blurry`` and ``latents``, L_blur and L_EDI compare
+    ``cfa_project(images, cfa)`` (the renders' mosaic) with them instead of ``images``.
 
     On CPU tensors the kernels give the same values and gradients in ONE autograd node, from one
     L1 + SSIM kernel pass over every compared image and one L_ev pass, with the gradient of
@@ -224,19 +286,22 @@ def exposure_losses(
     the stacks of the renders each added a full-size temporary and its backward to a training
     step. L_EDI is None without ``latents``, L_ev None with fewer than two ``event_views``; ``c``
     as ``event_loss`` (differentiable).
-    Returns (L_blur, L_EDI, L_ev, the mean of the V renders [H, W, D], detached)."""
+    Returns (L_blur, L_EDI, L_ev, the mean of the V renders [H, W, D] (projected with a raw mosaic), detached)."""
     if images.ndim != 4 or images.dtype not in (torch.float32, torch.float64):
         raise ValueError(f"images must be float32 or float64 [V', H, W, D], got {images.dtype} {tuple(images.shape)}")
     Vp, H, W, D = images.shape
     if not 1 <= V <= Vp:
         raise ValueError(f"V must be in [1, {Vp}] (the renders given), got {V}")
-    if tuple(blurry.shape) != (H, W, D):
-        raise ValueError(f"blurry must be [H, W, D] = {(H, W, D)}, got {tuple(blurry.shape)}")
+    _check_cfa(cfa, H, W, D)
+    project = cfa is not None and blurry.ndim == 3 and blurry.shape[-1] == 1  # raw mosaic targets
+    Dt = 1 if project else D  # the channels of the targets
+    if tuple(blurry.shape) != (H, W, Dt):
+        raise ValueError(f"blurry must be [H, W, D] = {(H, W, Dt)}, got {tuple(blurry.shape)}")
     views = latents is not None and latents.ndim == 4
     if latents is not None:
-        want = (V, H, W, D) if views else (H, W, D)
+        want = (V, H, W, Dt) if views else (H, W, Dt)
         if tuple(latents.shape) != want:
-            raise ValueError(f"latents must be [H, W, D] or [V, H, W, D] = {(V, H, W, D)}, got {tuple(latents.shape)}")
+            raise ValueError(f"latents must be [H, W, D] or [V, H, W, D] = {(V, H, W, Dt)}, got {tuple(latents.shape)}")
         if not views and (mid is None or not 0 <= mid < Vp):
             raise ValueError(f"mid must index one of the {Vp} renders when latents is [H, W, D], got {mid}")
     event_views = tuple(int(i) for i in event_views)
@@ -253,16 +318,32 @@ def exposure_losses(
     cc = torch.as_tensor(c, dtype=images.dtype).reshape(-1)
     win = _window_for(H, W, window)
     eps = LOG_EPS if eps is None else float(eps)
-    if use_kernels(images, blurry, latents, counts, cc):
+    F = None if cfa is None else cfa.to(images.dtype)
+    if use_kernels(images, blurry, latents, counts, cc, F):
         from .kernels import losses as fast
 
         return fast.exposure_losses(
-            images, V, blurry, latents, mid, counts, event_views, cc[0], cc[-1], win, ssim_weight, eps, norm == "l2"
+            images,
+            V,
+            blurry,
+            latents,
+            mid,
+            counts,
+            event_views,
+            cc[0],
+            cc[-1],
+            win,
+            ssim_weight,
+            eps,
+            norm == "l2",
+            F,
+            project,
         )
-    blur = blur_loss(images[:V], blurry, ssim_weight, window)
-    edi = None if latents is None else edi_loss(images[:V] if views else images[mid], latents, ssim_weight, window)
+    compared = cfa_project(images, F) if project and F is not None else images
+    blur = blur_loss(compared[:V], blurry, ssim_weight, window)
+    edi = None if latents is None else edi_loss(compared[:V] if views else compared[mid], latents, ssim_weight, window)
     ev = None
     if len(event_views) >= 2:
         assert counts is not None  # checked above
-        ev = event_loss(images[list(event_views)], counts, cc, eps, norm)
-    return blur, edi, ev, images[:V].mean(0).detach()
+        ev = event_loss(images[list(event_views)], counts, cc, eps, norm, F)
+    return blur, edi, ev, compared[:V].mean(0).detach()

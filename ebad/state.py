@@ -113,10 +113,10 @@ def _init_gaussians(data: TrainingData, cfg: Config) -> dict[str, nn.Parameter]:
     mc = cfg.model
     if data.points is not None and len(data.points) >= mc.min_sfm_points:
         cols = data.point_colors
-        if cols is None or cols.shape[1] != data.frames.shape[-1]:
-            cols = torch.full((len(data.points), data.frames.shape[-1]), 0.5)
+        if cols is None or cols.shape[1] != data.channels:
+            cols = torch.full((len(data.points), data.channels), 0.5)
         return init_params(data.points, cols, opacity=mc.init_opacity)
-    src = data.latents if data.latents is not None else data.targets
+    src = data.init_images  # latents, else targets; demosaiced raw mosaics (the model renders RGB)
     args = (src.numpy(), data.c2w.double().numpy(), data.K.double().numpy(), mc.init_points, data.depth_range)
     if mc.init == "stereo":
         pts, cols, scales = plane_sweep_points(

@@ -25,8 +25,10 @@ from collections.abc import Iterator
 
 __all__ = ["LUMA", "torch_reference", "use_kernels"]
 
-#: The channel weights of the intensity a colour event pixel sees: the channel mean, as
-#: ``scenes.simulate_events``. Here, below both ``ebad.losses`` (the reference) and the kernels.
+#: The channel weights of the intensity a colour event pixel sees when the capture has no colour
+#: filter (or ``loss.cfa_events luminance``): the channel mean, as ``scenes.simulate_events``. A
+#: colour DAVIS's pixels see their own channel instead (``ebad.losses.cfa_weights``). Here, below
+#: both ``ebad.losses`` (the reference) and the kernels.
 LUMA = (1 / 3, 1 / 3, 1 / 3)
 
 _enabled = True  # False inside ``torch_reference()``

@@ -9,6 +9,10 @@ it against the counts for the thresholds' gradients; the backward turns it into 
 of every L_k: (g_{k-1} - g_k) / (L_k + eps), zero where L_k < 0 (the clamp).
 
 Written as torch operations, the loss took a dozen full-image temporaries and their autograd.
+With a colour DAVIS's filter (``ebad.losses.cfa_weights`` F) the log signal is
+l_k = sum_d F_d log(max(X_k,d, 0) + eps) of the colour renders X, computed before ``event_forward``,
+and ``event_backward_cfa`` gives the gradient of every X_k,d.
+
 Here each direction is one parallel region over bands of rows. Arrays are float32 or float64:
 L [V, H, W], counts [V - 1, 2, H, W]. ``ebad.kernels.losses`` wraps the kernels in an autograd
 Function; ``ebad.losses.event_loss``'s torch code is the reference they are tested against.
@@ -78,3 +82,25 @@ def event_backward(L, g, scale, eps, grad_L):  # pragma: no cover - jit
                         d -= g[k, y, x]
                     v = L[k, y, x]
                     grad_L[k, y, x] = scale * d / (v + eps) if v >= 0 else 0.0
+
+
+@njit(cache=True, parallel=True, fastmath=_FASTMATH)
+def event_backward_cfa(X, F, g, scale, eps, grad_X):  # pragma: no cover - jit
+    """``event_backward`` for a colour DAVIS: ``grad_X`` [V, H, W, D] of renders X [V, H, W, D] whose
+    log signal is l_k = sum_d F_d log(max(X_k,d, 0) + eps) with the channel fractions F [H, W, D]
+    (``ebad.losses.cfa_weights``): scale (g_{k-1} - g_k) F_d / (X_k,d + eps), zero where X_k,d < 0."""
+    V, H, W, D = X.shape
+    for task in prange((H + BAND - 1) // BAND):
+        y0 = task * BAND
+        y1 = min(y0 + BAND, H)
+        for k in range(V):
+            for y in range(y0, y1):
+                for x in range(W):
+                    d = 0.0
+                    if k > 0:
+                        d += g[k - 1, y, x]
+                    if k < V - 1:
+                        d -= g[k, y, x]
+                    for ch in range(D):
+                        v = X[k, y, x, ch]
+                        grad_X[k, y, x, ch] = scale * d * F[y, x, ch] / (v + eps) if v >= 0 else 0.0

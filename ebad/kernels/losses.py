@@ -53,15 +53,18 @@ def l1_ssim_each(
 
 
 def event_loss(
-    L: Tensor,  # [V, H, W] luminances, float32 or float64
+    L: Tensor,  # [V, H, W] luminances, or [V, H, W, 3] colour renders with cfa; float32 or float64
     counts: Tensor,  # [V - 1, 2, H, W] in L's dtype
     c_pos: Tensor,
     c_neg: Tensor,  # [] in L's dtype
     eps: float,
     l2: bool,
+    cfa: Tensor | None = None,  # [H, W, 3] ebad.losses.cfa_weights in L's dtype
 ) -> Tensor:
-    """``ebad.losses.event_loss`` of luminances ``L`` (V >= 2); gradients to L and both thresholds."""
-    return _EventLoss.apply(L, counts, c_pos, c_neg, eps, l2)
+    """``ebad.losses.event_loss`` of luminances ``L`` (V >= 2), or of colour renders seen through a
+    colour DAVIS's filter ``cfa``; gradients to L and both thresholds."""
+    F = None if cfa is None else np.ascontiguousarray(cfa.detach().numpy())
+    return _EventLoss.apply(L, counts, c_pos, c_neg, eps, l2, F)
 
 
 def exposure_losses(
@@ -78,10 +81,12 @@ def exposure_losses(
     ssim_weight: float,
     eps: float,
     l2: bool,
+    cfa: Tensor | None = None,  # [H, W, 3] ebad.losses.cfa_weights in images' dtype (images D = 3)
+    project: bool = False,  # L_blur and L_EDI compare the renders' cfa projection (raw mosaic targets)
 ) -> tuple[Tensor, Tensor | None, Tensor | None, Tensor]:
     """``ebad.losses.exposure_losses`` (its inputs checked there) in one autograd node: L_blur,
     L_EDI (None without latents), L_ev (None with fewer than two event views) and the mean of the
-    V renders [H, W, D], detached."""
+    V renders [H, W, D] (projected through ``cfa`` when ``project``), detached."""
     views = latents is not None and latents.ndim == 4
     mid_index = None
     if latents is not None and not views:
@@ -96,6 +101,8 @@ def exposure_losses(
         w=float(ssim_weight),
         eps=float(eps),
         l2=l2,
+        cfa=None if cfa is None else np.ascontiguousarray(cfa.detach().numpy()),
+        project=project,
     )
     losses, mean = _ExposureLosses.apply(images, c_pos, c_neg, blurry, latents, counts, spec)
     blur, edi, ev = losses.unbind()
@@ -234,54 +241,70 @@ def _group_l1_ssim(sums: np.ndarray, group: np.ndarray, P: int, pixels: int, w: 
     return (1 - w) * l1_mean + w * (1 - s_mean), 1.0 / count
 
 
+def _log_signal(X: np.ndarray, F: np.ndarray | None, eps: float) -> np.ndarray:
+    """L_ev's log signal [V, H, W]: log(max(X, 0) + eps) of luminances X [V, H, W], or with a colour
+    DAVIS's channel fractions F [H, W, 3] sum_d F_d log(max(X_d, 0) + eps) of renders X [V, H, W, 3]."""
+    log_X = np.log(np.maximum(X, 0) + X.dtype.type(eps))
+    if F is None:
+        return log_X
+    return np.ascontiguousarray(np.einsum("vhwd,hwd->vhw", log_X, F))
+
+
 def _event_pass(
-    Ln: np.ndarray, counts: np.ndarray, c_pos: float | Tensor, c_neg: float | Tensor, eps: float, l2: bool
+    log_L: np.ndarray, counts: np.ndarray, c_pos: float | Tensor, c_neg: float | Tensor, l2: bool
 ) -> tuple[float, np.ndarray, float, float]:
-    """``_numba_event.event_forward`` on luminances [V, H, W] and counts [V - 1, 2, H, W] of
-    one dtype -> the loss (mean over windows and pixels), dloss/dr per window and pixel g
-    [V - 1, H, W] before the mean, and the sums of g N_on and g N_off."""
+    """``_numba_event.event_forward`` on log signals [V, H, W] (``_log_signal``) and counts
+    [V - 1, 2, H, W] of one dtype -> the loss (mean over windows and pixels), dloss/dr per window
+    and pixel g [V - 1, H, W] before the mean, and the sums of g N_on and g N_off."""
     from . import _numba_event as K
 
-    V, H, W = Ln.shape
-    log_L = np.log(np.maximum(Ln, 0) + Ln.dtype.type(eps))
-    g = np.empty((V - 1, H, W), Ln.dtype)
+    V, H, W = log_L.shape
+    g = np.empty((V - 1, H, W), log_L.dtype)
     sums = np.empty((K.num_tasks(H), 3))
     _run(K.event_forward, log_L, counts, float(c_pos), float(c_neg), l2, g, sums)
     loss, s_on, s_off = sums.sum(0)
     return float(loss / g.size), g, float(s_on), float(s_off)
 
 
-def _event_adjoint(Ln: np.ndarray, g: np.ndarray, scale: float, eps: float) -> np.ndarray:
-    """``_numba_event.event_backward`` -> the gradient of the luminances [V, H, W] for an
-    upstream gradient ``scale`` of the sum (the loss's gradient over the number of residuals)."""
+def _event_adjoint(X: np.ndarray, g: np.ndarray, scale: float, eps: float, F: np.ndarray | None) -> np.ndarray:
+    """``_numba_event.event_backward`` (``event_backward_cfa`` with channel fractions F) -> the
+    gradient of the luminances [V, H, W] (renders [V, H, W, 3]) for an upstream gradient ``scale``
+    of the sum (the loss's gradient over the number of residuals)."""
     from . import _numba_event as K
 
-    out = np.empty_like(Ln)
-    _run(K.event_backward, Ln, g, scale, eps, out)
+    out = np.empty_like(X)
+    if F is None:
+        _run(K.event_backward, X, g, scale, eps, out)
+    else:
+        _run(K.event_backward_cfa, X, F, g, scale, eps, out)
     return out
 
 
 class _EventLoss(torch.autograd.Function):
-    """``event_loss`` of luminances L [V, H, W] in one kernel pass each way (``_numba_event``);
-    gradients to L and to both thresholds."""
+    """``event_loss`` of luminances L [V, H, W] (or colour renders [V, H, W, 3] through channel
+    fractions F) in one kernel pass each way (``_numba_event``); gradients to L and to both thresholds."""
 
     @staticmethod
-    def forward(ctx, L: Tensor, counts: Tensor, c_pos: Tensor, c_neg: Tensor, eps: float, l2: bool) -> Tensor:
+    def forward(
+        ctx, L: Tensor, counts: Tensor, c_pos: Tensor, c_neg: Tensor, eps: float, l2: bool, F: np.ndarray | None
+    ) -> Tensor:
         Ln = np.ascontiguousarray(L.detach().numpy())
         loss, ctx.g, ctx.s_on, ctx.s_off = _event_pass(
-            Ln, np.ascontiguousarray(counts.detach().numpy()), c_pos, c_neg, eps, l2
+            _log_signal(Ln, F, eps), np.ascontiguousarray(counts.detach().numpy()), c_pos, c_neg, l2
         )
-        ctx.Ln, ctx.eps, ctx.inv_count = Ln, eps, 1.0 / ctx.g.size
+        ctx.Ln, ctx.F, ctx.eps, ctx.inv_count = Ln, F, eps, 1.0 / ctx.g.size
         return torch.tensor(loss, dtype=L.dtype)
 
     @staticmethod
     def backward(ctx, grad: Tensor):
         scale = float(grad) * ctx.inv_count
-        grad_L = torch.from_numpy(_event_adjoint(ctx.Ln, ctx.g, scale, ctx.eps)) if ctx.needs_input_grad[0] else None
+        grad_L = (
+            torch.from_numpy(_event_adjoint(ctx.Ln, ctx.g, scale, ctx.eps, ctx.F)) if ctx.needs_input_grad[0] else None
+        )
         g_pos, g_neg = _threshold_grads(
             scale, ctx.s_on, ctx.s_off, ctx.needs_input_grad[2], ctx.needs_input_grad[3], grad.dtype
         )
-        return grad_L, None, g_pos, g_neg, None, None
+        return grad_L, None, g_pos, g_neg, None, None, None
 
 
 def _threshold_grads(
@@ -307,6 +330,8 @@ class _ExposureSpec:
     w: float
     eps: float
     l2: bool
+    cfa: np.ndarray | None = None  # [H, W, 3] channel fractions of a colour DAVIS (ebad.losses.cfa_weights)
+    project: bool = False  # L_blur and L_EDI compare sum_d cfa_d images_d (raw mosaic targets)
 
 
 def _hwd_stack(
@@ -334,24 +359,35 @@ class _ExposureLosses(torch.autograd.Function):
         X = np.ascontiguousarray(images.detach().numpy())
         dt = X.dtype
         Vp, H, W, D = X.shape
-        mean = X[: spec.V].mean(0, dtype=dt)  # [H, W, D]
+        F = spec.cfa
+        # what L_blur and L_EDI compare: the renders, or their cfa projection [.., H, W, 1] (raw mosaic targets)
+        Xc = np.einsum("vhwd,hwd->vhw", X, F)[..., None] if spec.project and F is not None else X
+        Dc = Xc.shape[-1]
+        mean = Xc[: spec.V].mean(0, dtype=dt)  # [H, W, Dc]
         preds, targets = [mean[None]], [np.asarray(blurry.detach().numpy(), dt)[None]]
         if latents is not None:
             lat = np.asarray(latents.detach().numpy(), dt)
-            preds.append(X[: spec.V] if spec.views else X[spec.mid][None])
+            preds.append(Xc[: spec.V] if spec.views else Xc[spec.mid][None])
             targets.append(lat if spec.views else lat[None])
         A = _hwd_stack(np.concatenate(preds))
         B = _hwd_stack(np.concatenate(targets))
-        group = np.repeat(np.arange(len(preds)), [p.shape[0] * D for p in preds])
+        group = np.repeat(np.arange(len(preds)), [p.shape[0] * Dc for p in preds])
         _, sums, ctx.ssim = _ssim_pass(A, B, spec.win, images.requires_grad, s_map=False)
         image_losses, ctx.inv_count = _group_l1_ssim(sums, group, len(preds), H * W, spec.w)
         ev = 0.0
         if spec.event_views:
             assert counts is not None  # ebad.losses.exposure_losses checks counts with two or more event views
             Xe = X[list(spec.event_views)]
-            Ln = np.ascontiguousarray(Xe[..., 0] if D == 1 else Xe @ np.asarray(LUMA, dt))  # [E, H, W] luminance
+            if F is not None:  # [E, H, W, 3] colour renders, seen through the filter
+                Ln = np.ascontiguousarray(Xe)
+            else:  # [E, H, W] luminance
+                Ln = np.ascontiguousarray(Xe[..., 0] if D == 1 else Xe @ np.asarray(LUMA, dt))
             ev, ctx.g, ctx.s_on, ctx.s_off = _event_pass(
-                Ln, np.ascontiguousarray(counts.detach().numpy(), dtype=dt), c_pos, c_neg, spec.eps, spec.l2
+                _log_signal(Ln, F, spec.eps),
+                np.ascontiguousarray(counts.detach().numpy(), dtype=dt),
+                c_pos,
+                c_neg,
+                spec.l2,
             )
             ctx.Ln = Ln
         ctx.spec, ctx.group, ctx.shape = spec, group, X.shape
@@ -373,7 +409,10 @@ class _ExposureLosses(torch.autograd.Function):
                 ctx.ssim, np.empty(_EMPTY, ctx.ssim.A.dtype), -spec.w * per_image, (1 - spec.w) * per_image, True, False
             )
             assert ga is not None  # want_a
-            ga = ga.reshape(-1, D, H, W).transpose(0, 2, 3, 1)  # [P images, H, W, D]
+            if spec.project:  # the gradient of the projection sum_d F_d X_d: [P images, H, W, 1] * F
+                ga = ga.reshape(-1, H, W)[..., None] * spec.cfa
+            else:
+                ga = ga.reshape(-1, D, H, W).transpose(0, 2, 3, 1)  # [P images, H, W, D]
             blur_share = ga[0] / ga.dtype.type(spec.V)  # the mean's gradient, to each of the V renders
             if spec.views and Vp == spec.V:  # each render's own L_EDI gradient plus its share: one pass
                 out = ga[1:] + blur_share
@@ -386,11 +425,14 @@ class _ExposureLosses(torch.autograd.Function):
                 elif spec.mid is not None:
                     out[spec.mid] += ga[1]
             if spec.event_views:
-                gl = _event_adjoint(ctx.Ln, ctx.g, float(G[2]) / ctx.g.size, spec.eps)  # [E, H, W]
+                gl = _event_adjoint(ctx.Ln, ctx.g, float(G[2]) / ctx.g.size, spec.eps, spec.cfa)  # [E, H, W(, 3)]
                 e0, e1 = spec.event_views[0], spec.event_views[-1]
                 consecutive = spec.event_views == tuple(range(e0, e1 + 1))
                 idx = slice(e0, e1 + 1) if consecutive else list(spec.event_views)  # a slice adds in place
-                out[idx] += gl[..., None] if D == 1 else gl[..., None] * np.asarray(LUMA, gl.dtype)
+                if spec.cfa is not None:
+                    out[idx] += gl
+                else:
+                    out[idx] += gl[..., None] if D == 1 else gl[..., None] * np.asarray(LUMA, gl.dtype)
             grad_images = torch.from_numpy(np.ascontiguousarray(out))
         if spec.event_views:
             g_pos, g_neg = _threshold_grads(

@@ -40,6 +40,8 @@ RULES: dict[str, tuple[tuple, tuple]] = {
     "loss.event_windows": (("sliding",), ("consecutive", "random")),
     "loss.event_norm": (("l3",), ("l1", "l2")),
     "loss.edi_prior": (("mapEDI",), ("edi",)),
+    "loss.cfa_events": (("mean",), ("filter", "luminance")),
+    "loss.cfa_frames": (("raw",), ("rgb", "mosaic")),
     "loss.edi_instants": (("all",), ("mid", "views")),
     "loss.w_blur": ((-1e-6,), (0.0,)),
     "loss.w_event": ((-1e-6,), (0.0,)),

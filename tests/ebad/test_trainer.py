@@ -163,8 +163,10 @@ def test_frame_losses_in_one_node_equal_the_response_path_with_a_linear_response
 
     import ebad.loop as trainer
 
-    def composed(images, V, blurry, latents, mid, counts, event_views, c, w, window, norm):
-        return _losses_through_response(images, V, blurry, latents, mid, counts, event_views, c, state.response, cfg)
+    def composed(images, V, blurry, latents, mid, counts, event_views, c, w, window, norm, cfa=None):
+        return _losses_through_response(
+            images, V, blurry, latents, mid, counts, event_views, c, state.response, cfg, cfa
+        )
 
     original = trainer.exposure_losses
     trainer.exposure_losses = composed
