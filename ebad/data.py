@@ -186,7 +186,9 @@ class TrainingData:
             if views is not None and views[f] is not None:
                 assert self.events is not None  # needs_events, checked above
                 assert self.c is not None  # view latents are made from events, and c with them (prepare)
-                views[f] = view_latents(self.frames[f].numpy(), self.exposures[f], self.events, int(V[f]), self.c)
+                views[f] = view_latents(
+                    self.frames[f].numpy(), self.exposures[f], self.events, int(V[f]), self.c, cfa=self.cfa
+                )
         self.V, self.ev_counts, self.view_latents = V, counts, views
         self.report.views, self.report.renders_per_pass = V.tolist(), int(V.sum())
 

@@ -112,3 +112,25 @@ def test_cfa_weights_refuse_a_pattern_that_is_not_one():
 
     with pytest.raises(InputError, match="not a Bayer pattern"):
         cfa_weights("RGBG", 4, 4)
+
+
+def test_view_latents_made_again_for_a_new_V_follow_the_filter():
+    """``set_views`` rebuilds a frame's view latents with the capture's cfa (per-pixel EDI on the
+    mosaic), exactly as ``prepare`` made them."""
+    import scenes
+    from ebad.config import preset
+    from ebad.data import prepare, view_latents
+
+    cap = scenes.make_scene("boxes", size="tiny", seed=0, n_frames=4, cfa="RGGB").capture
+    cfg = preset("ebad")
+    cfg.loss.edi_instants = "views"
+    data = prepare(cap, cfg)
+    f = int(np.flatnonzero(data.V > 1)[0])
+    new_V = data.V.copy()
+    new_V[f] = data.V[f] + 2
+    data.set_views(new_V)
+    assert data.c is not None and data.view_latents is not None
+    frame, exposure = data.frames[f].numpy(), data.exposures[f]
+    want = view_latents(frame, exposure, cap.events, int(new_V[f]), data.c, cfa="RGGB")
+    assert torch.equal(data.view_latents[f], want)
+    assert not torch.allclose(data.view_latents[f], view_latents(frame, exposure, cap.events, int(new_V[f]), data.c))
