@@ -62,6 +62,7 @@ class Evaluator:
                 state.params, c2w, d.K, d.width, d.height, self.cfg.model.background, response=state.response
             ),
             self.views,
+            d.cfa,
         )
 
     def on_step(self, state: TrainState, stats: StepStats) -> None:

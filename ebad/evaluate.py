@@ -32,7 +32,7 @@ from .gaussians import render
 from .lie import compose_pose, so3_exp
 from .losses import l1_ssim
 from .run import Run
-from .scoring import ViewScores, score_frames, score_views, view_pose, with_poses
+from .scoring import ViewScores, in_image_domain, score_frames, score_views, view_pose, with_poses
 
 if TYPE_CHECKING:
     from scenes import Capture, SynthScene, TestView
@@ -70,10 +70,12 @@ def refine_pose(
     lr: float = REFINE_LR,
     tol: float = REFINE_TOL,
     window: int = REFINE_WINDOW,
+    cfa: str | None = None,
 ) -> tuple[np.ndarray, int]:
     """Align one test camera [4, 4] to its image [H, W, D] with the Gaussians frozen.
 
-    Returns the best pose seen and the steps taken (see the module docstring for the rule)."""
+    Returns the best pose seen and the steps taken (see the module docstring for the rule). A raw
+    Bayer mosaic ``image`` (one channel, ``cfa`` given) is compared with the render's mosaic."""
     base = torch.as_tensor(np.asarray(c2w), dtype=torch.float32)
     target = torch.as_tensor(np.asarray(image), dtype=torch.float32)
     xi = torch.zeros(6, requires_grad=True)
@@ -86,7 +88,8 @@ def refine_pose(
     for step in range(1, iters + 1):  # noqa: B007  (the steps taken are returned)
         pose = base @ compose_pose(so3_exp(xi[:3]), scale * xi[3:])
         img, _, _ = render(params, pose[None], K, run.width, run.height, run.config.model.background)
-        loss = l1_ssim(run.response(img[0]), target)  # in the camera's domain, like the image
+        pred = in_image_domain(run.response(img[0]), target.shape[-1], cfa)
+        loss = l1_ssim(pred, target)  # in the camera's domain, like the image
         value = float(loss.detach())
         losses.append(value)
         if value < best_loss:
@@ -141,12 +144,13 @@ def evaluate(
         out["poses"] = how
         if views:
             images = run.render(np.stack([view_pose(v) for v in views]))
-            out["test"] = score_views(images, views)
+            cfa = capture.cfa
+            out["test"] = score_views(images, views, cfa)
             if refine:
-                refined = [refine_pose(run, view_pose(v), _image(v), refine_iters) for v in views]
+                refined = [refine_pose(run, view_pose(v), _image(v), refine_iters, cfa=cfa) for v in views]
                 out["refine_steps"] = {v.name: steps for v, (_, steps) in zip(views, refined)}
                 images = run.render(np.stack([pose for pose, _ in refined]))
-                out["test_refined"] = score_views(images, views)
+                out["test_refined"] = score_views(images, views, cfa)
             if renders_to is not None:
                 for v, img in zip(views, images):
                     renders_to(v.name, img)

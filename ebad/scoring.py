@@ -11,11 +11,13 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
 from torch import Tensor
+
+from edi.cfa import mosaic
 
 from .gaussians import render
 from .metrics import psnr, ssim
@@ -24,6 +26,7 @@ if TYPE_CHECKING:
     from scenes import TestView
 
 __all__ = [
+    "in_image_domain",
     "ViewScores",
     "render_images",
     "score_views",
@@ -67,12 +70,30 @@ def render_images(
     return torch.cat(out).numpy()
 
 
+def in_image_domain(render: Any, image_channels: int, cfa: str | None) -> Any:  # [..., H, W, D] numpy or torch
+    """A render in the domain of an image of ``image_channels`` channels: a colour render against a
+    raw Bayer mosaic (one channel, a capture with ``cfa``) becomes its mosaic ([..., H, W, 1]); else as is."""
+    if cfa is not None and image_channels == 1 and render.shape[-1] == 3:
+        return mosaic(render, cfa)[..., None]
+    return render
+
+
 def score_views(
     images: np.ndarray,  # [C, H, W, D]
     views: Sequence[TestView],
+    cfa: str | None = None,
 ) -> ViewScores:
-    """PSNR / SSIM of rendered images against the views' images (each view's ``image``, by ``name``)."""
-    per = {v.name: {"psnr": psnr(images[i], v.image), "ssim": ssim(images[i], v.image)} for i, v in enumerate(views)}
+    """PSNR / SSIM of rendered images against the views' images (each view's ``image``, by ``name``);
+    against raw mosaics (``cfa``) the renders' mosaics are scored."""
+
+    def pair(i: int, v: TestView) -> tuple[np.ndarray, np.ndarray]:
+        assert v.image is not None  # scorable views carry one
+        return in_image_domain(images[i], v.image.shape[-1], cfa), v.image
+
+    per = {}
+    for i, v in enumerate(views):
+        a, b = pair(i, v)
+        per[v.name] = {"psnr": psnr(a, b), "ssim": ssim(a, b)}
     return ViewScores(
         psnr=float(np.mean([p["psnr"] for p in per.values()])),
         ssim=float(np.mean([p["ssim"] for p in per.values()])),
@@ -105,10 +126,12 @@ def view_pose(view: TestView) -> np.ndarray:  # [4, 4]
     return view.c2w
 
 
-def evaluate_views(render_fn: Callable[[np.ndarray], np.ndarray], views: Sequence[TestView]) -> ViewScores | None:
+def evaluate_views(
+    render_fn: Callable[[np.ndarray], np.ndarray], views: Sequence[TestView], cfa: str | None = None
+) -> ViewScores | None:
     """Mean PSNR / SSIM of the views that carry an image and a pose (None when none does);
-    ``render_fn(c2w [C, 4, 4]) -> [C, H, W, D]``."""
+    ``render_fn(c2w [C, 4, 4]) -> [C, H, W, D]``; ``cfa``: as ``score_views``."""
     views = scorable_views(views)
     if not views:
         return None
-    return score_views(render_fn(np.stack([view_pose(v) for v in views])), views)
+    return score_views(render_fn(np.stack([view_pose(v) for v in views])), views, cfa)
