@@ -16,6 +16,10 @@ with the same options to keep them.
 ``--tensorboard`` writes TensorBoard event files to ``OUT/tensorboard`` (``tensorboard --logdir
 OUT``): losses, PSNR, Gaussian count, step time, thresholds, and renders every ``train.eval_every``
 steps (``ebad.callbacks.TensorBoardLogger``; needs the ``tensorboard`` package).
+
+``--view`` serves the run while it trains in the browser viewer of ``ebad view`` (``ebad.live_view.LiveView``;
+needs ``viser``) on 127.0.0.1 port ``--view-port``, redrawn every ``--view-every`` seconds (less often when a
+redraw would take more than 5% of the training time); it stops when training does.
 """
 
 from __future__ import annotations
@@ -65,6 +69,15 @@ class Args:
         "write TensorBoard event files to OUT/tensorboard: losses, PSNR, Gaussian count, step time, thresholds and "
         "renders every train.eval_every steps (needs the tensorboard package: pip install 'ebad[tensorboard]')"
     )
+    view: bool = False
+    (
+        "watch the run while it trains: a browser viewer (as 'ebad view') at http://localhost:VIEW_PORT, redrawn "
+        "every --view-every seconds, stopped when training ends (needs viser)"
+    )
+    view_port: int = 8080
+    """port of the --view viewer (on 127.0.0.1; from another computer: ssh -L PORT:localhost:PORT HOST)"""
+    view_every: float = 5.0
+    """seconds between --view redraws (longer when a redraw would take more than 5% of the training time)"""
     settings: Annotated[Config, tyro.conf.arg(name=""), tyro.conf.FlagConversionOff] = field(default_factory=Config)
     """the reconstruction settings (ebad.config.Config), one option per field"""
 
@@ -158,6 +171,14 @@ def run(args: Args) -> int:
         from ..callbacks import require_tensorboard
 
         require_tensorboard()
+    if args.view:  # its mistakes stop the run before anything is loaded or written
+        from .view import import_viser
+
+        import_viser()
+        if not args.view_every > 0:
+            raise UserError(f"--view-every must be a positive number of seconds, got {args.view_every}")
+        if not 0 < args.view_port < 65536:
+            raise UserError(f"--view-port must be in 1..65535, got {args.view_port}")
     ckpt = out / "checkpoints" / "last.pt"
     if not args.resume and ckpt.exists():
         raise UserError(f"--out {out} already holds a run; pass --resume to continue it or choose another folder")
@@ -174,7 +195,14 @@ def run(args: Args) -> int:
         (out / "metrics.json").unlink(missing_ok=True)  # the run is unfinished until write_run ends
         save_config(cfg, out / "config.json")
         t0 = time.perf_counter()
-        run_ = reconstruct(capture, cfg, out_dir=out, resume=args.resume, callbacks=_loggers(args, cfg, capture, out))
+        live = _live_view(args, capture)
+        try:
+            run_ = reconstruct(
+                capture, cfg, out_dir=out, resume=args.resume, callbacks=_loggers(args, cfg, capture, out) + live
+            )
+        finally:
+            for viewer in live:
+                viewer.close()
         gt = _gt_trajectories(Path(args.capture), run_.names)
         write_run(run_, out, gt_trajectories=gt)
     m = run_.metrics
@@ -219,6 +247,29 @@ def _loggers(args: Args, cfg: Config, capture, out: Path) -> list:
             cfg.train.eval_every,
             views,
             names[0],
+        )
+    ]
+
+
+def _live_view(args: Args, capture) -> list:
+    """The ``LiveView`` of ``--view`` (its server started), else none."""
+    if not args.view:
+        return []
+    from ..live_view import LiveView
+
+    views = [v for v in capture.test_views if getattr(v, "c2w", None) is not None]
+    train = [i for i, s in enumerate(capture.split) if s == "train"] if capture.split else range(capture.num_frames)
+    names = [capture.names[i] if capture.names else f"{i:04d}" for i in train]  # as ebad.data names them
+    return [
+        LiveView(
+            capture.K,
+            capture.width,
+            capture.height,
+            names,
+            port=args.view_port,
+            every=args.view_every,
+            test_views=views,
+            say=lambda m: print(f"ebad reconstruct: {m}", file=sys.stderr),
         )
     ]
 

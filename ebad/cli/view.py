@@ -3,7 +3,15 @@
 Shows the Gaussians (drawn by the browser with WebGL, so the server needs no GPU), every
 training camera as a frustum at its mid-exposure pose (blue) with its recovered exposure
 trajectory as a polyline of camera centres (red, start to end), and, with ``--capture``,
-the capture's test views (green frustums).
+the capture's test views (green frustums), on a dark background.
+
+The first view is the first training camera's: its mid-exposure pose and the capture's vertical
+field of view, so the browser opens on what that camera saw. A click on a training camera's frustum
+flies there; the "trajectory" choice and the "exposure instant" slider (0: exposure start, 8: end)
+move the view along that frame's recovered exposure trajectory. (The browser console's
+"THREE.BufferGeometry.computeBoundingSphere(): Computed radius is NaN" comes from viser's own splat
+mesh, whose quad "position" attribute has two components; ebad's arrays are finite, and viser draws
+the splats all the same.)
 
 The server listens on ``--host`` (default 127.0.0.1, this machine only) port ``--port``
 (default 8080); open http://localhost:8080. On a remote machine, forward the port over
@@ -37,7 +45,6 @@ DEFAULT_PORT = 8080
 INSTALL_VIEW = "pip install viser (or the 'view' extra)"
 TRAJECTORY_SAMPLES = 9  # camera centres per exposure polyline
 FRUSTUM_FRACTION = 0.15  # frustum depth as a fraction of the camera spread (or the scene extent)
-BACK_OFF = 0.6  # the initial view sits this fraction of the camera-to-scene distance behind the cameras
 LINE_PIXELS = 2.0  # frustum and trajectory line width, screen pixels
 TRAIN_COLOR = (40, 90, 220)
 TRAJECTORY_COLOR = (220, 40, 40)
@@ -120,34 +127,105 @@ def _frustum(
     )
 
 
-def build_scene(server, run, test_views=()) -> dict:
-    """Add the run's Gaussians, training cameras, exposure trajectories and ``test_views``
-    (objects with ``name`` and ``c2w``) to a viser server; returns the scene handles."""
-    mid = run.trajectories.mid_poses().numpy().astype(np.float64)  # [F, 4, 4]
-    poses, _ = run.exposure_poses(TRAJECTORY_SAMPLES)  # [F, S, 4, 4]
-    arrays = splat_arrays(run.params, run.response)
+def camera_view(c2w: np.ndarray, K: np.ndarray, height: int, depth: float) -> dict:
+    """The browser camera that sees what a camera at ``c2w`` (OpenCV axes) with intrinsics ``K``
+    sees: its centre, a look-at point ``depth`` ahead on its optical axis, its up (-y) and its
+    vertical field of view (radians; the window's own aspect decides the horizontal one)."""
+    c2w = np.asarray(c2w, np.float64)
+    eye = c2w[:3, 3]
+    return {
+        "position": eye,
+        "look_at": eye + max(float(depth), 1e-6) * c2w[:3, 2],
+        "up": -c2w[:3, 1],
+        "fov": 2 * math.atan(0.5 * height / float(K[1, 1])),
+    }
+
+
+def fly_to(client, view: dict) -> None:
+    """Move one browser's camera (a viser ``ClientHandle``) to a ``camera_view``."""
+    cam = client.camera
+    with client.atomic():
+        cam.fov = view["fov"]
+        cam.up_direction = view["up"]
+        cam.position = view["position"]  # keeps the orientation: the look-at point follows
+        cam.look_at = view["look_at"]
+
+
+def _look_depth(c2w: np.ndarray, target: np.ndarray, fallback: float) -> float:
+    """How far ahead of a camera the scene's middle ``target`` lies on its optical axis."""
+    depth = float((target - c2w[:3, 3]) @ c2w[:3, 2])
+    return depth if np.isfinite(depth) and depth > 1e-6 else fallback
+
+
+def exposure_poses(trajectories, samples: int = TRAJECTORY_SAMPLES) -> tuple[np.ndarray, np.ndarray]:
+    """([F, 4, 4] mid-exposure poses, [F, samples, 4, 4] poses at evenly spaced exposure instants)."""
+    import torch
+
+    with torch.no_grad():
+        mid = trajectories.mid_poses().detach().double().numpy()
+        u = torch.linspace(0, 1, samples)
+        poses = trajectories(torch.arange(trajectories.num_frames), u).detach().double().numpy()
+    return mid, poses
+
+
+def _geometry(run) -> dict:
+    """The poses and scene middle the cameras and the browser's views are placed by."""
+    mid, poses = exposure_poses(run.trajectories)  # [F, 4, 4], [F, S, 4, 4]
+    arrays = splat_arrays(run.params, getattr(run, "response", None))
     centres = mid[:, :3, 3]
     target = np.median(arrays["centers"], axis=0).astype(np.float64) if len(arrays["centers"]) else centres.mean(0)
     spread = float(np.linalg.norm(centres - centres.mean(0), axis=1).max()) if len(centres) > 1 else 0.0
     reach = float(np.linalg.norm(centres.mean(0) - target))
-    scale = FRUSTUM_FRACTION * max(spread, reach, 1e-3)
+    return {
+        "arrays": arrays,
+        "mid": mid,
+        "poses": poses,
+        "target": target,
+        "scale": FRUSTUM_FRACTION * max(spread, reach, 1e-3),
+        "depth": max(reach, spread, 1e-3),  # the look-at distance when the scene is not ahead of a camera
+    }
 
-    up = -mid[:, :3, 1].mean(0)  # OpenCV: y points down in the image
-    up = up / max(np.linalg.norm(up), 1e-12)
-    server.scene.set_up_direction(up)
-    handles = {"splats": server.scene.add_gaussian_splats("/gaussians", **arrays), "train": [], "test": []}
-    for f, name in enumerate(run.names):
-        handles["train"].append(
-            _frustum(server, f"/train/{name}", mid[f], run.K, run.width, run.height, scale, TRAIN_COLOR)
-        )
-    segments = np.stack([poses[:, :-1, :3, 3], poses[:, 1:, :3, 3]], axis=2).reshape(-1, 2, 3)  # [F*(S-1), 2, 3]
-    handles["trajectories"] = server.scene.add_line_segments(
+
+def _segments(poses: np.ndarray) -> np.ndarray:  # [F, S, 4, 4] -> [F*(S-1), 2, 3] camera-centre polylines
+    return np.stack([poses[:, :-1, :3, 3], poses[:, 1:, :3, 3]], axis=2).reshape(-1, 2, 3).astype(np.float32)
+
+
+def _add_trajectories(server, poses: np.ndarray):
+    return server.scene.add_line_segments(
         "/trajectories",
-        points=segments.astype(np.float32),
+        points=_segments(poses),
         colors=TRAJECTORY_COLOR,
         thickness=LINE_PIXELS,
         thickness_units="screen",
     )
+
+
+def build_scene(server, run, test_views=()) -> dict:
+    """Add the run's Gaussians, training cameras, exposure trajectories and ``test_views``
+    (objects with ``name`` and ``c2w``) to a viser server, with the browser's first view at the first
+    training camera's mid-exposure pose and field of view, a click on a training camera flying there,
+    and a "trajectory" choice with an "exposure instant" slider moving the view along a recovered
+    exposure trajectory. ``run`` needs ``params``, ``trajectories``, ``names``, ``K``, ``width`` and
+    ``height`` (a ``Run``, or a training state's: ``update_scene`` follows it). Returns the scene handles."""
+    geo = _geometry(run)
+    mid, scale = geo["mid"], geo["scale"]
+    up = -mid[:, :3, 1].mean(0)  # OpenCV: y points down in the image
+    up = up / max(np.linalg.norm(up), 1e-12)
+    server.scene.set_up_direction(up)
+    handles: dict = {"splats": server.scene.add_gaussian_splats("/gaussians", **geo["arrays"]), "train": [], "test": []}
+    handles["geometry"] = geo
+
+    def view_at(f: int, s: int | None = None) -> dict:
+        g = handles["geometry"]  # the latest (update_scene replaces it)
+        c2w = g["mid"][f] if s is None else g["poses"][f, s]
+        return camera_view(c2w, run.K, run.height, _look_depth(c2w, g["target"], g["depth"]))
+
+    handles["view_at"] = view_at
+    for f, name in enumerate(run.names):
+        frustum = _frustum(server, f"/train/{name}", mid[f], run.K, run.width, run.height, scale, TRAIN_COLOR)
+        frustum.on_click(_flier(f, view_at))
+        handles["train"].append(frustum)
+    handles["trajectories"] = _add_trajectories(server, geo["poses"])
     for v in test_views:
         handles["test"].append(
             _frustum(
@@ -161,12 +239,56 @@ def build_scene(server, run, test_views=()) -> dict:
                 TEST_COLOR,
             )
         )
-    # start behind the cameras, looking at the scene
-    eye = centres.mean(0) + BACK_OFF * (centres.mean(0) - target)
-    server.initial_camera.position = tuple(float(v) for v in eye)
-    server.initial_camera.look_at = tuple(float(v) for v in target)
-    server.initial_camera.up = tuple(float(v) for v in up)
+    handles.update(_trajectory_controls(server, list(run.names), geo["poses"].shape[1], view_at))
+    # the first view: the first training camera at mid-exposure, as it saw the scene
+    first = view_at(0)
+    server.initial_camera.position = tuple(float(v) for v in first["position"])
+    server.initial_camera.look_at = tuple(float(v) for v in first["look_at"])
+    server.initial_camera.up = tuple(float(v) for v in first["up"])
+    server.initial_camera.fov = first["fov"]
     return handles
+
+
+def update_scene(server, handles: dict, run) -> None:
+    """Show ``run``'s current Gaussians, camera poses and trajectories in a scene made by ``build_scene``
+    (the browsers' cameras and controls stay as they are)."""
+    from ..export import rotmat_to_quat
+
+    geo = _geometry(run)
+    with server.atomic():
+        handles["splats"] = server.scene.add_gaussian_splats("/gaussians", **geo["arrays"])  # same name: replaced
+        for frustum, c2w in zip(handles["train"], geo["mid"]):
+            frustum.wxyz = rotmat_to_quat(c2w[:3, :3])
+            frustum.position = c2w[:3, 3]
+        handles["trajectories"].points = _segments(geo["poses"])
+    handles["geometry"] = geo
+
+
+def _flier(f: int, view_at):
+    """A frustum's click callback: the clicking browser flies to camera ``f``'s mid-exposure pose."""
+
+    def on_click(event) -> None:
+        fly_to(event.client, view_at(f))
+
+    return on_click
+
+
+def _trajectory_controls(server, names: list[str], samples: int, view_at) -> dict:
+    """The GUI: a choice of training frame and a slider over its exposure instants (0: exposure start,
+    ``samples - 1``: end); changing either moves the browser that changed it (every browser when the
+    server changes it) to that instant's pose on the recovered trajectory."""
+    frame = server.gui.add_dropdown("trajectory", options=names, initial_value=names[0])
+    instant = server.gui.add_slider("exposure instant", min=0, max=samples - 1, step=1, initial_value=samples // 2)
+
+    def move(event) -> None:
+        view = view_at(names.index(frame.value), int(instant.value))
+        clients = [event.client] if event.client is not None else list(server.get_clients().values())
+        for client in clients:
+            fly_to(client, view)
+
+    frame.on_update(move)
+    instant.on_update(move)
+    return {"frame": frame, "instant": instant}
 
 
 def serve(run, host: str = DEFAULT_HOST, port: int = DEFAULT_PORT, test_views=()):
@@ -212,7 +334,7 @@ def _refuse_share_url(verbose: bool = True) -> None:
 def disable_share(server) -> None:
     """No public share link: viser's Share button hidden, and a client's share request (any page
     can send one, button or not) answered with nothing instead of a tunnel to share.viser.studio."""
-    server.gui.configure_theme(show_share_button=False)
+    server.gui.configure_theme(show_share_button=False, dark_mode=True)  # dark: the scene's own background
     server.request_share_url = _refuse_share_url  # viser's ShareUrlRequest handler looks it up per request
 
 

@@ -20,6 +20,9 @@ WINDOW = (1024, 768)  # width, height of the headless browser window
 CANVAS_ONLY = (slice(160, 700), slice(70, 680))
 MIN_CANVAS_STD = 8.0  # grey levels: a blank (uniform) canvas has 0
 MIN_SPLAT_EFFECT = 2.0  # mean |difference| in grey levels between the scene with and without Gaussians
+MIN_FIRST_VIEW_CORRELATION = 0.5  # the first view against ebad's render of the first training camera
+MIN_SCENE_FRACTION = 0.5  # of the canvas region that must differ from the (dark) background
+BACKGROUND_TOLERANCE = 12.0  # grey levels
 VIRTUAL_TIME_MS = 6000  # page time for the client to connect and draw (doubled on each retry)
 ATTEMPTS = 4  # a loaded machine can take longer to send the scene over the websocket: wait longer
 BROWSER_TIMEOUT_S = 120
@@ -90,6 +93,18 @@ def _screenshot(browser: str, url: str, out, profile, budget_ms: int = VIRTUAL_T
         return np.asarray(im.convert("L"), dtype=np.float64)
 
 
+def _first_view_render(run, shrink: int = 2) -> np.ndarray:  # [H, W] grey in 0..255, the window's size / shrink
+    """ebad's render of the first training camera at mid-exposure as the browser window shows it:
+    the capture's vertical field of view over the window's height, square pixels, centred."""
+    from ebad.cli.view import exposure_poses
+
+    W, H = WINDOW[0] // shrink, WINDOW[1] // shrink
+    f = float(run.K[1, 1]) * H / run.height
+    K = np.array([[f, 0, W / 2], [0, f, H / 2], [0, 0, 1]])
+    img = run.render(exposure_poses(run.trajectories)[0][0], K, W, H)
+    return 255.0 * img.mean(-1)
+
+
 def test_splat_arrays_match_the_model(tiny_run):
     import torch
 
@@ -141,13 +156,30 @@ def test_view_draws_the_scene_in_a_real_browser(tiny_run, tmp_path):
         assert region.std() > MIN_CANVAS_STD, (
             f"blank canvas (std {region.std():.2f}); see {tmp_path / 'view_scene.png'}"
         )
+        # the first view is the first training camera's, as ebad renders it
+        ours = _first_view_render(run)
+        shot = full.reshape(WINDOW[1] // 2, 2, WINDOW[0] // 2, 2).mean((1, 3))
+        rows, cols = (
+            slice(CANVAS_ONLY[0].start // 2, CANVAS_ONLY[0].stop // 2),
+            slice(CANVAS_ONLY[1].start // 2, CANVAS_ONLY[1].stop // 2),
+        )
+        corr = float(np.corrcoef(shot[rows, cols].ravel(), ours[rows, cols].ravel())[0, 1])
+        print(f"first view: correlation with ebad's render of the first training camera {corr:.3f}")
+        assert corr > MIN_FIRST_VIEW_CORRELATION, f"the first view does not match the first camera's (r = {corr:.3f})"
         handles["splats"].visible = False
         bare = _drawn(
             browser, url, tmp_path / "view_no_gaussians.png", tmp_path / "profile2"
         )  # boxes and cameras still draw
         effect = np.abs(region - bare[CANVAS_ONLY]).mean()
+        background = float(np.median(bare[CANVAS_ONLY]))  # the canvas without Gaussians: background and lines
+        assert background < 64, f"background grey {background:.0f}: not dark"
+        scene_fraction = float((np.abs(region - background) > BACKGROUND_TOLERANCE).mean())
+        assert scene_fraction > MIN_SCENE_FRACTION, f"only {scene_fraction:.0%} of the canvas shows the scene"
         assert effect > MIN_SPLAT_EFFECT, f"the Gaussians changed the canvas by only {effect:.2f} grey levels"
-        print(f"canvas std {region.std():.1f}, Gaussians' effect {effect:.1f} grey levels")
+        print(
+            f"canvas std {region.std():.1f}, Gaussians' effect {effect:.1f} grey levels, {scene_fraction:.0%} of the "
+            f"canvas differs from the background (grey {background:.0f})"
+        )
     finally:
         server.stop()
 
