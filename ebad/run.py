@@ -42,7 +42,7 @@ __all__ = ["Run", "RunMetrics", "reconstruct", "warm_up"]
 def warm_up() -> float:
     """Compile every numba kernel a reconstruction runs (or load it from numba's cache): three
     steps of the ``ebad`` preset on a tiny synthetic capture, which reach the rasteriser, SSIM
-    and L_ev kernels that every preset uses. Timed comparisons call it first so that no
+    and L_ev kernels that every preset uses, and two on a colour-DAVIS one (L_ev per channel). Timed comparisons call it first so that no
     method's budget pays for compilation (on a cold cache, mostly the rasteriser's backward,
     SSIM and L_ev). Returns its seconds."""
     import scenes
@@ -51,6 +51,8 @@ def warm_up() -> float:
     cfg = preset("ebad")
     cfg.train.iters, cfg.train.progress, cfg.train.eval_every = 3, False, 0
     reconstruct(scenes.make_scene("boxes", size="tiny", n_frames=3, n_test=1).capture, cfg)
+    cfg.train.iters = 2  # and a colour DAVIS capture: L_ev's per-channel (cfa) kernels
+    reconstruct(scenes.make_scene("boxes", size="tiny", n_frames=3, n_test=1, cfa="RGGB").capture, cfg)
     return time.perf_counter() - t0
 
 

@@ -13,7 +13,7 @@ Layout::
     RUN/cameras.json           training cameras at mid-exposure, 3DGS/SIBR layout
     RUN/point_cloud.splat      the Gaussians for web splat viewers (antimatter15 layout, the PLY's colours)
     RUN/point_cloud/iteration_N/point_cloud.ply   INRIA's layout: the same file (a hard link), N = the steps run
-    RUN/cfg_args               INRIA's saved arguments (one line, a Python ``Namespace(...)``): sh_degree 0,
+    RUN/cfg_args               INRIA's saved arguments (one line, a Python ``Namespace(...)``): sh_degree 3,
                                source_path and model_path = RUN, white_background, eval
     RUN/deblurred/NAME.png     every training frame rendered sharp at mid-exposure (16-bit, round(65535 v))
 
@@ -47,7 +47,7 @@ from scenes.capture import file_in
 from .config import Config, load_config, save_config
 from .errors import UserError
 from .export import from_recorded_params, to_recorded_params, write_exports
-from .io import plot_trajectories, read_ply, write_ply, write_png16, write_trajectories
+from .io import PLY_SH_DEGREE, plot_trajectories, read_ply, write_ply, write_png16, write_trajectories
 from .response import RESPONSES, Response
 from .run import Run, RunMetrics
 from .trajectory import TRAJECTORIES, ExposureTrajectories
@@ -262,8 +262,9 @@ def write_inria_layout(out: Path, iteration: int, white_background: bool = False
     ``iteration_N`` (older ones are removed); N >= 1 since ``Scene`` reads iteration 0 as "none".
     ``get_combined_args`` (``arguments/__init__.py``) evaluates ``cfg_args`` as a ``Namespace``;
     the SIBR viewer reads its first line's ``source_path='...'``, ``sh_degree=`` and
-    ``white_background=``, and loads cameras.json from the model folder. ``sh_degree=0``: the PLY
-    has no ``f_rest_*``, which ``GaussianModel.load_ply`` checks against ``3 (sh + 1)^2 - 3``.
+    ``white_background=``, and loads cameras.json from the model folder. ``sh_degree`` is
+    ``PLY_SH_DEGREE`` (3): the PLY always holds 45 ``f_rest_*`` (zero above the model's own degree),
+    which ``GaussianModel.load_ply`` checks against ``3 (sh + 1)^2 - 3``.
     """
     import argparse
     import shutil
@@ -285,7 +286,7 @@ def write_inria_layout(out: Path, iteration: int, white_background: bool = False
             shutil.copyfile(out / "point_cloud.ply", tmp)
     root = str(out.resolve())
     args = argparse.Namespace(
-        sh_degree=0,
+        sh_degree=PLY_SH_DEGREE,
         source_path=root,
         model_path=root,
         images="images",

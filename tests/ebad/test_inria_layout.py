@@ -15,8 +15,10 @@ from plyfile import PlyData
 
 from ebad.runfolder import write_inria_layout
 
-# the vertex layout the SIBR viewer reads as raw structs for sh_degree 0, in this order
-SIBR_SH0_LAYOUT = ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2", "opacity"] + [
+# the vertex layout the SIBR viewer reads as raw structs (RichPoint<3>: sh_degree 3), in this order
+SIBR_SH3_LAYOUT = ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"] + [
+    *(f"f_rest_{i}" for i in range(45)),
+    "opacity",
     *(f"scale_{i}" for i in range(3)),
     *(f"rot_{i}" for i in range(4)),
 ]
@@ -61,18 +63,18 @@ def test_inria_loaders_open_the_run_folder(tiny_run):
     args = _get_combined_args(run)
     for key in ("sh_degree", "source_path", "model_path", "images", "resolution", "white_background", "eval"):
         assert hasattr(args, key), key
-    assert args.sh_degree == 0 and args.model_path == os.path.realpath(run) and args.white_background is False
+    assert args.sh_degree == 3 and args.model_path == os.path.realpath(run) and args.white_background is False
     it = _search_for_max_iteration(os.path.join(run, "point_cloud"))
     steps = json.loads((tiny_run.run / "metrics.json").read_text())["steps"]
     assert it == max(steps, 1)
     ply = os.path.join(run, "point_cloud", f"iteration_{it}", "point_cloud.ply")
     got = _load_ply(ply, args.sh_degree)
-    assert got["order"] == SIBR_SH0_LAYOUT
+    assert got["order"] == SIBR_SH3_LAYOUT
     assert os.path.samefile(ply, os.path.join(run, "point_cloud.ply"))  # linked, not a second copy
     # the SIBR viewer: first line, source_path between quotes, sh_degree an int, white_background
     line = (tiny_run.run / "cfg_args").read_text().splitlines()[0]
     assert _find_arg(line, "source_path")[1:-1] == os.path.realpath(run)
-    assert int(_find_arg(line, "sh_degree")) == 0 and "True" not in _find_arg(line, "white_background")
+    assert int(_find_arg(line, "sh_degree")) == 3 and "True" not in _find_arg(line, "white_background")
 
 
 def test_a_later_write_replaces_the_iteration_folder(tmp_path):
