@@ -48,11 +48,31 @@ def _upscale(img: np.ndarray, k: int) -> np.ndarray:
     return np.repeat(np.repeat(img, k, 0), k, 1)
 
 
-def comparison_image(rows: list[list[np.ndarray]], k: int = 4, gap: int = 2) -> np.ndarray:  # -> [H', W', 3] uint8
+def _label_strip(labels: list[str], tile_w: int, gap: int, width: int) -> np.ndarray:  # -> [h, width, 3] in [0, 1]
+    """A white strip with each column's label in black at its tile's left edge (Pillow's default font)."""
+    from PIL import Image, ImageDraw, ImageFont
+
+    font = ImageFont.load_default()
+    h = int(font.getbbox("Ag")[3]) + 4
+    im = Image.new("L", (width, h), 255)
+    draw = ImageDraw.Draw(im)
+    for i, text in enumerate(labels):
+        draw.text((i * (tile_w + gap) + 2, 2), text, fill=0, font=font)
+    return np.repeat(np.asarray(im, np.float32)[..., None] / 255.0, 3, -1)
+
+
+def comparison_image(
+    rows: list[list[np.ndarray]], k: int = 4, gap: int = 2, headers: dict[int, list[str]] | None = None
+) -> np.ndarray:  # -> [H', W', 3] uint8
     """Grid of [H, W, D] images in [0, 1] as the camera records them (each upscaled k x, nearest),
-    as 8-bit RGB (values shown as they are: the recorded values already carry the camera's response)."""
+    as 8-bit RGB (values shown as they are: the recorded values already carry the camera's response).
+    ``headers[i]``: the column labels drawn in a strip above row i."""
     out_rows = []
-    for row in rows:
+    for i, row in enumerate(rows):
+        if headers and i in headers:
+            tile_w = row[0].shape[1] * k
+            width = len(row) * tile_w + (len(row) - 1) * gap
+            out_rows.append(_label_strip(headers[i], tile_w, gap, width))
         tiles = []
         for img in row:
             im = np.clip(np.asarray(img, dtype=np.float32), 0, 1)
@@ -136,8 +156,13 @@ def run(args: Args) -> int:
     ]
     width = max(len(r_) for r_ in rows)
     blank = np.ones_like(cap.frames[0])
+    n_test = len(results["ebad"]["renders"])
     rows = [r_ + [blank] * (width - len(r_)) for r_ in rows]
-    Image.fromarray(comparison_image(rows, k=4 if cap.width <= 64 else 2)).save(out / "comparison.png")
+    headers = {0: ["test view: truth"] + [label for _, label in METHODS]}
+    if len(rows) > n_test:
+        headers[n_test] = ["training frame: blurry input"] + [label for _, label in METHODS] + ["truth"]
+    grid = comparison_image(rows, k=4 if cap.width <= 64 else 2, headers=headers)
+    Image.fromarray(grid).save(out / "comparison.png")
     for res in results.values():
         res.pop("renders")
     (out / "results.json").write_text(
