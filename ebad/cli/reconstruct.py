@@ -210,7 +210,13 @@ def run(args: Args) -> int:
     test = m.test
     print(
         f"ebad reconstruct [{cfg.name}]: {m.steps} steps ({m.stop_reason}), {m.gaussians} Gaussians, "
-        f"{time.perf_counter() - t0:.1f} s" + (f", test PSNR {test.psnr:.2f} dB SSIM {test.ssim:.3f}" if test else "")
+        f"{time.perf_counter() - t0:.1f} s"
+        + (
+            f", test PSNR {test.psnr:.2f} dB SSIM {test.ssim:.3f} at the test poses as given "
+            f"(refined against their images: ebad eval RUN CAPTURE --refine-poses)"
+            if test
+            else ""
+        )
     )
     print(f"  run folder: {out}")
     if not m.complete:
