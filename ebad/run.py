@@ -42,7 +42,8 @@ __all__ = ["Run", "RunMetrics", "reconstruct", "warm_up"]
 def warm_up() -> float:
     """Compile every numba kernel a reconstruction runs (or load it from numba's cache): three
     steps of the ``ebad`` preset on a tiny synthetic capture, which reach the rasteriser, SSIM
-    and L_ev kernels that every preset uses, and two on a colour-DAVIS one (L_ev per channel). Timed comparisons call it first so that no
+    and L_ev kernels that every preset uses, and two on a colour-DAVIS one (L_ev per
+    channel). Timed comparisons call it first so that no
     method's budget pays for compilation (on a cold cache, mostly the rasteriser's backward,
     SSIM and L_ev). Returns its seconds."""
     import scenes

@@ -54,8 +54,13 @@ __all__ = ["LOG_EPS", "SATURATION", "deblur", "deblur_with_report", "DeblurRepor
 #: latents (``model.colour_latents``). Against the true sharp RGB of ``moving_texture(cfa="RGGB")``
 #: (40 x 56, true c, 3 runs of seeds 0-4) "latents" gave 21.73 / 21.69 / 21.66 dB, "ratio" 21.66 /
 #: 21.78 / 21.57 (the blurry frame 13.7, events as luminance 11.2, the demosaic of the true sharp
-#: mosaic 23.2): a tie within 0.1 dB, so the simpler one, the camera's demosaic of the sharp mosaic
-COLOUR_FROM_MOSAIC: ColourFromMosaic = "latents"
+#: mosaic 23.2): a tie within 0.1 dB; "pixel" gives 12.3 there (its channels are independent
+#: random textures, the worst case for it). On the ray-cast colour-DAVIS world (``scenes.make_scene(
+#: "boxes", cfa="RGGB")``, realistic sensor, 10 frames, c given) "pixel" gives 22.63 dB, "latents"
+#: 20.58, the blurry frames 19.73 (tests/edi/test_cfa_pixel_colour.py), and ebad's novel views follow
+#: (docs/results.md, colour DAVIS). Natural scenes' channels are correlated (the hue is locally
+#: constant, the assumption of every demosaic), so "pixel" is the default.
+COLOUR_FROM_MOSAIC: ColourFromMosaic = "pixel"
 
 #: the instants of ``deblur``: None (mid-exposure), one instant, or [F] instants, seconds
 Times: TypeAlias = "float | Sequence[float] | np.ndarray | torch.Tensor | None"

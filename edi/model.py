@@ -77,7 +77,7 @@ ContrastLike: TypeAlias = "float | tuple[float, float] | Contrast"
 EdiImpl = Literal["fast", "reference", "binned"]
 
 #: how a colour latent is made from the per-pixel latents of a CFA frame's mosaic (``colour_latents``)
-ColourFromMosaic = Literal["latents", "ratio"]
+ColourFromMosaic = Literal["latents", "ratio", "pixel"]
 
 _IMPLS = {"fast": edi_pass, "reference": edi_pass_reference}
 
@@ -361,15 +361,18 @@ def colour_latents(
     * "latents": the per-pixel latents demosaiced (``edi.cfa.demosaic``, in recorded units as the
       camera software demosaics): the colour frame the camera would have given for the sharp mosaic;
     * "ratio": the per-pixel log ratios r demosaiced and applied to the blurry RGB frame,
-      L_c = (B_c + eps) exp(r_c) - eps (each pixel's own channel is the same as with "latents").
+      L_c = (B_c + eps) exp(r_c) - eps (each pixel's own channel is the same as with "latents");
+    * "pixel": each pixel's own log ratio r applied to all three channels of the blurry RGB frame,
+      L_c = (B_c + eps) exp(r) - eps: the ratio at full resolution, assuming the hue is locally
+      constant over the exposure's motion (the assumption of every demosaic); measured best.
     """
     if how == "latents":
         lat = np.clip(demosaic(lat_raw[..., 0], cfa), 0.0, 1.0)
         return lat, (np.asarray(mosaic(b, cfa)) >= saturation)
-    if how != "ratio":
-        raise InputError(f"how must be 'latents' or 'ratio', got {how!r}")
+    if how not in ("ratio", "pixel"):
+        raise InputError(f"how must be 'latents', 'ratio' or 'pixel', got {how!r}")
     sat = np.asarray((b >= saturation).any(axis=-1))  # [H, W]
-    r_c = demosaic(r, cfa)  # [F, H, W, 3]
+    r_c = demosaic(r, cfa) if how == "ratio" else np.repeat(np.asarray(r)[..., None], 3, -1)  # [F, H, W, 3]
     r_c = np.minimum(r_c, math.log(2.0 / LOG_EPS))
     lat = (b[None] + LOG_EPS) * np.exp(r_c) - LOG_EPS
     if sat.any():

@@ -114,10 +114,14 @@ def test_cfa_weights_refuse_a_pattern_that_is_not_one():
         cfa_weights("RGBG", 4, 4)
 
 
-def test_view_latents_made_again_for_a_new_V_follow_the_filter():
+def test_view_latents_made_again_for_a_new_V_follow_the_filter(monkeypatch):
     """``set_views`` rebuilds a frame's view latents with the capture's cfa (per-pixel EDI on the
-    mosaic), exactly as ``prepare`` made them."""
+    mosaic), exactly as ``prepare`` made them (the "latents" colour, where the cfa shows with a given c)."""
+    import sys
+
     import scenes
+
+    monkeypatch.setattr(sys.modules["edi.deblur"], "COLOUR_FROM_MOSAIC", "latents")
     from ebad.config import preset
     from ebad.data import prepare, view_latents
 

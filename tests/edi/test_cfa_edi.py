@@ -20,6 +20,15 @@ from edi.cfa import demosaic, mosaic
 CFA = "RGGB"
 
 
+@pytest.fixture(autouse=True)
+def _latents_mode(monkeypatch):
+    """These tests pin the "latents" colour (the demosaic of the per-pixel latents) on moving_texture,
+    whose channels are independent textures; the default, "pixel", is pinned in test_cfa_pixel_colour."""
+    import sys
+
+    monkeypatch.setattr(sys.modules["edi.deblur"], "COLOUR_FROM_MOSAIC", "latents")
+
+
 def psnr(a, b) -> float:
     return float(10 * np.log10(1.0 / np.mean((np.asarray(a, np.float64) - np.asarray(b, np.float64)) ** 2)))
 
