@@ -15,7 +15,6 @@ from edi.cfa import mosaic
 CFA = "RGGB"
 
 
-@pytest.fixture(scope="module")
 @pytest.fixture(autouse=True)
 def _latents_mode(monkeypatch):
     """With a given c the default colour latent ("pixel") equals the luminance path's on RGB frames;
@@ -25,6 +24,7 @@ def _latents_mode(monkeypatch):
     monkeypatch.setattr(sys.modules["edi.deblur"], "COLOUR_FROM_MOSAIC", "latents")
 
 
+@pytest.fixture(scope="module")
 def seq():
     return edi.moving_texture(
         height=16, width=20, num_frames=2, channels=3, cfa=CFA, c=0.2, lead=0.02, step_us=100, seed=0
