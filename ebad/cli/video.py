@@ -192,20 +192,34 @@ def _write_mp4(path: Path, frames: np.ndarray, fps: float) -> None:  # [T, H, W,
 # --------------------------------------------------------------------------- camera paths
 
 
+MAX_RENDER_SIDE = 16384  # the largest render side a camera path may ask for (one frame of 16384^2 is 3 GB)
+
+
+def _read_path_json(path: Path) -> dict:
+    """A camera-path file's top-level JSON object; UserError naming the file otherwise."""
+    try:
+        doc = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as exc:
+        raise UserError(f"{path}: not valid JSON ({str(exc)[:120]})") from None
+    if not isinstance(doc, dict):
+        raise UserError(f"{path}: must be a JSON object (a nerfstudio camera path), got {type(doc).__name__}")
+    return doc
+
+
 def read_camera_path(path: str | Path) -> tuple[np.ndarray, np.ndarray, int, int]:  # -> [T, 4, 4], [T, 3, 3], W, H
     """Cameras of a nerfstudio-style ``camera_path.json`` as OpenCV camera-to-world poses,
     intrinsics from each camera's vertical ``fov`` (principal point at the image centre)."""
     path = Path(path)
-    try:
-        doc = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise UserError(f"{path}: not valid JSON ({exc})") from None
+    doc = _read_path_json(path)
     for key in ("render_width", "render_height", "camera_path"):
         if key not in doc:
             raise UserError(f"{path}: missing field '{key}'")
-    W, H = int(doc["render_width"]), int(doc["render_height"])
-    if W <= 0 or H <= 0:
-        raise UserError(f"{path}: render_width and render_height must be positive, got {W} x {H}")
+    W, H = doc["render_width"], doc["render_height"]
+    for key, v in (("render_width", W), ("render_height", H)):
+        if isinstance(v, bool) or not isinstance(v, int) or not 0 < v <= MAX_RENDER_SIDE:
+            raise UserError(
+                f"{path}: field '{key}' must be an integer in [1, {MAX_RENDER_SIDE}], got {json.dumps(v)[:40]}"
+            )
     cams = doc["camera_path"]
     if not isinstance(cams, list) or not cams:
         raise UserError(f"{path}: 'camera_path' must be a non-empty list")
@@ -232,11 +246,7 @@ def camera_path_fps(path: str | Path) -> float | None:
     Raises:
         UserError: ``fps`` is not a positive number; names the file and the field."""
     path = Path(path)
-    try:
-        doc = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise UserError(f"{path}: not valid JSON ({exc})") from None
-    fps = doc.get("fps") if isinstance(doc, dict) else None
+    fps = _read_path_json(path).get("fps")
     if fps is None:
         return None
     if isinstance(fps, bool) or not isinstance(fps, (int, float)) or not (math.isfinite(fps) and fps > 0):
