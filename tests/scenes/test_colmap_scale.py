@@ -12,9 +12,9 @@ from scenes.colmap import ColmapConfig, SfMError, choose_matcher
 
 def test_auto_matches_exhaustively_only_small_captures():
     cfg = ColmapConfig()
-    assert cfg.exhaustive_max == 20
-    assert choose_matcher(cfg, 20) == "exhaustive" and choose_matcher(cfg, 21) == "sequential"
-    assert choose_matcher(cfg, 36) == "sequential"  # 33 frames + 3 test views (40 matched every pair before)
+    assert cfg.exhaustive_max == 40
+    assert choose_matcher(cfg, 40) == "exhaustive" and choose_matcher(cfg, 41) == "sequential"
+    assert choose_matcher(cfg, 87) == "sequential"  # every slider_depth frame
     assert choose_matcher(ColmapConfig(matcher="exhaustive"), 50) == "exhaustive"
     assert choose_matcher(ColmapConfig(matcher="sequential"), 4) == "sequential"
 
@@ -53,7 +53,7 @@ def test_sfm_registers_every_view_of_a_30_view_capture():
     from scenes.colmap import estimate_poses, pose_errors
 
     sc = scenes.make_scene("boxes", "tiny", seed=0, poses="none", n_frames=33, n_test=3)
-    est = estimate_poses(sc.capture, ColmapConfig(num_threads=1))
+    est = estimate_poses(sc.capture, ColmapConfig(num_threads=1, matcher="sequential"))  # what 41+ images get
     assert est.report["matcher"] == "sequential"
     assert est.registered.all() and est.report["registration_rate"] == 1.0
     assert len(est.test_c2w) == 3
