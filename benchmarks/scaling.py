@@ -4,6 +4,7 @@
                                  [--poses noisy,sfm] [--seconds 900] [--marks 8] [--refine-iters 200]
                                  [--events 50e6] [--name scaling]
     python -m benchmarks.scaling --size tiny --views 4 --seconds 20        # a check that it runs
+    python -m benchmarks.scaling --views "" --events 50e6 --name scaling_events50m   # the events alone
 
 For each number of training views, a realistic capture (``scenes.make_scene("boxes", size,
 sensor="realistic")``, ``--test-views`` held-out views) is simulated once and written to disk; every
@@ -303,8 +304,11 @@ def main(argv=None) -> int:
         path.unlink()
         print(f"events: {results['events']}", flush=True)
     out = write_json(a.name, results)
-    plot(results, RESULTS / f"{a.name}.png")
-    print(f"wrote {out} and {a.name}.png")
+    if results["runs"]:  # no views asked (``--views ""``): the events measurement alone, nothing to plot
+        plot(results, RESULTS / f"{a.name}.png")
+        print(f"wrote {out} and {a.name}.png")
+    else:
+        print(f"wrote {out}")
     return 0
 
 
