@@ -100,6 +100,12 @@ def _parse_gamma(s: str) -> float:
         ) from None
 
 
+def _frame_names(n: int) -> list[str]:
+    """Names of n frames that carry none: their index in 5 digits, as scenes' readers name a recording's frames
+    (so ``scenes.convert`` of the same recording and this command write the same file names)."""
+    return [f"{i:05d}" for i in range(n)]
+
+
 def _load_input(args):
     """-> frames [F, H, W, D], exposures [F, 2], events, names, the time unit note, the input's cfa (or None)."""
     import edi
@@ -111,7 +117,7 @@ def _load_input(args):
         from scenes import load  # the capture reader
 
         cap = load(path)
-        names = list(cap.names) or [f"{i:04d}" for i in range(cap.num_frames)]
+        names = list(cap.names) or _frame_names(cap.num_frames)
         unit = f"capture.json's t_unit ({path / 'capture.json'})"
         return np.asarray(cap.frames), np.asarray(cap.exposures, np.float64), cap.events, names, unit, cap.cfa
     ext = path.suffix.lower()
@@ -119,7 +125,7 @@ def _load_input(args):
         rec = edi.read_aedat4(path)
         if rec.frames.shape[0] == 0:
             raise UserError(f"{path}: the recording has no frames")
-        names = [f"{i:04d}" for i in range(rec.frames.shape[0])]
+        names = _frame_names(rec.frames.shape[0])
         return rec.frames, rec.exposures, rec.events, names, "us (AEDAT4)", getattr(rec, "cfa", None)
     if ext in _IMAGE_EXT:
         from scenes.images import read_image
