@@ -77,7 +77,7 @@ class ColmapConfig:
     num_threads: int = 2
     seed: int = 0
     upsample_below: int = 200  # frames narrower than this are upsampled x2 (SIFT needs pixels)
-    verbose: bool = False  # COLMAP's INFO log lines on stderr
+    verbose: bool = False  # COLMAP's log lines (INFO and up) on stderr; off: none (a failure raises SfMError)
     # test views with an image registered with the frames: "unposed" (those without c2w),
     # "all" (every test view with an image, e.g. to align a capture's given test poses), "none"
     test_views: Literal["unposed", "all", "none"] = "unposed"
@@ -242,7 +242,9 @@ def estimate_poses(
     root = Path(workdir) if workdir else Path(tempfile.mkdtemp(prefix="ebad-colmap-"))
     old_level = pycolmap.logging.minloglevel
     if not cfg.verbose:
-        pycolmap.logging.minloglevel = 2  # errors only (bundle adjustment warns by the hundred on tiny frames)
+        # fatal only: bundle adjustment warns by the hundred on tiny frames, and a failed mapping logs
+        # "Failed to create any sparse model" from C++ to fd 2, which SfMError below says with what to try
+        pycolmap.logging.minloglevel = int(pycolmap.logging.Level.FATAL)
     try:
         img_dir = root / "images"
         img_dir.mkdir(parents=True, exist_ok=True)
