@@ -140,7 +140,7 @@ def _load_input(args):
         if args.exposure is not None:
             t0, t1 = args.exposure
             if not (math.isfinite(t0) and math.isfinite(t1)) or t1 < t0:
-                raise UserError(f"--exposure must be T0 <= T1 in seconds, got {t0} {t1}")
+                raise UserError(f"--exposure must be T0 <= T1 in seconds, got {t0:g} {t1:g}")
         else:
             if len(ev) == 0:
                 raise UserError(f"{args.events}: no events, and no --exposure given")
@@ -253,8 +253,20 @@ def _save(path: Path, img: np.ndarray, bits: int = 8) -> None:
 
 
 def _say_unreliable(rep, where: str) -> None:
-    if rep is not None and not rep.reliable:
-        print(f"ebad deblur: warning: {where}: {rep.message}")
+    """An unreliable estimate: one short line (what is wrong, what to do), then the estimator's reasons
+    wrapped and indented (c.json keeps them whole)."""
+    import textwrap
+
+    if rep is None or rep.reliable:
+        return
+    c = rep.c
+    cs = f"c {c.pos:.4g}" if c.pos == c.neg else f"c_pos {c.pos:.4g}, c_neg {c.neg:.4g}"
+    print(
+        f"ebad deblur: warning: {where}: estimated {cs} is unreliable; "
+        "give --c (DAVIS: 0.1 to 0.5) or more frames; why:"
+    )
+    why = rep.message.removeprefix("estimate_c: ")
+    print(textwrap.fill(why, width=100, initial_indent="  ", subsequent_indent="  ", break_on_hyphens=False))
 
 
 def run(args: Args) -> int:
@@ -364,8 +376,7 @@ def run(args: Args) -> int:
         )
     unreliable = [fr["name"] for fr in per_frame if fr["c_reliable"] is False]
     tail = (
-        f"; {len(unreliable)} of them with an unreliable c (at a bracket end, or events that do not follow "
-        f"the frame's blur), so not deblurred reliably "
+        f"; {len(unreliable)} of them with an unreliable c, not deblurred reliably "
         f"({', '.join(unreliable[:3])}{', ...' if len(unreliable) > 3 else ''}): give --c (c.json has the reports)"
         if unreliable
         else ""
