@@ -200,12 +200,11 @@ def _medi(frames: np.ndarray, exposures: np.ndarray, events, c, gamma: float, cf
     RGB frames demosaiced in recorded units as ``edi.deblur`` does)."""
     import edi
     from edi.cfa import demosaic
-    from edi.model import to_mosaic, to_unit_range
+    from edi.model import linearize_saturated, to_mosaic, to_unit_range
 
-    lin = edi.linearize(to_unit_range(frames, "frames"), gamma)
+    lin, sat = linearize_saturated(to_unit_range(frames, "frames"), gamma)  # the rule on the recorded values
     if cfa is not None:
         lin = to_mosaic(lin, cfa, "frames")
-    sat = float(edi.linearize(np.float64(edi.SATURATION), gamma))
     lat = edi.apply_gamma(edi.medi(lin, exposures, events, c=c, saturation=sat, cfa=cfa), gamma)
     if cfa is not None and frames.shape[-1] == 3:
         lat = np.clip(demosaic(lat[..., 0], cfa), 0.0, 1.0)
