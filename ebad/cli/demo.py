@@ -119,7 +119,7 @@ def run(args: Args) -> int:
     blurry = {"train_psnr": blurry_scores.psnr, "train_ssim": blurry_scores.ssim}
     refine = cap.effective_pose_trust != "exact"
     print("  compiling numba's kernels (a first run only), outside both methods' time ...", end=" ", flush=True)
-    print(f"{warm_up():.0f} s", flush=True)
+    print(f"{warm_up(['cfa' if args.rgb else 'grey']):.0f} s", flush=True)
     for name, _ in METHODS:
         cfg = preset(name)
         cfg.train.iters = args.iters
