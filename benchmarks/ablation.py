@@ -185,7 +185,9 @@ def main(argv=None) -> int:
     seed_all(0)
     from ebad.run import warm_up
 
-    warm_up()  # numba compiles once, outside every preset's budget
+    warm_up(
+        [*colours, *(["rgb"] if "cfa" in colours else [])]
+    )  # numba compiles once, outside every budget (ebad-luma: rgb)
     rows = []
     for setting, colour in [(s, c) for s in settings for c in colours]:
         label = setting if colours == ["grey"] else f"{setting}/{colour}"

@@ -26,7 +26,7 @@ def main() -> None:
     from ebad.evaluate import evaluate
     from ebad.run import warm_up
 
-    warm_up()  # numba compiles outside the runs' budgets
+    warm_up(["grey"])  # numba compiles outside the runs' budgets
     scene = scenes.make_scene("boxes", args.size, seed=args.seed, sensor=args.sensor)
     rows = []
     for learn in (True, False):

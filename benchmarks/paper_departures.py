@@ -205,7 +205,7 @@ def main(argv=None) -> int:
     seed_all(0)
     from ebad.run import warm_up
 
-    warm_up()  # numba compiles once, outside every spec's budget
+    warm_up(["grey"])  # numba compiles once, outside every spec's budget
     rows: list[dict] = []
 
     def save():

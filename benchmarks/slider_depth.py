@@ -71,7 +71,7 @@ def main(argv=None) -> int:
 
     import scenes
     from ebad.evaluate import evaluate
-    from ebad.run import reconstruct, warm_up
+    from ebad.run import capture_kind, reconstruct, warm_up
 
     from .ablation import make_config
 
@@ -85,7 +85,7 @@ def main(argv=None) -> int:
     for name in presets:
         make_config(name, args.iters, seconds, 0).check()  # a typo fails before any training
     cap = held_out_capture(scenes.load(data), stride=3 if args.quick else 1)
-    warm_up()  # numba compiles once, outside every preset's budget
+    warm_up([capture_kind(cap)])  # numba compiles once, outside every preset's budget
     rows = []
     for seed in seeds:
         for name in presets:

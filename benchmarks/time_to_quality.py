@@ -347,7 +347,7 @@ def main(argv=None) -> int:
     if not args.baseline_only:
         from ebad.run import warm_up
 
-        warm_up()  # numba compiles outside every run's budget
+        warm_up(["grey"])  # numba compiles outside every run's budget
     for mode in parse_modes(ap, args.modes):
         scene = scenes.make_scene("boxes", size, seed=args.seed, **MODES[mode])
         exact = MODES[mode]["poses"] == "exact"

@@ -16,6 +16,9 @@ it came from and a PSNR between a render and a test image needs no decoding.
   Gaussian's colour through the response (``recorded_colors``; the curve without its saturation
   at 1 in the PLY, so that ``model_colors`` inverts it exactly when a run folder is read back),
   so the PLY and the ``.splat`` show the same colours (``to_recorded_params`` / ``from_recorded_params``).
+  With view-dependent colour (``sh_rest``) the PLY's SH coefficients are the least-squares fit of the
+  response of the model's colour over ``SH_FIT_DIRECTIONS`` directions (a curve cannot go through the
+  coefficients one by one); the ``.splat`` (degree 0) holds that fit's DC, the mean over directions.
 - **cameras.json**: the layout the 3DGS trainer writes and SIBR-style viewers read: a list of
   ``{"id", "img_name", "width", "height", "position", "rotation", "fx", "fy"}``, position
   and rotation of the camera-to-world pose (OpenCV axes, rotation as three rows). We add
@@ -37,6 +40,7 @@ it came from and a PSNR between a render and a test image needs no decoding.
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -57,6 +61,8 @@ __all__ = [
     "model_colors",
     "to_recorded_params",
     "from_recorded_params",
+    "fibonacci_directions",
+    "SH_FIT_DIRECTIONS",
     "rotmat_to_quat",
     "write_cameras_json",
     "read_cameras_json",
@@ -167,21 +173,63 @@ def model_colors(recorded, response=None) -> np.ndarray:  # [N, D] -> [N, D] flo
     return np.power(np.clip((y - b) / (1 - b), 0.0, None), 1.0 / k) / g
 
 
+#: directions the SH coefficients of a PLY are fitted over (``to_recorded_params``): a Fibonacci sphere
+SH_FIT_DIRECTIONS = 128
+_SH_FIT_CHUNK = 16384  # Gaussians per least-squares solve ([directions, chunk, D] float64 at a time)
+
+
+def fibonacci_directions(n: int) -> np.ndarray:  # -> [n, 3] unit vectors
+    """``n`` nearly even unit directions on the sphere (the Fibonacci lattice)."""
+    k = np.arange(n) + 0.5
+    z = 1.0 - 2.0 * k / n
+    r = np.sqrt(np.clip(1.0 - z * z, 0.0, None))
+    phi = np.pi * (3.0 - np.sqrt(5.0)) * k
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+
+
+def _refit_sh(params: dict[str, torch.Tensor], curve) -> dict[str, torch.Tensor]:
+    """``params`` whose SH colours (DC ``colors`` and ``sh_rest``) are the least-squares fit, over
+    ``SH_FIT_DIRECTIONS`` directions, of ``curve`` (a map of [..., D] colours) applied to the model's
+    colour max(SH(d) . coeffs + 0.5, 0) in each direction (``splat_cpu``'s convention): a non-linear
+    curve cannot go through the coefficients one by one."""
+    from splat_cpu._sh import sh_basis
+
+    dc, rest = params["colors"], params["sh_rest"]
+    degree = math.isqrt(rest.shape[1] + 1) - 1
+    basis = sh_basis(degree, torch.from_numpy(fibonacci_directions(SH_FIT_DIRECTIONS))).numpy()  # [S, K]
+    pinv = np.linalg.pinv(basis)  # [K, S]
+    coeffs = torch.cat([dc[:, None, :], rest], dim=1).detach().double().cpu().numpy()  # [N, K, D]
+    out = np.empty_like(coeffs)
+    for i in range(0, coeffs.shape[0], _SH_FIT_CHUNK):
+        c = coeffs[i : i + _SH_FIT_CHUNK]
+        colour = np.clip(np.einsum("sk,nkd->snd", basis, c) + 0.5, 0.0, None)  # [S, n, D]
+        out[i : i + _SH_FIT_CHUNK] = np.einsum("ks,snd->nkd", pinv, curve(colour) - 0.5)
+    fitted = torch.from_numpy(out).to(dc.dtype)
+    return {**params, "colors": fitted[:, 0].contiguous(), "sh_rest": fitted[:, 1:].contiguous().to(rest.dtype)}
+
+
 def to_recorded_params(params: dict[str, torch.Tensor], response=None) -> dict[str, torch.Tensor]:
-    """``params`` whose DC colours (``colors``, the SH DC coefficient) give the recorded colours of
-    ``recorded_colors(..., saturate=False)``: what ``point_cloud.ply`` stores. The same dict when the
+    """``params`` whose colours give the recorded colours of ``recorded_colors(..., saturate=False)``: what
+    ``point_cloud.ply`` stores. At degree 0 the DC colour through the curve (exact); with ``sh_rest`` the
+    SH coefficients fitted to the curve of the model's colour over ``SH_FIT_DIRECTIONS`` directions
+    (``_refit_sh``; exact for the identity, within the fit's error otherwise). The same dict when the
     response is the identity (bit-exact)."""
     if _curve(response) is None:
         return params
+    if params.get("sh_rest") is not None:
+        return _refit_sh(params, lambda c: recorded_colors(c, response, saturate=False))
     dc = params["colors"]
     rec = recorded_colors((0.5 + SH_C0 * dc.detach().double()).clamp_min(0.0), response, saturate=False)
     return {**params, "colors": torch.from_numpy((rec - 0.5) / SH_C0).to(dc.dtype)}
 
 
 def from_recorded_params(params: dict[str, torch.Tensor], response=None) -> dict[str, torch.Tensor]:
-    """Inverse of ``to_recorded_params``: the model's (irradiance) DC colours from a PLY's."""
+    """Inverse of ``to_recorded_params``: the model's (irradiance) colours from a PLY's (with ``sh_rest``
+    the same fit through the inverse curve: a round trip within the two fits' errors)."""
     if _curve(response) is None:
         return params
+    if params.get("sh_rest") is not None:
+        return _refit_sh(params, lambda c: model_colors(c, response))
     dc = params["colors"]
     irr = model_colors(0.5 + SH_C0 * dc.detach().double().numpy(), response)
     return {**params, "colors": torch.from_numpy((irr - 0.5) / SH_C0).to(dc.dtype)}
@@ -294,7 +342,9 @@ def write_splat(path: str | Path, params: dict[str, torch.Tensor], response=None
     the camera ``response`` (None: the identity)."""
     act = {k: v.detach().double().cpu().numpy() for k, v in activate(params).items()}
     N = act["means"].shape[0]
-    colors = act["colors"]
+    colors = recorded_colors(act["colors"], response)
+    if params.get("sh_rest") is not None and _curve(response) is not None:  # the PLY's DC: R's mean over directions
+        colors = np.clip(0.5 + SH_C0 * to_recorded_params(params, response)["colors"].detach().double().numpy(), 0, 1)
     if colors.shape[1] == 1:
         colors = np.repeat(colors, 3, axis=1)
     elif colors.shape[1] != 3:
@@ -304,7 +354,7 @@ def write_splat(path: str | Path, params: dict[str, torch.Tensor], response=None
     rec = np.zeros(N, _SPLAT_DTYPE)
     rec["position"] = act["means"]
     rec["scale"] = act["scales"]
-    rec["rgba"][:, :3] = np.round(recorded_colors(colors, response) * 255)
+    rec["rgba"][:, :3] = np.round(colors * 255)
     rec["rgba"][:, 3] = np.round(np.clip(act["opacities"], 0, 1) * 255)
     rec["rot"] = np.clip(np.round(q * _QUAT_BYTE_SCALE + _QUAT_BYTE_SCALE), 0, 255)
     path = Path(path)

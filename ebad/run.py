@@ -13,7 +13,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 import torch
@@ -36,24 +36,47 @@ from .trajectory import ExposureTrajectories
 if TYPE_CHECKING:
     from scenes import Capture, TestView
 
-__all__ = ["Run", "RunMetrics", "reconstruct", "warm_up"]
+__all__ = ["Run", "RunMetrics", "reconstruct", "warm_up", "capture_kind", "CaptureKind"]
 
 
-def warm_up() -> float:
-    """Compile every numba kernel a reconstruction runs (or load it from numba's cache): three
-    steps of the ``ebad`` preset on a tiny synthetic capture, which reach the rasteriser, SSIM
-    and L_ev kernels that every preset uses, and two on a colour-DAVIS one (L_ev per
-    channel). Timed comparisons call it first so that no
-    method's budget pays for compilation (on a cold cache, mostly the rasteriser's backward,
-    SSIM and L_ev). Returns its seconds."""
+#: the kinds of capture whose kernels ``warm_up`` compiles: grey frames and events, colour frames with
+#: luminance events, a colour DAVIS (a Bayer filter over the APS and event pixels: L_ev per channel)
+CaptureKind = Literal["grey", "rgb", "cfa"]
+_KIND_SCENE: dict[str, dict[str, Any]] = {"grey": {}, "rgb": {"rgb": True}, "cfa": {"rgb": True, "cfa": "RGGB"}}
+
+
+def capture_kind(capture: Capture) -> CaptureKind:
+    """The ``CaptureKind`` of a capture: "cfa" when it records a colour filter, "rgb" with colour
+    frames, else "grey"."""
+    if capture.cfa is not None:
+        return "cfa"
+    return "rgb" if capture.channels == 3 else "grey"
+
+
+def warm_up(kinds: Sequence[CaptureKind] = ("grey",), sh_degree: int = 0) -> float:
+    """Compile the numba kernels a reconstruction of each kind of capture in ``kinds`` runs (or load
+    them from numba's cache), and no other: per kind, three steps of the ``ebad`` preset (with
+    ``sh_degree``: its SH kernels) on a tiny synthetic capture of that kind, which reach the
+    rasteriser, SSIM and L_ev kernels that every preset uses. Timed comparisons call it first so
+    that no method's budget pays for compilation (on a cold cache, mostly the rasteriser's
+    backward, SSIM and L_ev). Returns its seconds.
+
+    Raises:
+        ConfigError: a kind that is not a ``CaptureKind``, or no kind.
+    """
     import scenes
 
+    bad = [k for k in kinds if k not in _KIND_SCENE]
+    if bad or not kinds:
+        raise ConfigError(f"warm_up: kinds must be some of {', '.join(_KIND_SCENE)}, got {list(kinds)}")
     t0 = time.perf_counter()
     cfg = preset("ebad")
     cfg.train.iters, cfg.train.progress, cfg.train.eval_every = 3, False, 0
-    reconstruct(scenes.make_scene("boxes", size="tiny", n_frames=3, n_test=1).capture, cfg)
-    cfg.train.iters = 2  # and a colour DAVIS capture: L_ev's per-channel (cfa) kernels
-    reconstruct(scenes.make_scene("boxes", size="tiny", n_frames=3, n_test=1, cfa="RGGB").capture, cfg)
+    cfg.model.sh_degree = sh_degree
+    cfg.model.sh_degree_interval = 1  # the SH kernels run from the second step (a degree above 0)
+    cfg.check()
+    for kind in dict.fromkeys(kinds):
+        reconstruct(scenes.make_scene("boxes", size="tiny", n_frames=3, n_test=1, **_KIND_SCENE[kind]).capture, cfg)
     return time.perf_counter() - t0
 
 

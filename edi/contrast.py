@@ -70,7 +70,7 @@ from .model import (
     check_frames,
     check_gamma,
     edi_log_ratio,
-    linearize,
+    linearize_saturated,
     to_mosaic,
 )
 
@@ -762,8 +762,9 @@ def _check_estimate_inputs(
     if cfa is not None:
         fr = to_mosaic(fr, cfa, "frames")
     gamma = check_gamma(gamma)
-    if gamma != 1.0:  # to irradiance; a saturated recorded value stays saturated
-        fr = np.where(fr >= SATURATION, 1.0, linearize(fr, gamma))
+    if gamma != 1.0:  # to irradiance; saturated (recorded) -> 1, the others stay below SATURATION
+        lin, t = linearize_saturated(fr, gamma)
+        fr = np.where(lin >= t, 1.0, np.minimum(lin, np.nextafter(SATURATION, 0.0)))
     lo, hi = (float(v) for v in bracket)
     if not (0 < lo < hi and math.isfinite(hi)):
         raise InputError(f"bracket must be 0 < lo < hi, got {bracket!r}")

@@ -40,7 +40,7 @@ from .model import (
     colour_latents,
     edi_log_ratio,
     latent_from_ratio,
-    linearize,
+    linearize_saturated,
     parse_c,
     to_mosaic,
 )
@@ -227,12 +227,13 @@ def deblur_with_report(
     else:
         cc = parse_c(c)
     r, n_ev = edi_log_ratio(events, (t_s, t_e), inst, cc, impl=impl, n_bins=n_bins)
-    # irradiance in, recorded values out; b >= saturation (recorded) <=> linearize(b) >= saturation ** (1 / gamma)
-    sat_lin = float(linearize(np.float64(saturation), gamma))
-    lat, sat = latent_from_ratio(linearize(b, gamma), r, sat_lin)
+    # irradiance in, recorded values out; the saturation rule applies to the recorded values
+    lin_b, sat_lin = linearize_saturated(b, gamma, saturation)
+    lat, sat = latent_from_ratio(lin_b, r, sat_lin)
     lat = apply_gamma(lat, gamma)
     if cfa is not None and rgb.shape[-1] == 3:
-        lat, sat = colour_latents(linearize(rgb, gamma), r, lat, cfa, gamma, sat_lin, COLOUR_FROM_MOSAIC)
+        lin_rgb, sat_lin = linearize_saturated(rgb, gamma, saturation)
+        lat, sat = colour_latents(lin_rgb, r, lat, cfa, gamma, sat_lin, COLOUR_FROM_MOSAIC)
     if not np.isfinite(lat).all():  # internal invariant: inputs were finite, exp was clipped
         raise FloatingPointError("deblur produced a non-finite latent; please report this")
     if np.ndim(blur) == 2:

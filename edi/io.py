@@ -172,23 +172,163 @@ class _Lazy:
         for s in range(0, len(self), CHUNK):
             yield self[s : s + CHUNK]
 
+    def _ends(self) -> np.ndarray | None:
+        """[min, max] through ``fn`` (monotonic) from a streamed field's one-pass summary, else None."""
+        s = self.raw.summary() if isinstance(self.raw, _NpzStream) else {}
+        if "min" not in s or "nonfinite" in s:  # a non-finite value: the blocks' conversion names it
+            return None
+        ends = np.array([s["min"], s["max"]], self.raw.dtype)
+        return self.fn(ends) if self.fn is not None else ends
+
     def min(self):
-        return min(b.min() for b in self.blocks())
+        ends = self._ends()
+        return ends[0] if ends is not None else min(b.min() for b in self.blocks())
 
     def max(self):
-        return max(b.max() for b in self.blocks())
+        ends = self._ends()
+        return ends[1] if ends is not None else max(b.max() for b in self.blocks())
 
 
-def _npz_member_map(path: Path, name: str) -> np.ndarray | None:
-    """A read-only memory map of an uncompressed .npz member's array (None when it is compressed or
-    not a plain array): the file is then read as it is used, never copied whole."""
-    import struct
+def _npy_header(f) -> tuple[tuple[int, ...], bool, np.dtype] | None:
+    """(shape, fortran_order, dtype) of the .npy array whose header starts at f's position (left at
+    its data), or None for a header version this reader does not stream (numpy's ``np.load`` reads it)."""
+    version = np.lib.format.read_magic(f)
+    if version == (1, 0):
+        return np.lib.format.read_array_header_1_0(f)
+    if version == (2, 0):
+        return np.lib.format.read_array_header_2_0(f)
+    return None
+
+
+def _flat_length(shape: tuple[int, ...], fortran: bool, dtype: np.dtype) -> int | None:
+    """The length of a plain array of ``shape`` read as one field (a vector, or [M, 1, ...]: its memory
+    order then makes no difference), or None when it is not one (numpy reads it whole instead)."""
+    if dtype.hasobject or len(shape) > 1 and shape[1:] != (1,) * (len(shape) - 1):
+        return None
+    if fortran and sum(n != 1 for n in shape) > 1:  # pragma: no cover - excluded by the shapes above
+        return None
+    return int(np.prod(shape)) if shape else 1
+
+
+class _NpzStream:
+    """A field of a compressed (deflated) .npz member, decompressed block by block as it is read:
+    ``self[a:b]`` reads values a .. b - 1 (forward from the last read, else from the start again), so
+    a pass over the field holds one block, never the whole member. The last block read and the one
+    that ended a pass are kept (its last value, for ``EventStream``'s dtype choice, costs no new
+    pass). A truncated or corrupt member raises ``CorruptFileError`` naming the file and the field."""
+
+    ndim = 1
+    SKIP = 1 << 20  # bytes decompressed at a time when skipping forward (zipfile's own seek takes 16 MB)
+
+    def __init__(self, path: Path, name: str, offset: int, n: int, dtype: np.dtype) -> None:
+        self.path, self.name, self.offset, self.dtype, self.shape = path, name, offset, dtype, (n,)
+        self._zf: Any = None
+        self._f: Any = None
+        self._pos = 0  # the next value the open member yields
+        self._kept: dict[str, tuple[int, np.ndarray]] = {}  # "last" and "tail" blocks: (first index, values)
+        self._summary: dict[str, Any] | None = None
+
+    def __len__(self) -> int:
+        return self.shape[0]
+
+    def _bad(self, what: str) -> CorruptFileError:
+        self.close()
+        return CorruptFileError(f"{self.path}: events field '{self.name}' of the .npz is {what}")
+
+    def __getitem__(self, sl):
+        if not isinstance(sl, slice):  # one value, for a message
+            i = int(sl) + len(self) if int(sl) < 0 else int(sl)
+            return self[i : i + 1][0]
+        a, b, step = sl.indices(len(self))
+        if step != 1:
+            raise IndexError("a streamed .npz field is read in steps of 1")
+        b = max(a, b)
+        for s0, blk in self._kept.values():
+            if s0 <= a and b <= s0 + len(blk):
+                return blk[a - s0 : b - s0]
+        out = np.frombuffer(self._read(a, b), self.dtype)
+        self._kept["last"] = (a, out)
+        if b == len(self):
+            self._kept["tail"] = (a, out)
+        return out
+
+    def _read(self, a: int, b: int) -> bytes:
+        """The bytes of values a .. b - 1, from the open member (reopened to go back)."""
+        import zipfile
+        import zlib
+
+        size = self.dtype.itemsize
+        try:
+            if self._f is None or a < self._pos:
+                self.close()
+                self._zf = zipfile.ZipFile(self.path)
+                self._f = self._zf.open(self.name + ".npy")
+                self._f.read(self.offset)  # the .npy header
+                self._pos = 0
+            skip = (a - self._pos) * size
+            while skip > 0:
+                got = len(self._f.read(min(skip, self.SKIP)))
+                if got == 0:
+                    break
+                skip -= got
+            buf = self._f.read((b - a) * size) if skip == 0 else b""
+        except (OSError, EOFError, zlib.error, zipfile.BadZipFile) as exc:
+            raise self._bad(f"corrupt ({type(exc).__name__}: {exc})") from None
+        if len(buf) != (b - a) * size:
+            stored = a + len(buf) // size if skip == 0 else a - skip // size
+            raise self._bad(f"truncated: {len(self)} values declared, {stored} stored")
+        self._pos = b
+        return buf
+
+    def summary(self) -> dict[str, Any]:
+        """The field's minimum and maximum (of its finite values), and its first non-integer and first
+        non-finite value where it has one (float times), from one pass, kept; empty when the field is
+        empty or not numeric."""
+        if self._summary is not None:
+            return self._summary
+        s: dict[str, Any] = {}
+        if self.dtype.kind not in "iuf":
+            self._summary = s
+            return s
+        from .events import CHUNK
+
+        for a in range(0, len(self), CHUNK):
+            b = self[a : a + CHUNK]
+            fin = np.isfinite(b) if b.dtype.kind == "f" else None
+            vals = b if fin is None else b[fin]
+            if len(vals):
+                s["min"] = min(s.get("min", vals.min()), vals.min())
+                s["max"] = max(s.get("max", vals.max()), vals.max())
+            if fin is not None:
+                frac = vals[vals != np.round(vals)]
+                if len(frac):
+                    s.setdefault("frac", frac[0])
+                if not fin.all():
+                    s.setdefault("nonfinite", b[~fin][0])
+        self._summary = s
+        return s
+
+    def close(self) -> None:
+        for h in (self._f, self._zf):
+            if h is not None:
+                h.close()
+        self._f = self._zf = None
+
+
+def _npz_member(path: Path, name: str) -> np.ndarray | _NpzStream | None:
+    """An .npz member's array read as it is used, never copied whole: a read-only memory map when it is
+    stored uncompressed (``np.savez``), an ``_NpzStream`` when deflated (``np.savez_compressed``); None
+    when it is not a plain field (``np.load`` reads it)."""
     import zipfile
 
     with zipfile.ZipFile(path) as zf:
         info = zf.getinfo(name + ".npy")
         if info.compress_type != zipfile.ZIP_STORED:
-            return None
+            with zf.open(info) as f:
+                header = _npy_header(f)
+                offset = f.tell()
+            n = None if header is None else _flat_length(*header)
+            return None if header is None or n is None else _NpzStream(path, name, offset, n, header[2])
     with open(path, "rb") as f:
         f.seek(info.header_offset)
         local = f.read(30)
@@ -196,20 +336,14 @@ def _npz_member_map(path: Path, name: str) -> np.ndarray | None:
             return None
         n_name, n_extra = struct.unpack("<HH", local[26:30])
         f.seek(info.header_offset + 30 + n_name + n_extra)
-        version = np.lib.format.read_magic(f)
-        if version == (1, 0):
-            shape, fortran, dtype = np.lib.format.read_array_header_1_0(f)
-        elif version == (2, 0):
-            shape, fortran, dtype = np.lib.format.read_array_header_2_0(f)
-        else:
-            return None
+        header = _npy_header(f)
         offset = f.tell()
-    if fortran or dtype.hasobject or len(shape) > 1 and shape[1:] != (1,) * (len(shape) - 1):
+    n = None if header is None else _flat_length(*header)
+    if header is None or n is None:
         return None
-    n = int(np.prod(shape)) if shape else 1
     if n == 0:
-        return np.zeros(0, dtype)
-    return np.memmap(path, dtype=dtype, mode="r", offset=offset, shape=(n,))
+        return np.zeros(0, header[2])
+    return np.memmap(path, dtype=header[2], mode="r", offset=offset, shape=(n,))
 
 
 def _load_arrays(path: Path) -> dict[str, Any]:
@@ -244,9 +378,9 @@ def _parse_arrays(path: Path, ext: str) -> dict[str, Any]:
                 return {"t": a[:, 0], "x": a[:, 1], "y": a[:, 2], "p": a[:, 3]}
             fields = {n for f in "txyp" for n in _ALIASES[f]}
             out: dict[str, Any] = {}
-            for k in keys:  # the event fields mapped when stored uncompressed (np.savez), else read whole
-                mapped = _npz_member_map(path, k) if k in fields else None
-                out[k] = mapped if mapped is not None else z[k]
+            for k in keys:  # the event fields mapped (np.savez) or streamed (np.savez_compressed), else read whole
+                member = _npz_member(path, k) if k in fields else None
+                out[k] = member if member is not None else z[k]
             return out
     if ext in (".h5", ".hdf5"):
         import h5py
@@ -357,6 +491,22 @@ def read_events(
         _check_declared(path, (ev.width, ev.height), width, height)
         return (ev, "us", "AEDAT4 timestamps are microseconds") if return_unit else ev
     arrs = _load_arrays(path)
+    try:
+        ev, unit, reason = _events_of(path, arrs, t_unit, width, height, infer)
+    finally:
+        _close(arrs)
+    return (ev, unit, reason) if return_unit else ev
+
+
+def _events_of(
+    path: Path,
+    arrs: dict[str, Any],
+    t_unit: str | None,
+    width: int | None,
+    height: int | None,
+    infer: Callable[[np.ndarray], tuple[str, str]] | None,
+) -> tuple[EventStream, str, str]:
+    """``read_events`` on an event file's arrays (``_load_arrays``) -> (events, unit, reason)."""
     keys = set(arrs)
     t_raw, x, y, p = (_field(arrs[_pick(keys, f, str(path))]) for f in "txyp")
     if t_unit is None:
@@ -365,6 +515,8 @@ def read_events(
         else:
             try:
                 unit, reason = (infer or infer_time_unit)(_whole(t_raw))
+            except CorruptFileError:  # names the file already (a streamed .npz member)
+                raise
             except EventError as exc:
                 raise EventError(f"{path}: {exc}") from None
         log.info("read_events %s: time unit %r (inferred: %s)", path, unit, reason)
@@ -391,14 +543,22 @@ def read_events(
         height = height if height is not None else h_f
     try:
         ev = EventStream(t_us, x, y, p, int(width), int(height), t0=t0)  # type: ignore[arg-type]  # read per block
+    except CorruptFileError:  # names the file already (a streamed .npz member)
+        raise
     except EventError as exc:
         raise EventError(f"{path}: {exc}") from exc
-    finally:
-        for v in arrs.values():  # an HDF5 file was kept open for its datasets
-            if type(v).__module__.startswith("h5py"):
-                cast(Any, v).file.close()
-                break
-    return (ev, unit, reason) if return_unit else ev
+    return ev, unit, reason
+
+
+def _close(arrs: dict[str, Any]) -> None:
+    """Close what an event file's fields kept open: an HDF5 file (for its datasets), streamed .npz members."""
+    for v in arrs.values():
+        if isinstance(v, _NpzStream):
+            v.close()
+    for v in arrs.values():
+        if type(v).__module__.startswith("h5py"):
+            cast(Any, v).file.close()
+            break
 
 
 def _field(a) -> _Lazy:
@@ -411,8 +571,16 @@ def _field(a) -> _Lazy:
 
 
 def _whole(f: _Lazy) -> np.ndarray:
-    """A field as one array (a memory map or an array as read; an h5py dataset read whole)."""
-    return f.raw if isinstance(f.raw, np.ndarray) else np.asarray(f.raw[()])
+    """A field as one array (a memory map or an array as read; an h5py dataset read whole), for the
+    time unit's inference. A field streamed from a compressed .npz gives, without holding it whole,
+    the values a unit is inferred from (``_NpzStream.summary``: minimum, maximum, first non-integer
+    and first non-finite value)."""
+    if isinstance(f.raw, np.ndarray):
+        return f.raw
+    if not isinstance(f.raw, _NpzStream):
+        return np.asarray(f.raw[()])
+    s = f.raw.summary()
+    return np.array(list(s.values()), f.dtype) if s else np.zeros(min(len(f), 1), f.dtype)
 
 
 def _check_declared(path: Path, declared: tuple[int, int], width: int | None, height: int | None) -> None:

@@ -42,6 +42,7 @@ __all__ = [
     "latent_from_ratio",
     "check_gamma",
     "linearize",
+    "linearize_saturated",
     "apply_gamma",
     "ImageArray",
     "ContrastLike",
@@ -318,6 +319,25 @@ def linearize(
     Convention: blur averages irradiance and events see its log, so EDI and the contrast
     estimate work on ``linearize(frame, gamma)``; ``apply_gamma`` maps a latent back."""
     return recorded if gamma == 1.0 else np.power(recorded, 1.0 / gamma)
+
+
+def linearize_saturated(
+    recorded: np.ndarray,  # [..., D] recorded values in [0, 1]
+    gamma: float,
+    saturation: float = SATURATION,  # recorded units
+) -> tuple[np.ndarray, float]:
+    """``linearize(recorded, gamma)`` and the irradiance threshold t with the saturation rule kept on
+    the recorded values: ``irradiance >= t`` exactly where ``recorded >= saturation``.
+
+    The power is not strictly monotone in floating point (for gamma > 1 two neighbouring recorded
+    values can give one irradiance), so a value just below ``saturation`` could be classed
+    saturated after the transform; values at the edge are moved by one ulp to keep the rule."""
+    if gamma == 1.0:
+        return recorded, float(saturation)
+    lin = linearize(recorded, gamma)
+    t = linearize(np.asarray(saturation, dtype=lin.dtype), gamma)
+    sat = recorded >= saturation
+    return np.where(sat, np.maximum(lin, t), np.minimum(lin, np.nextafter(t, 0.0))), float(t)
 
 
 def apply_gamma(

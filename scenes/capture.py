@@ -80,7 +80,9 @@ def check_rigid(m: np.ndarray, file: str | None, field_name: str) -> np.ndarray:
     if not np.isfinite(a).all():
         raise CaptureError(file, field_name, "has a non-finite entry")
     if np.abs(a[3] - np.array([0.0, 0.0, 0.0, 1.0])).max() > RIGID_TOL:
-        raise CaptureError(file, field_name, f"last row must be [0, 0, 0, 1], got {a[3].tolist()}")
+        raise CaptureError(
+            file, field_name, f"last row must be [0, 0, 0, 1], got [{', '.join(f'{v:.4g}' for v in a[3])}]"
+        )
     r = a[:3, :3]
     ortho = np.abs(r.T @ r - np.eye(3)).max()
     det = float(np.linalg.det(r))
@@ -117,7 +119,9 @@ def nearest_rigid(
     if not np.isfinite(a).all():
         raise CaptureError(file, field_name, "has a non-finite entry")
     if np.abs(a[3] - np.array([0.0, 0.0, 0.0, 1.0])).max() > tol:
-        raise CaptureError(file, field_name, f"last row must be [0, 0, 0, 1], got {a[3].tolist()}")
+        raise CaptureError(
+            file, field_name, f"last row must be [0, 0, 0, 1], got [{', '.join(f'{v:.4g}' for v in a[3])}]"
+        )
     u, sv, vt = np.linalg.svd(a[:3, :3])
     det = float(np.linalg.det(a[:3, :3]))
     if det <= 0:
@@ -259,7 +263,12 @@ class Capture:
             raise CaptureError(source, "exposures", "has a non-finite time")
         bad = np.flatnonzero(e[:, 1] < e[:, 0])
         if len(bad):
-            raise CaptureError(source, f"exposures[{bad[0]}]", f"t_end {e[bad[0], 1]} is before t_start {e[bad[0], 0]}")
+            t0, t1 = e[bad[0]]
+            raise CaptureError(
+                source,
+                f"exposures[{bad[0]}]",
+                f"t_end {t1:.6f} s is {t0 - t1:.3g} s before t_start {t0:.6f} s",
+            )
 
     def _check_events(self, source: str | None) -> None:
         """events: an ``edi.EventStream`` of the frames' sensor size."""

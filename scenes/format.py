@@ -306,7 +306,7 @@ def _read_frames(
         t0 = _num(_req(fr, "t_start", jf, where), jf, f"{where}.t_start")
         t1 = _num(_req(fr, "t_end", jf, where), jf, f"{where}.t_end")
         if t1 < t0:
-            raise CaptureError(jf, f"{where}.t_end", f"{t1} is before t_start {t0}")
+            raise CaptureError(jf, f"{where}.t_end", f"{t1:.6f} s is {t0 - t1:.3g} s before t_start {t0:.6f} s")
         img = _read_frame_image(root, file, where, width, height, frames[0] if frames else None)
         frames.append(img)
         exposures.append((t0, t1))

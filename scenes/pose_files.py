@@ -47,6 +47,20 @@ __all__ = ["POSE_FORMATS", "PoseFile", "guess_pose_format", "read_pose_file", "a
 POSE_FORMATS = ("colmap", "transforms", "llff", "tum")
 COLMAP_FILES = ("cameras", "images", "points3D")
 FOCAL_MISMATCH = 0.02  # a pose file's focal length (per image width) this far from the capture's is said
+PRINCIPAL_MISMATCH = 0.02  # and its principal point this far (a fraction of the width / height)
+
+
+@dataclass
+class FileCamera:
+    """The intrinsics a pose file states, in pixels of its own image size (``cx``, ``cy`` None where
+    the format has none: LLFF's hwf assumes the centre)."""
+
+    width: float
+    height: float
+    fx: float
+    fy: float
+    cx: float | None = None
+    cy: float | None = None
 
 
 @dataclass
@@ -59,7 +73,7 @@ class PoseFile:
     c2w: np.ndarray  # [P, 4, 4]
     names: list[str] | None = None  # file stems, one per pose (by name)
     times: np.ndarray | None = None  # [P] seconds, increasing (by time)
-    focal_per_width: float | None = None  # fx / image width of the file's camera, when it has one
+    camera: FileCamera | None = None  # the file's intrinsics, when it has them
 
 
 def _colmap_dir(path: Path) -> Path | None:
@@ -121,8 +135,11 @@ def read_colmap(path: Path) -> PoseFile:
     if not names:
         raise CaptureError(str(d), "images", "no registered image")
     cam = next(iter(rec.cameras.values()), None)
-    fpw = None if cam is None or not cam.width else float(cam.calibration_matrix()[0, 0]) / float(cam.width)
-    return PoseFile(str(d), "colmap", np.stack(c2w), names=names, focal_per_width=fpw)
+    fc = None
+    if cam is not None and cam.width and cam.height:  # COLMAP's pixel convention is ours
+        k = np.asarray(cam.calibration_matrix(), dtype=np.float64)
+        fc = FileCamera(float(cam.width), float(cam.height), k[0, 0], k[1, 1], k[0, 2], k[1, 2])
+    return PoseFile(str(d), "colmap", np.stack(c2w), names=names, camera=fc)
 
 
 def read_transforms(path: Path) -> PoseFile:
@@ -141,15 +158,34 @@ def read_transforms(path: Path) -> PoseFile:
         m = nearest_rigid(fr.get("transform_matrix"), str(path), f"frames[{k}].transform_matrix")
         names.append(fr["file_path"])
         c2w.append(m @ OPENGL_TO_OPENCV)
-    fx, w = doc.get("fl_x"), doc.get("w")
-    fpw = float(fx) / float(w) if isinstance(fx, (int, float)) and isinstance(w, (int, float)) and w > 0 else None
-    return PoseFile(str(path), "transforms", np.stack(c2w), names=names, focal_per_width=fpw)
+    return PoseFile(str(path), "transforms", np.stack(c2w), names=names, camera=_transforms_camera(doc))
+
+
+def _transforms_camera(doc: dict) -> FileCamera | None:
+    """nerfstudio's ``fl_x``, ``fl_y``, ``cx``, ``cy``, ``w``, ``h`` (fl_y defaults to fl_x, the
+    principal point to the centre), or None without ``fl_x`` and ``w``."""
+
+    def num(key: str) -> float | None:
+        v = doc.get(key)
+        return float(v) if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) else None
+
+    fx, w = num("fl_x"), num("w")
+    if fx is None or w is None or w <= 0 or fx <= 0:
+        return None
+    h = num("h")
+    h = h if h is not None and h > 0 else None
+    fy = num("fl_y") or fx
+    cx, cy = num("cx"), num("cy")
+    return FileCamera(w, h if h is not None else w, fx, fy if h is not None else fx, cx, cy if h is not None else None)
 
 
 def read_llff(path: Path) -> PoseFile:
     """The rows of a ``poses_bounds.npy`` in order (module docstring)."""
-    c2w, _, _ = read_poses_bounds(path)
-    return PoseFile(str(path), "llff", np.stack([nearest_rigid(m, str(path), f"row {i}") for i, m in enumerate(c2w)]))
+    c2w, hwf, _ = read_poses_bounds(path)
+    h, w, f = (float(v) for v in hwf[0])
+    fc = FileCamera(w, h, f, f) if h > 0 and w > 0 and f > 0 else None  # LLFF: one focal, centred
+    poses = np.stack([nearest_rigid(m, str(path), f"row {i}") for i, m in enumerate(c2w)])
+    return PoseFile(str(path), "llff", poses, camera=fc)
 
 
 def read_tum_file(path: Path) -> PoseFile:
@@ -290,13 +326,38 @@ def apply_pose_file(cap: Capture, pf: PoseFile) -> Capture:
         raise CaptureError(pf.path, "test views", f"no pose for test view {unposed[0]!r}, which has no image either")
     meta: dict[str, Any] = {**cap.meta, "pose_source": f"{pf.format}: {pf.path}"}
     meta.pop("pose_file_focal_differs", None)
-    ours = float(cap.K[0, 0]) / cap.width
-    if pf.focal_per_width is not None and abs(pf.focal_per_width / ours - 1) > FOCAL_MISMATCH:
-        meta["pose_file_focal_differs"] = (
-            f"the pose file's camera has focal {pf.focal_per_width * cap.width:.1f} px at this width, the capture "
-            f"{cap.K[0, 0]:.1f} px: poses estimated with other intrinsics may be off "
-            "(check the capture's K, or --intrinsics)"
-        )
+    differs = _intrinsics_differ(pf.camera, cap)
+    if differs:
+        meta["pose_file_focal_differs"] = differs
     # the trust stated for the capture's old poses says nothing of these: unstated (approximate) until
     # the user states it (``--pose-trust``)
     return dataclasses.replace(cap, c2w=np.asarray(c2w, dtype=np.float64), test_views=views, meta=meta, pose_trust=None)
+
+
+def _intrinsics_differ(cam: FileCamera | None, cap: Capture) -> str:
+    """A warning naming the pose file's intrinsics and the capture's K where they differ beyond
+    ``FOCAL_MISMATCH`` (focal lengths, relative) or ``PRINCIPAL_MISMATCH`` (principal point, a
+    fraction of the size), the file's scaled to the capture's size; "" when they agree. K is never
+    replaced: the user decides which is right."""
+    if cam is None:
+        return ""
+    K = np.asarray(cap.K, dtype=np.float64)
+    sx, sy = cap.width / cam.width, cap.height / cam.height
+    fx, fy = cam.fx * sx, cam.fy * sy
+    rx, ry = fx / K[0, 0], fy / K[1, 1]
+    parts = []
+    if abs(rx - 1) > FOCAL_MISMATCH:
+        parts.append(f"focal {fx:.1f} px at this width, the capture {K[0, 0]:.1f} px")
+    if abs(ry - 1) > FOCAL_MISMATCH and not (parts and abs(ry - rx) <= FOCAL_MISMATCH):  # fy off in its own way
+        parts.append(f"fy {fy:.1f} px, the capture {K[1, 1]:.1f} px")
+    if cam.cx is not None and cam.cy is not None:
+        cx, cy = cam.cx * sx, cam.cy * sy
+        if abs(cx - K[0, 2]) > PRINCIPAL_MISMATCH * cap.width or abs(cy - K[1, 2]) > PRINCIPAL_MISMATCH * cap.height:
+            parts.append(f"principal point ({cx:.1f}, {cy:.1f}) px, the capture ({K[0, 2]:.1f}, {K[1, 2]:.1f}) px")
+    if not parts:
+        return ""
+    return (
+        "the pose file's camera has "
+        + "; ".join(parts)
+        + ": poses estimated with other intrinsics may be off (check the capture's K, or --intrinsics)"
+    )

@@ -348,24 +348,29 @@ def build_boxes(width: int, rgb: bool) -> RayScene:
     return RayScene(prims, background=0.1)
 
 
-def build_spheres(width: int, rgb: bool) -> RayScene:
-    """Textured spheres at three depths before a textured wall and floor."""
+def _wall_and_floor(width: int, rgb: bool, wall_texture: str, floor_texture: str) -> list[Quad]:
+    """The matte wall (z = 8.5) and floor (y = 1.4) behind and under the spheres and glossy scenes."""
     ppu = lambda d: 1.5 * _px_per_unit(width, d)  # noqa: E731
     wall = Quad(
         np.array([-11.0, -6.5, 8.5]),
         np.array([22.0, 0, 0]),
         np.array([0, 8.0, 0]),
-        _texture("coffee", rgb, 22.0 * ppu(8.5)),
+        _texture(wall_texture, rgb, 22.0 * ppu(8.5)),
     )
     floor = Quad(
         np.array([-11.0, 1.4, -1.0]),
         np.array([22.0, 0, 0]),
         np.array([0, 0, 9.5]),
-        _texture("brick", rgb, 22.0 * ppu(3.0)),
+        _texture(floor_texture, rgb, 22.0 * ppu(3.0)),
     )
+    return [wall, floor]
+
+
+def build_spheres(width: int, rgb: bool) -> RayScene:
+    """Textured spheres at three depths before a textured wall and floor."""
+    ppu = lambda d: 1.5 * _px_per_unit(width, d)  # noqa: E731
     prims = [
-        wall,
-        floor,
+        *_wall_and_floor(width, rgb, "coffee", "brick"),
         Sphere(np.array([-1.2, 0.5, 3.3]), 0.85, _texture("astronaut", rgb, 5.3 * ppu(3.0))),
         Sphere(np.array([1.1, 0.2, 4.6]), 1.1, _texture("chelsea", rgb, 6.9 * ppu(4.0))),
         Sphere(np.array([0.0, -1.2, 6.4]), 0.9, _texture("rocket", rgb, 5.7 * ppu(6.0))),
@@ -379,21 +384,8 @@ def build_glossy(width: int, rgb: bool) -> RayScene:
     The highlights move over the surfaces as the camera moves, which view-independent colours
     cannot reproduce."""
     ppu = lambda d: 1.5 * _px_per_unit(width, d)  # noqa: E731
-    wall = Quad(
-        np.array([-11.0, -6.5, 8.5]),
-        np.array([22.0, 0, 0]),
-        np.array([0, 8.0, 0]),
-        _texture("astronaut", rgb, 22.0 * ppu(8.5)),
-    )
-    floor = Quad(
-        np.array([-11.0, 1.4, -1.0]),
-        np.array([22.0, 0, 0]),
-        np.array([0, 0, 9.5]),
-        _texture("gravel", rgb, 22.0 * ppu(3.0)),
-    )
     prims = [
-        wall,
-        floor,
+        *_wall_and_floor(width, rgb, "astronaut", "gravel"),
         Sphere(np.array([-1.2, 0.4, 3.4]), 0.9, _texture("coffee", rgb, 5.7 * ppu(3.0)), specular=0.8, shininess=30.0),
         Sphere(np.array([0.2, -1.1, 6.2]), 0.9, _texture("rocket", rgb, 5.7 * ppu(6.0)), specular=0.8, shininess=30.0),
     ]

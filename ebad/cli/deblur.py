@@ -100,6 +100,12 @@ def _parse_gamma(s: str) -> float:
         ) from None
 
 
+def _frame_names(n: int) -> list[str]:
+    """Names of n frames that carry none: their index in 5 digits, as scenes' readers name a recording's frames
+    (so ``scenes.convert`` of the same recording and this command write the same file names)."""
+    return [f"{i:05d}" for i in range(n)]
+
+
 def _load_input(args):
     """-> frames [F, H, W, D], exposures [F, 2], events, names, the time unit note, the input's cfa (or None)."""
     import edi
@@ -111,7 +117,7 @@ def _load_input(args):
         from scenes import load  # the capture reader
 
         cap = load(path)
-        names = list(cap.names) or [f"{i:04d}" for i in range(cap.num_frames)]
+        names = list(cap.names) or _frame_names(cap.num_frames)
         unit = f"capture.json's t_unit ({path / 'capture.json'})"
         return np.asarray(cap.frames), np.asarray(cap.exposures, np.float64), cap.events, names, unit, cap.cfa
     ext = path.suffix.lower()
@@ -119,7 +125,7 @@ def _load_input(args):
         rec = edi.read_aedat4(path)
         if rec.frames.shape[0] == 0:
             raise UserError(f"{path}: the recording has no frames")
-        names = [f"{i:04d}" for i in range(rec.frames.shape[0])]
+        names = _frame_names(rec.frames.shape[0])
         return rec.frames, rec.exposures, rec.events, names, "us (AEDAT4)", getattr(rec, "cfa", None)
     if ext in _IMAGE_EXT:
         from scenes.images import read_image
@@ -134,7 +140,7 @@ def _load_input(args):
         if args.exposure is not None:
             t0, t1 = args.exposure
             if not (math.isfinite(t0) and math.isfinite(t1)) or t1 < t0:
-                raise UserError(f"--exposure must be T0 <= T1 in seconds, got {t0} {t1}")
+                raise UserError(f"--exposure must be T0 <= T1 in seconds, got {t0:g} {t1:g}")
         else:
             if len(ev) == 0:
                 raise UserError(f"{args.events}: no events, and no --exposure given")
@@ -200,12 +206,11 @@ def _medi(frames: np.ndarray, exposures: np.ndarray, events, c, gamma: float, cf
     RGB frames demosaiced in recorded units as ``edi.deblur`` does)."""
     import edi
     from edi.cfa import demosaic
-    from edi.model import to_mosaic, to_unit_range
+    from edi.model import linearize_saturated, to_mosaic, to_unit_range
 
-    lin = edi.linearize(to_unit_range(frames, "frames"), gamma)
+    lin, sat = linearize_saturated(to_unit_range(frames, "frames"), gamma)  # the rule on the recorded values
     if cfa is not None:
         lin = to_mosaic(lin, cfa, "frames")
-    sat = float(edi.linearize(np.float64(edi.SATURATION), gamma))
     lat = edi.apply_gamma(edi.medi(lin, exposures, events, c=c, saturation=sat, cfa=cfa), gamma)
     if cfa is not None and frames.shape[-1] == 3:
         lat = np.clip(demosaic(lat[..., 0], cfa), 0.0, 1.0)
@@ -247,8 +252,20 @@ def _save(path: Path, img: np.ndarray, bits: int = 8) -> None:
 
 
 def _say_unreliable(rep, where: str) -> None:
-    if rep is not None and not rep.reliable:
-        print(f"ebad deblur: warning: {where}: {rep.message}")
+    """An unreliable estimate: one short line (what is wrong, what to do), then the estimator's reasons
+    wrapped and indented (c.json keeps them whole)."""
+    import textwrap
+
+    if rep is None or rep.reliable:
+        return
+    c = rep.c
+    cs = f"c {c.pos:.4g}" if c.pos == c.neg else f"c_pos {c.pos:.4g}, c_neg {c.neg:.4g}"
+    print(
+        f"ebad deblur: warning: {where}: estimated {cs} is unreliable; "
+        "give --c (DAVIS: 0.1 to 0.5) or more frames; why:"
+    )
+    why = rep.message.removeprefix("estimate_c: ")
+    print(textwrap.fill(why, width=100, initial_indent="  ", subsequent_indent="  ", break_on_hyphens=False))
 
 
 def run(args: Args) -> int:
@@ -358,8 +375,7 @@ def run(args: Args) -> int:
         )
     unreliable = [fr["name"] for fr in per_frame if fr["c_reliable"] is False]
     tail = (
-        f"; {len(unreliable)} of them with an unreliable c (at a bracket end, or events that do not follow "
-        f"the frame's blur), so not deblurred reliably "
+        f"; {len(unreliable)} of them with an unreliable c, not deblurred reliably "
         f"({', '.join(unreliable[:3])}{', ...' if len(unreliable) > 3 else ''}): give --c (c.json has the reports)"
         if unreliable
         else ""

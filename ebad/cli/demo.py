@@ -1,6 +1,10 @@
 """``ebad demo``: a synthetic blurry event capture from a realistic camera, reconstructed with
 EBAD-Gaussian and with plain 3DGS (poses optimised too) on the blurry frames, equal time each;
-scored by the evaluation protocol; prints PSNR / SSIM and writes renders and a comparison."""
+scored by the evaluation protocol; prints PSNR / SSIM and writes renders and a comparison.
+
+The capture goes to ``OUT/capture`` and each method's run folder (``OUT/run_3dgs``, ``OUT/run_ebad``)
+is an ordinary one, checkpoint included: ``ebad eval``, ``render``, ``view`` and ``reconstruct
+OUT/capture --out OUT/run_ebad --resume`` take it."""
 
 from __future__ import annotations
 
@@ -89,7 +93,7 @@ def run(args: Args) -> int:
 
     import scenes
 
-    from ..config import preset
+    from ..config import preset, save_config
     from ..errors import ConfigError
     from ..evaluate import evaluate, score_frames
     from ..export import write_render
@@ -99,7 +103,7 @@ def run(args: Args) -> int:
     if args.iters < 1:
         raise ConfigError(f"--iters must be >= 1, got {args.iters}")
     if not args.seconds > 0:
-        raise ConfigError(f"--seconds must be > 0, got {args.seconds}")
+        raise ConfigError(f"--seconds must be > 0, got {args.seconds:g}")
     t_all = time.perf_counter()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -109,6 +113,7 @@ def run(args: Args) -> int:
         args.scene, size=args.size, seed=args.seed, rgb=args.rgb, sensor=args.sensor, cfa=RGB_CFA if args.rgb else None
     )
     cap = scene.capture
+    scenes.save(cap, out / "capture", overwrite=True)  # what the run folders were made from (eval, --resume)
     print(
         f"  {cap.num_frames} blurry {cap.width}x{cap.height} frames, {len(cap.events)} events, "
         f"{len(cap.test_views)} held-out views, poses given: {cap.effective_pose_trust}",
@@ -119,7 +124,7 @@ def run(args: Args) -> int:
     blurry = {"train_psnr": blurry_scores.psnr, "train_ssim": blurry_scores.ssim}
     refine = cap.effective_pose_trust != "exact"
     print("  compiling numba's kernels (a first run only), outside both methods' time ...", end=" ", flush=True)
-    print(f"{warm_up():.0f} s", flush=True)
+    print(f"{warm_up(['cfa' if args.rgb else 'grey']):.0f} s", flush=True)
     for name, _ in METHODS:
         cfg = preset(name)
         cfg.train.iters = args.iters
@@ -127,7 +132,11 @@ def run(args: Args) -> int:
         cfg.train.progress = not args.no_progress
         cfg.train.eval_every = 0
         print(f"  reconstructing with '{name}' for {args.seconds:g} s ...", flush=True)
-        r = reconstruct(cap, cfg)
+        run_dir = out / f"run_{name}"  # an ordinary run folder, as `ebad reconstruct` writes it
+        run_dir.mkdir(parents=True, exist_ok=True)
+        (run_dir / "metrics.json").unlink(missing_ok=True)  # unfinished until write_run ends
+        save_config(cfg, run_dir / "config.json")
+        r = reconstruct(cap, cfg, out_dir=run_dir)  # checkpoints/last.pt
         assert r.metrics is not None  # reconstruct() always sets the metrics
         runs[name] = r
         renders: dict[str, np.ndarray] = {}
@@ -146,7 +155,7 @@ def run(args: Args) -> int:
         for view_name, img in renders.items():
             write_render(out / "renders" / name / f"{view_name}.png", img, 8)
         gt_traj = np.stack([scene.gt_trajectory(k, 9) for k in range(cap.num_frames)])
-        write_run(r, out / f"run_{name}", gt_trajectories=gt_traj)
+        write_run(r, run_dir, gt_trajectories=gt_traj)
     assert scene.gt_test_images is not None  # make_scene always sets it
     truth = {v.name: scene.gt_test_images[j] for j, v in enumerate(cap.test_views)}  # noise-free, for display
     rows = [[truth[n]] + [results[m]["renders"][n] for m, _ in METHODS] for n in results["ebad"]["renders"]]
@@ -188,6 +197,9 @@ def run(args: Args) -> int:
         f"comparison image: {out / 'comparison.png'}  (rows: test views truth | 3dgs | ebad; "
         f"training frames blurry | 3dgs | ebad | truth)"
     )
-    print(f"renders: {out / 'renders'}, run folders: {out / 'run_3dgs'}, {out / 'run_ebad'}")
+    print(
+        f"renders: {out / 'renders'}, run folders: {out / 'run_3dgs'}, {out / 'run_ebad'} "
+        f"(made from the capture {out / 'capture'})"
+    )
     print(f"total {time.perf_counter() - t_all:.0f} s")
     return 0

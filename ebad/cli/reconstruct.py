@@ -176,7 +176,7 @@ def run(args: Args) -> int:
 
         import_viser()
         if not args.view_every > 0:
-            raise UserError(f"--view-every must be a positive number of seconds, got {args.view_every}")
+            raise UserError(f"--view-every must be a positive number of seconds, got {args.view_every:g}")
         if not 0 < args.view_port < 65536:
             raise UserError(f"--view-port must be in 1..65535, got {args.view_port}")
     ckpt = out / "checkpoints" / "last.pt"

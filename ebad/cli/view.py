@@ -3,7 +3,9 @@
 Shows the Gaussians (drawn by the browser with WebGL, so the server needs no GPU), every
 training camera as a frustum at its mid-exposure pose (blue) with its recovered exposure
 trajectory as a polyline of camera centres (red, start to end), and, with ``--capture``,
-the capture's test views (green frustums), on a dark background.
+the capture's test views (green frustums), on a dark background. A model with view-dependent
+colour (spherical harmonics above degree 0) is recoloured for the browser's camera as it moves
+(``ViewColours``: a few times a second at most, the response applied as in every output).
 
 The first view is the first training camera's: its mid-exposure pose and the capture's vertical
 field of view, so the browser opens on what that camera saw. A click on a training camera's frustum
@@ -49,6 +51,8 @@ LINE_PIXELS = 2.0  # frustum and trajectory line width, screen pixels
 TRAIN_COLOR = (40, 90, 220)
 TRAJECTORY_COLOR = (220, 40, 40)
 TEST_COLOR = (30, 170, 60)
+VIEW_COLOUR_INTERVAL = 0.25  # seconds: view-dependent colours follow the browser's camera at most 4 times a second
+VIEW_COLOUR_MOVE = 1e-6  # a camera that moved less than this (scene units, any axis) did not move
 
 
 @dataclass
@@ -99,6 +103,109 @@ def splat_arrays(params, response=None) -> dict[str, np.ndarray]:
         "rgbs": recorded_colors(colors, response).astype(np.float32),
         "opacities": act["opacities"].detach().numpy().astype(np.float32)[:, None],
     }
+
+
+def view_colors(params, centre, response=None) -> np.ndarray:  # centre [3] -> [N, 3] float32
+    """Each Gaussian's colour as a camera at ``centre`` (world position [3]) sees it: its spherical harmonics
+    evaluated toward the camera (``splat_cpu.sh_colors``, the rasteriser's convention: the direction from
+    the camera centre to the mean; max(SH(d) . coeffs + 0.5, 0)), through the camera ``response`` as every
+    output (``ebad.export.recorded_colors``), grey repeated. Without ``sh_rest`` the DC colours."""
+    import torch
+
+    from splat_cpu import sh_colors
+
+    from ..export import recorded_colors
+    from ..gaussians import activate, sh_degree_of
+
+    degree = sh_degree_of(params)
+    with torch.no_grad():
+        if degree == 0:
+            colors = activate(params)["colors"]
+        else:
+            viewmat = torch.eye(4, dtype=torch.float64)  # any rotation: only the centre -R^T t counts
+            viewmat[:3, 3] = -torch.as_tensor(np.asarray(centre, np.float64).reshape(3))
+            coeffs = torch.cat([params["colors"][:, None, :], params["sh_rest"]], dim=1)
+            colors = sh_colors(params["means"], coeffs, viewmat[None], degree)[0]
+    c = colors.detach().double().numpy()
+    if c.shape[1] == 1:
+        c = np.repeat(c, 3, axis=1)
+    return recorded_colors(c, response).astype(np.float32)
+
+
+class ViewColours:
+    """View-dependent colour in the viewer: the splats recoloured (``view_colors``) for the camera of the
+    browser that moved last, at most once every ``interval`` seconds and only when a camera moved.
+    ``request(position)`` is called from the browsers' camera callbacks; ``step()`` from a timer thread
+    (``start``), so a burst of camera messages costs one recolouring per interval and the last position of
+    a move is always shown. One scene is shared by every browser: each sees the colours of the last move."""
+
+    def __init__(self, handles: dict, run, interval: float = VIEW_COLOUR_INTERVAL, clock=None):
+        import threading
+        import time
+
+        self.handles, self.run, self.interval = handles, run, float(interval)
+        self.clock = time.monotonic if clock is None else clock
+        self.updates = 0  # recolourings sent
+        self._pending: np.ndarray | None = None
+        self._shown: np.ndarray | None = None
+        self._last = -math.inf
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+
+    def request(self, position) -> None:
+        """A browser camera is at ``position`` (world [3]) now."""
+        with self._lock:
+            self._pending = np.asarray(position, np.float64).reshape(3).copy()
+
+    def step(self) -> bool:
+        """Recolour for the latest requested position if a camera moved and ``interval`` has passed."""
+        with self._lock:
+            pos = self._pending
+            if pos is None:
+                return False
+            if self._shown is not None and np.abs(pos - self._shown).max() <= VIEW_COLOUR_MOVE:
+                self._pending = None
+                return False
+            now = self.clock()
+            if now - self._last < self.interval:
+                return False  # kept pending: shown when the interval has passed
+            self._pending = None
+        self.handles["splats"].rgbs = view_colors(self.run.params, pos, getattr(self.run, "response", None))
+        self._shown, self._last = pos, now
+        self.updates += 1
+        return True
+
+    def start(self):
+        """Run ``step`` on a daemon thread every half interval until ``stop``; returns the thread."""
+        import threading
+
+        def loop() -> None:
+            while not self._stop.wait(0.5 * self.interval):
+                self.step()
+
+        thread = threading.Thread(target=loop, name="ebad-view-colours", daemon=True)
+        thread.start()
+        return thread
+
+    def stop(self) -> None:
+        self._stop.set()
+
+
+def follow_view_colours(server, handles: dict, run) -> ViewColours | None:
+    """With view-dependent colour (a model with ``sh_rest``), recolour the splats as the browsers' cameras
+    move (``ViewColours``, started); None for a model of DC colours only."""
+    from ..gaussians import sh_degree_of
+
+    if sh_degree_of(run.params) == 0:
+        return None
+    colours = ViewColours(handles, run)
+
+    def on_connect(client) -> None:
+        client.camera.on_update(lambda camera: colours.request(camera.position))
+
+    server.on_client_connect(on_connect)
+    colours.start()
+    return colours
 
 
 def _frustum(
@@ -300,7 +407,9 @@ def serve(run, host: str = DEFAULT_HOST, port: int = DEFAULT_PORT, test_views=()
     check_host(host)
     server = viser.ViserServer(host=host, port=port, label="ebad", verbose=False)
     disable_share(server)
-    return server, build_scene(server, run, test_views)
+    handles = build_scene(server, run, test_views)
+    handles["view_colours"] = follow_view_colours(server, handles, run)
+    return server, handles
 
 
 def check_host(host: str) -> None:
@@ -348,7 +457,7 @@ def run(args: Args) -> int:
         import scenes
 
         test_views = [v for v in scenes.load(args.capture).test_views if getattr(v, "c2w", None) is not None]
-    server, _ = serve(run_, args.host, args.port, test_views)
+    server, handles = serve(run_, args.host, args.port, test_views)
     port = server.get_port()
     print(
         f"ebad view: {run_.num_gaussians} Gaussians, {len(run_.names)} training cameras, {len(test_views)} test views"
@@ -362,5 +471,7 @@ def run(args: Args) -> int:
     try:
         server.sleep_forever()
     finally:
+        if handles.get("view_colours") is not None:
+            handles["view_colours"].stop()
         server.stop()
     return 0

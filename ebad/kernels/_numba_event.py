@@ -11,11 +11,12 @@ of every L_k: (g_{k-1} - g_k) / (L_k + eps), zero where L_k < 0 (the clamp).
 Written as torch operations, the loss took a dozen full-image temporaries and their autograd.
 With a colour DAVIS's filter (``ebad.losses.cfa_weights`` F) the log signal is
 l_k = sum_d F_d log(max(X_k,d, 0) + eps) of the colour renders X, computed before ``event_forward``,
-and ``event_backward_cfa`` gives the gradient of every X_k,d.
+and ``event_backward`` gives the gradient of every X_k,d (grey: one channel, F_d = 1).
 
 Here each direction is one parallel region over bands of rows. Arrays are float32 or float64:
-L [V, H, W], counts [V - 1, 2, H, W]. ``ebad.kernels.losses`` wraps the kernels in an autograd
-Function; ``ebad.losses.event_loss``'s torch code is the reference they are tested against.
+L [V, H, W] (renders [V, H, W, D] in the backward), counts [V - 1, 2, H, W]. ``ebad.kernels.losses``
+wraps the kernels in an autograd Function; ``ebad.losses.event_loss``'s torch code is the reference
+they are tested against.
 """
 
 from __future__ import annotations
@@ -64,43 +65,41 @@ def event_forward(log_L, counts, c_pos, c_neg, l2, g, sums):  # pragma: no cover
         sums[task, 2] = s_off
 
 
-@njit(cache=True, parallel=True, fastmath=_FASTMATH)
-def event_backward(L, g, scale, eps, grad_L):  # pragma: no cover - jit
-    """``grad_L`` [V, H, W]: ``scale`` (the upstream gradient over the mean's count) times the
-    gradient of the summed loss with respect to each L_k, from ``event_forward``'s ``g``."""
-    V, H, W = L.shape
-    for task in prange((H + BAND - 1) // BAND):
-        y0 = task * BAND
-        y1 = min(y0 + BAND, H)
-        for k in range(V):
-            for y in range(y0, y1):
-                for x in range(W):
-                    d = 0.0
-                    if k > 0:
-                        d += g[k - 1, y, x]
-                    if k < V - 1:
-                        d -= g[k, y, x]
-                    v = L[k, y, x]
-                    grad_L[k, y, x] = scale * d / (v + eps) if v >= 0 else 0.0
+@njit(cache=True, inline="always")
+def _g_diff(g, k, V, y, x):  # pragma: no cover - jit
+    """g_{k-1} - g_k at pixel (y, x): the summed loss's gradient with respect to the log signal l_k."""
+    d = 0.0
+    if k > 0:
+        d += g[k - 1, y, x]
+    if k < V - 1:
+        d -= g[k, y, x]
+    return d
 
 
 @njit(cache=True, parallel=True, fastmath=_FASTMATH)
-def event_backward_cfa(X, F, g, scale, eps, grad_X):  # pragma: no cover - jit
-    """``event_backward`` for a colour DAVIS: ``grad_X`` [V, H, W, D] of renders X [V, H, W, D] whose
-    log signal is l_k = sum_d F_d log(max(X_k,d, 0) + eps) with the channel fractions F [H, W, D]
-    (``ebad.losses.cfa_weights``): scale (g_{k-1} - g_k) F_d / (X_k,d + eps), zero where X_k,d < 0."""
+def event_backward(X, F, g, scale, eps, grad_X):  # pragma: no cover - jit
+    """``grad_X`` [V, H, W, D]: ``scale`` (the upstream gradient over the mean's count) times the
+    gradient of the summed loss with respect to the renders X [V, H, W, D], from ``event_forward``'s
+    ``g``. A colour DAVIS's log signal is l_k = sum_d F_d log(max(X_k,d, 0) + eps) with the channel
+    fractions F [H, W, D] (``ebad.losses.cfa_weights``): scale (g_{k-1} - g_k) F_d / (X_k,d + eps),
+    zero where X_k,d < 0. Grey luminances are X [V, H, W, 1] with an empty F [0, 0, 0] (F_d = 1):
+    one kernel, one compilation per dtype, for both; the grey rows run a loop of their own (one
+    channel, no fractions), as fast as a kernel for grey alone."""
     V, H, W, D = X.shape
+    grey = F.size == 0 and D == 1
     for task in prange((H + BAND - 1) // BAND):
         y0 = task * BAND
         y1 = min(y0 + BAND, H)
         for k in range(V):
             for y in range(y0, y1):
-                for x in range(W):
-                    d = 0.0
-                    if k > 0:
-                        d += g[k - 1, y, x]
-                    if k < V - 1:
-                        d -= g[k, y, x]
-                    for ch in range(D):
-                        v = X[k, y, x, ch]
-                        grad_X[k, y, x, ch] = scale * d * F[y, x, ch] / (v + eps) if v >= 0 else 0.0
+                if grey:
+                    for x in range(W):
+                        d = _g_diff(g, k, V, y, x)
+                        v = X[k, y, x, 0]
+                        grad_X[k, y, x, 0] = scale * d / (v + eps) if v >= 0 else 0.0
+                else:
+                    for x in range(W):
+                        d = _g_diff(g, k, V, y, x)
+                        for ch in range(D):
+                            v = X[k, y, x, ch]
+                            grad_X[k, y, x, ch] = scale * d * F[y, x, ch] / (v + eps) if v >= 0 else 0.0

@@ -267,16 +267,15 @@ def _event_pass(
 
 
 def _event_adjoint(X: np.ndarray, g: np.ndarray, scale: float, eps: float, F: np.ndarray | None) -> np.ndarray:
-    """``_numba_event.event_backward`` (``event_backward_cfa`` with channel fractions F) -> the
-    gradient of the luminances [V, H, W] (renders [V, H, W, 3]) for an upstream gradient ``scale``
-    of the sum (the loss's gradient over the number of residuals)."""
+    """``_numba_event.event_backward`` -> the gradient of the luminances [V, H, W] (renders
+    [V, H, W, 3] with channel fractions F [H, W, 3]) for an upstream gradient ``scale`` of the sum
+    (the loss's gradient over the number of residuals). Grey is one channel without fractions."""
     from . import _numba_event as K
 
     out = np.empty_like(X)
     if F is None:
-        _run(K.event_backward, X, g, scale, eps, out)
-    else:
-        _run(K.event_backward_cfa, X, F, g, scale, eps, out)
+        F = np.empty((0, 0, 0), X.dtype)
+    _run(K.event_backward, X.reshape(*X.shape[:3], -1), F, g, scale, eps, out.reshape(*X.shape[:3], -1))
     return out
 
 

@@ -30,3 +30,5 @@ def test_warm_up_compiles_every_parallel_kernel_of_the_rasteriser_ssim_and_event
     assert all(n == 0 for n in before.values()), before
     missing = [k for k, n in after.items() if n == 0]
     assert not missing, f"not compiled by warm_up: {missing}"
+    twice = {k: n for k, n in after.items() if n > 1}  # a grey run: one dtype, one layout per argument
+    assert not twice, f"compiled in more than one specialisation: {twice}"

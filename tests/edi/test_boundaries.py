@@ -37,7 +37,7 @@ def test_latent_from_ratio_keeps_pixels_at_exactly_the_saturation_level():
 def test_deblur_keeps_and_reports_a_pixel_recorded_at_exactly_0_99_whatever_gamma(seq1, gamma):
     B, ex = seq1.frames[0].astype(np.float64), seq1.exposures[0]
     B[3, 4] = 0.99
-    B[6, 2] = 0.9899  # (one ulp below 0.99 linearised by 1 / 2.2 rounds to the level's own value: not tested)
+    B[6, 2] = np.nextafter(0.99, 0.0)  # one ulp below (linearised by 1 / 2.2 it reaches the level: the rule is on B)
     out, rep = deblur_with_report(B, ex, seq1.events, c=0.2, gamma=gamma)
     assert rep.saturated[3, 4] and out[3, 4, 0] == pytest.approx(0.99, abs=1e-12)  # gamma round trip
     assert not rep.saturated[6, 2]

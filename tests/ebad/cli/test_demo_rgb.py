@@ -22,3 +22,19 @@ def test_demo_rgb_builds_a_colour_davis_capture(tmp_path, monkeypatch, rgb, cfa)
     with pytest.raises(_Stop):
         demo.run(demo.Args(out=str(tmp_path / "o"), rgb=rgb))
     assert seen["cfa"] == cfa and seen["rgb"] is rgb and seen["name"] == "boxes"
+
+
+@pytest.mark.parametrize("rgb, kinds", [(True, ["cfa"]), (False, ["grey"])])
+def test_demo_warms_up_only_its_capture_kind(tmp_path, monkeypatch, rgb, kinds):
+    import ebad.run
+
+    seen = []
+
+    def fake_warm_up(k=("grey",), sh_degree=0):
+        seen.append(list(k))
+        raise _Stop
+
+    monkeypatch.setattr(ebad.run, "warm_up", fake_warm_up)
+    with pytest.raises(_Stop):
+        demo.run(demo.Args(out=str(tmp_path / "o"), rgb=rgb, size="tiny"))
+    assert seen == [kinds]
