@@ -49,6 +49,9 @@ __all__ = [
     "structured_events_per_pixel",
     "sharp_views",
     "SUPPORT_US",
+    "EdiTables",
+    "edi_tables",
+    "EDI_SCALES",
 ]
 
 # Intrinsics outside this horizontal/vertical field of view (degrees) are taken for a mistake
@@ -98,6 +101,64 @@ class PrepareReport:
     sharp_reason: str | None = None  # why those frames were treated as sharp
 
 
+#: the contrast scales s of ``EdiTables.logmean``: with a learnt response and a c estimated from the frames,
+#: L_EDI's targets use c / gamma (``ebad.response.edi_targets``), here for gamma in [0.4, 2.5] (held at the
+#: ends). Step 0.1: the linear interpolation's error in log((1/T) integral exp(s E)) is at most 0.1^2 / 8 x
+#: the variance of E over the exposure (1.2e-3 for a pixel whose E spans 2, ten events of 0.2)
+EDI_SCALES = tuple(round(0.4 + 0.1 * k, 4) for k in range(22))
+
+
+@dataclass
+class EdiTables:
+    """What L_EDI's targets need to follow a learnt response (``ebad.response.edi_targets``): per
+    training frame the events' log change E(u) at its target instants (the mid-exposure instant, or its
+    V virtual instants when it has view latents) and the log mean of exp(s E(t)) over the exposure at
+    the ``scales`` s, E in the units of ``TrainingData.c`` from the exposure's start."""
+
+    scales: Tensor  # [K]
+    e_at: list[Tensor]  # per frame [U, H, W] float32 (U = 1: mid-exposure; V: its virtual instants)
+    logmean: list[Tensor]  # per frame [K, H, W] float32
+
+    def targets(self, f: int, blurry: Tensor, response, c_recorded: bool) -> Tensor:  # -> [U, H, W, D]
+        """Frame ``f``'s L_EDI targets for ``response``'s current curve (``blurry`` [H, W, D] its frame), detached:
+        they follow the curve but pull on it only through the render (with their gradient the black level drifted
+        from 0 to 0.17 on the realistic sensor, gamma 0.861, and the deblurred frames lost 0.7 dB)."""
+        from edi import SATURATION
+
+        from .response import edi_targets
+
+        with torch.no_grad():
+            return edi_targets(response, blurry, self.e_at[f], self.logmean[f], self.scales, c_recorded, SATURATION)
+
+    def pooled(self, factor: int) -> EdiTables:
+        """The tables at 1/``factor`` of the resolution (block means: the coarse phase's approximation)."""
+        return dataclasses.replace(
+            self, e_at=[_pool(e, factor) for e in self.e_at], logmean=[_pool(m, factor) for m in self.logmean]
+        )
+
+
+def edi_tables(
+    exposures: np.ndarray,  # [F, 2] seconds
+    events: EventStream,
+    c: tuple[float, float],
+    instants: list[list[float]],  # per frame its target instants (seconds)
+    scales: tuple[float, ...],
+) -> EdiTables:
+    """``EdiTables`` of the frames: one EDI pass (``edi.model.edi_log_ratio``) per frame and scale."""
+    from edi.model import edi_log_ratio
+
+    e_at, logmean = [], []
+    for f, times in enumerate(instants):
+        ex = (float(exposures[f, 0]), float(exposures[f, 1]))
+        start = np.array([ex[0]])
+        lm = np.stack([-edi_log_ratio(events, ex, start, (s * c[0], s * c[1]))[0][0] for s in scales])
+        r1 = edi_log_ratio(events, ex, np.asarray(times, np.float64), c)[0]  # E(u) - logmean(1)
+        e = r1 - edi_log_ratio(events, ex, start, c)[0]  # + logmean(1)
+        e_at.append(torch.from_numpy(e.astype(np.float32)))
+        logmean.append(torch.from_numpy(lm.astype(np.float32)))
+    return EdiTables(torch.tensor(scales, dtype=torch.float32), e_at, logmean)
+
+
 @dataclass
 class TrainingData:
     """Everything the loop needs, precomputed from a capture (training frames only)."""
@@ -131,6 +192,8 @@ class TrainingData:
     # the blocks' channel fractions after ``downscale``): L_ev on each pixel's own channel, and L_blur / L_EDI through
     # ``losses.cfa_project`` when the frames are one-channel mosaics; None: no cfa, or loss.cfa_events luminance
     cfa_weights: Tensor | None = None
+    # with a learnt response (model.response), L_EDI's targets follow the curve (``EdiTables``; per-frame EDI only)
+    edi_tables: EdiTables | None = None
 
     @property
     def c_recorded(self) -> bool:
@@ -189,6 +252,15 @@ class TrainingData:
                 views[f] = view_latents(
                     self.frames[f].numpy(), self.exposures[f], self.events, int(V[f]), self.c, cfa=self.cfa
                 )
+                if self.edi_tables is not None:  # the targets' instants follow
+                    e = edi_tables(
+                        self.exposures[f : f + 1],
+                        self.events,
+                        self.c,
+                        [_view_times(self.exposures[f], int(V[f]))],
+                        (1.0,),
+                    )
+                    self.edi_tables.e_at[f] = e.e_at[0]
         self.V, self.ev_counts, self.view_latents = V, counts, views
         self.report.views, self.report.renders_per_pass = V.tolist(), int(V.sum())
 
@@ -245,6 +317,7 @@ def downscale(data: TrainingData, factor: int) -> TrainingData:
         else [None if v is None else _pool_hwd(v, factor) for v in data.view_latents],
         ev_counts=[None if e is None else _pool(e, factor) for e in data.ev_counts],
         cfa_weights=None if data.cfa_weights is None else _pool_hwd(data.cfa_weights[None], factor)[0],
+        edi_tables=None if data.edi_tables is None else data.edi_tables.pooled(factor),
     )
 
 
@@ -275,6 +348,11 @@ def _edi_at(
 def _view_times(exposure: np.ndarray, V: int) -> list[float]:  # the V virtual instants in seconds
     t0, t1 = float(exposure[0]), float(exposure[1])
     return (t0 + virtual_instants(V, dtype=torch.float64) * (t1 - t0)).tolist()
+
+
+def _target_instants(exposure: np.ndarray, views: bool, V: int) -> list[float]:
+    """The instants of a frame's L_EDI targets (seconds): its V virtual instants, or mid-exposure."""
+    return _view_times(exposure, V) if views else [0.5 * (float(exposure[0]) + float(exposure[1]))]
 
 
 def view_latents(
@@ -611,6 +689,7 @@ def prepare(capture: Capture, cfg: Config) -> TrainingData:
 
     latents: Tensor | None = None
     views: list[Tensor | None] | None = None
+    tables: EdiTables | None = None
     if use_events and (lc.w_edi > 0 or lc.target == "edi"):
         import edi
 
@@ -632,6 +711,17 @@ def prepare(capture: Capture, cfg: Config) -> TrainingData:
                     views.append(torch.from_numpy(out[1:]) if extra else None)
                 tick(f + 1)
         latents = torch.from_numpy(np.clip(np.stack(lat), 0, 1))  # mEDI's are not clipped yet
+        if cfg.model.response != "linear" and lc.w_edi > 0 and lc.edi_prior == "edi":
+            tables = edi_tables(
+                exposures,
+                events,
+                c,
+                [
+                    _target_instants(exposures[f], views is not None and views[f] is not None, int(V[f]))
+                    for f in range(len(idx))
+                ],
+                EDI_SCALES if c_source == "edi.estimate_c" else (1.0,),
+            )
     frames_t = torch.from_numpy(frames_np)
     targets = latents if (lc.target == "edi" and latents is not None) else frames_t
     ev = [
@@ -662,6 +752,7 @@ def prepare(capture: Capture, cfg: Config) -> TrainingData:
             test_c2w=test_poses(capture, pose_src, idx, c2w, registered),
             events=events if use_events and (lc.w_event > 0 or views is not None) else None,
             view_latents=views,
+            edi_tables=tables,
         ),
     )
 

@@ -152,6 +152,9 @@ def frame_losses(data: TrainingData, state: TrainState, f: int, cfg: Config, sh_
     edi_target = None
     if lc.w_edi > 0:
         edi_target = views if views is not None else data.latents[f] if data.latents is not None else None
+        if edi_target is not None and data.edi_tables is not None and state.response.learnable:  # in irradiance
+            tab = data.edi_tables.targets(f, data.frames[f], state.response, data.c_recorded)
+            edi_target = tab if views is not None else tab[0]
     counts: Tensor | None = None
     event_views: tuple[int, ...] = ()
     c = None
