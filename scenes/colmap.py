@@ -81,11 +81,13 @@ class ColmapConfig:
     # test views with an image registered with the frames: "unposed" (those without c2w),
     # "all" (every test view with an image, e.g. to align a capture's given test poses), "none"
     test_views: Literal["unposed", "all", "none"] = "unposed"
-    # EDI with the estimated (c_pos, c_neg) pair (False: their mean). Measured (issue 30) on the realistic
-    # boxes "small" capture, seeds 0-2: the mid-exposure latents' PSNR against the sharp truth 26.55, 26.42,
-    # 27.03 dB with the pair against 26.40, 26.25, 26.84 with the mean, in about the same time; slider_depth's
-    # pinned SfM (tests/scenes/test_real_sfm.py) is unchanged (its frames are sharp: nothing to deblur)
-    c_polarity: bool = True
+    # EDI with the estimated (c_pos, c_neg) pair instead of their mean. Measured (issue 30): the pair's
+    # mid-exposure latents are 0.15-0.19 dB closer to the sharp truth (boxes small, realistic, seeds 0-2:
+    # 26.55, 26.42, 27.03 against 26.40, 26.25, 26.84 dB) but the poses are no better (benchmarks/
+    # colmap_poses.py, small, boxes + spheres x 3 seeds: ATE 0.41 +- 0.07 % against 0.41 +- 0.12 %, rotation
+    # 0.35 against 0.32 deg) and the 33-frame tiny capture of tests/scenes/test_colmap_scale.py breaks with
+    # it (ATE 26.6 % against 1.44 %); slider_depth's frames are sharp (nothing deblurred): the mean stays
+    c_polarity: bool = False
 
 
 @dataclass
@@ -114,7 +116,7 @@ def _c_text(c: float | tuple[float, float] | None) -> str:
     return f"{c:.4g}"
 
 
-def _sfm_frames(capture: Capture, deblur: bool, report: dict, polarity: bool = True) -> np.ndarray:
+def _sfm_frames(capture: Capture, deblur: bool, report: dict, polarity: bool = False) -> np.ndarray:
     """[F, H, W, D] frames for SfM: EDI latents at mid-exposure where possible, else raw. The
     contrast threshold is estimated from the capture (one c, or (c_pos, c_neg) with ``polarity``)."""
     frames = capture.frames.astype(np.float64)

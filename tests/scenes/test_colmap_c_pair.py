@@ -1,6 +1,8 @@
-"""SfM's frames are deblurred with the estimated (c_pos, c_neg) pair (issue 30: one mean c was used;
-measured on the realistic boxes "small" capture, seeds 0-2, the mid-exposure latents' PSNR against the
-sharp truth is 0.15-0.19 dB higher with the pair: 26.55, 26.42, 27.03 against 26.40, 26.25, 26.84 dB)."""
+"""The contrast threshold SfM's frames are deblurred with (issue 30): the estimated (c_pos, c_neg) pair
+reaches ``edi.deblur`` with ``ColmapConfig(c_polarity=True)``, their mean by default. The pair's latents
+are closer to the truth (+0.15-0.19 dB, boxes small, realistic, seeds 0-2) but the poses are no better
+and the 33-frame tiny capture of test_colmap_scale.py breaks with it (ATE 26.6 % against 1.44 %): see
+``ColmapConfig.c_polarity``."""
 
 import pytest
 
@@ -19,7 +21,8 @@ def capture():
     return scenes.make_scene("boxes", "tiny", seed=0, poses="none", n_frames=6, n_test=0).capture
 
 
-def test_the_estimated_pair_reaches_edi_deblur(capture, monkeypatch):
+@pytest.mark.parametrize("polarity", [True, False])
+def test_the_estimated_c_reaches_edi_deblur(capture, monkeypatch, polarity):
     seen: list = []
     real = colmap.edi_deblur
 
@@ -33,16 +36,14 @@ def test_the_estimated_pair_reaches_edi_deblur(capture, monkeypatch):
     monkeypatch.setattr(colmap, "edi_deblur", spy)
     monkeypatch.setattr(colmap, "_write_png", stop)
     with pytest.raises(_Stop):
-        colmap.estimate_poses(capture)  # the default config
-    est = estimate_c(capture.frames, capture.exposures, capture.events, pair=True)
-    pair = (float(est.pos), float(est.neg))
-    assert pair[0] != pytest.approx(pair[1], rel=0.02)  # the realistic sensor's thresholds differ
-    assert len(seen) == capture.num_frames and all(c == pair for c in seen)
+        colmap.estimate_poses(capture, colmap.ColmapConfig(c_polarity=True) if polarity else None)
+    est = estimate_c(capture.frames, capture.exposures, capture.events, pair=polarity)
+    want = (float(est.pos), float(est.neg)) if polarity else float(est.mean)
+    if polarity:
+        assert want[0] != pytest.approx(want[1], rel=0.02)  # the realistic sensor's thresholds differ
+    assert len(seen) == capture.num_frames and all(c == want for c in seen)
 
 
-def test_the_mean_is_still_there_on_request_and_messages_format_c(capture):
-    report: dict = {}
-    colmap._sfm_frames(capture, True, report, polarity=False)
-    assert isinstance(report["c_estimated"], float)
+def test_messages_format_c():
     assert colmap._c_text((0.15917618313998988, 0.12962373000953142)) == "(c_pos 0.1592, c_neg 0.1296)"
     assert colmap._c_text(0.14439995657476065) == "0.1444" and colmap._c_text(None) == "estimated per frame"
