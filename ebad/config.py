@@ -561,11 +561,11 @@ def save_config(cfg: Config, path: str | Path) -> None:
 
 
 def load_config(path: str | Path) -> Config:
+    """The ``Config`` of a JSON file (``save_config``); ConfigError naming the file and the field otherwise."""
+    from scenes.jsonio import read_json_object
+
     path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as exc:
-        raise ConfigError(f"{path}: not valid JSON: {str(exc)[:120]}") from None
+    data = read_json_object(path, ConfigError)
     try:
         return config_from_dict(data)
     except ConfigError as exc:
