@@ -334,7 +334,11 @@ class TrainConfig:
     iters: int = 600
     """optimisation steps (one frame per step)"""
     max_seconds: float | None = None
-    """wall-time budget; the loop stops when it is spent"""
+    """wall-time budget; the loop stops when it is spent. The schedule then follows max(steps / iters, seconds /
+    max_seconds), so a run with a budget depends on the machine's speed and load and is not repeatable; a run
+    budgeted by iters alone is bit-identical for one seed (any PYTHONHASHSEED or NUMBA_NUM_THREADS) as long as
+    numba's compiled kernels are the same: a first run on a cold numba cache compiles them in its own process and
+    may differ from later runs, which load them from the cache, in the last bits"""
     plateau_patience: int = 0
     """stop after this many loss windows without improvement (0: never)"""
     plateau_every: int = 50
@@ -561,11 +565,11 @@ def save_config(cfg: Config, path: str | Path) -> None:
 
 
 def load_config(path: str | Path) -> Config:
+    """The ``Config`` of a JSON file (``save_config``); ConfigError naming the file and the field otherwise."""
+    from scenes.jsonio import read_json_object
+
     path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as exc:
-        raise ConfigError(f"{path}: not valid JSON: {str(exc)[:120]}") from None
+    data = read_json_object(path, ConfigError)
     try:
         return config_from_dict(data)
     except ConfigError as exc:

@@ -43,6 +43,7 @@ from torch import Tensor, nn
 
 from scenes._atomic import atomic_path, write_text_atomic
 from scenes.capture import file_in
+from scenes.jsonio import read_json_object
 
 from .config import Config, load_config, save_config
 from .errors import UserError
@@ -303,12 +304,7 @@ def write_inria_layout(out: Path, iteration: int, white_background: bool = False
 
 def _complete(metrics_path: Path) -> bool:
     """The ``complete`` field of a run's ``metrics.json`` as written (only JSON ``true`` is a finished run)."""
-    try:
-        doc = json.loads(metrics_path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as exc:
-        raise UserError(f"{metrics_path}: not valid JSON ({str(exc)[:120]})") from None
-    if not isinstance(doc, dict):
-        raise UserError(f"{metrics_path}: must be a JSON object, got {type(doc).__name__}")
+    doc = read_json_object(metrics_path, UserError)
     complete = doc.get("complete", False)
     if not isinstance(complete, bool):
         raise UserError(f"{metrics_path}: field 'complete' must be true or false, got {json.dumps(complete)}")
@@ -392,20 +388,17 @@ def _check_model(m: object) -> dict:
 
 
 def _read_model(path: Path) -> dict:
+    doc = read_json_object(path, UserError)
     try:
-        return _check_model(json.loads(path.read_text()))
-    except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as exc:
-        raise UserError(f"{path}: not valid JSON ({str(exc)[:120]})") from None
+        return _check_model(doc)
     except _ModelError as exc:
         raise UserError(f"{path}: {exc}; the run folder is damaged (rerun 'ebad reconstruct')") from None
 
 
 def _read_metrics(path: Path) -> RunMetrics:
+    doc = read_json_object(path, UserError)
     try:
-        doc = json.loads(path.read_text())
         metrics = RunMetrics.from_dict(doc)
-    except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as exc:
-        raise UserError(f"{path}: not valid JSON ({str(exc)[:120]})") from None
     except (TypeError, KeyError, ValueError, AttributeError) as exc:
         raise UserError(f"{path}: not the metrics of a run of this version ({str(exc)[:120]})") from None
     steps = metrics.steps

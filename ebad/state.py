@@ -288,7 +288,7 @@ class TrainState:
             try:
                 torch.save(doc, tmp)
             except RuntimeError as exc:  # torch's zip writer reports a failed write (a full disk) this way
-                if "write" not in str(exc).lower():
+                if "write" not in str(exc).lower() and "inline_container" not in str(exc):
                     raise
                 raise OSError(
                     errno.EIO, f"could not write the checkpoint ({exc}); nothing was replaced", str(path)

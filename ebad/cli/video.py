@@ -197,13 +197,9 @@ MAX_RENDER_SIDE = 16384  # the largest render side a camera path may ask for (on
 
 def _read_path_json(path: Path) -> dict:
     """A camera-path file's top-level JSON object; UserError naming the file otherwise."""
-    try:
-        doc = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as exc:
-        raise UserError(f"{path}: not valid JSON ({str(exc)[:120]})") from None
-    if not isinstance(doc, dict):
-        raise UserError(f"{path}: must be a JSON object (a nerfstudio camera path), got {type(doc).__name__}")
-    return doc
+    from scenes.jsonio import read_json_object
+
+    return read_json_object(path, UserError, what="a nerfstudio camera path")
 
 
 def read_camera_path(path: str | Path) -> tuple[np.ndarray, np.ndarray, int, int]:  # -> [T, 4, 4], [T, 3, 3], W, H

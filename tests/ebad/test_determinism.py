@@ -93,3 +93,44 @@ def test_a_run_interrupted_and_resumed_across_a_pass_boundary_equals_the_uninter
     resumed = reconstruct(tiny.capture, _config(), out_dir=out, resume=True)
     assert resumed.metrics.resumed_from == stop and resumed.step == ITERS
     _assert_same_run(whole, resumed)
+
+
+# one seed, one run across processes: a child process hashes every parameter, the knots and the history of the
+# 11-step run; two children with different PYTHONHASHSEED (set and dict order) and NUMBA_NUM_THREADS (numba's
+# reductions) must agree bit for bit. The module's own run above has loaded (or compiled and cached) the kernels
+# first, so that both children load the same compiled code (see the note in ``TrainConfig.max_seconds``).
+_CHILD = """
+import hashlib, sys, torch
+sys.path.insert(0, {tests!r})
+import scenes
+from ebad.run import reconstruct
+from test_determinism import _config, _trace
+tiny = scenes.make_scene("boxes", size="tiny", seed=0, n_frames=4, n_test=1)
+run = reconstruct(tiny.capture, _config())
+h = hashlib.sha256(repr(_trace(run)).encode())
+for k in sorted(run.params):
+    h.update(run.params[k].detach().contiguous().numpy().tobytes())
+h.update(run.trajectories.knots.detach().contiguous().numpy().tobytes())
+print("DIGEST", h.hexdigest())
+"""
+
+
+def _child_digest(hash_seed: str, threads: str) -> str:
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    env = dict(os.environ, PYTHONHASHSEED=hash_seed, NUMBA_NUM_THREADS=threads)
+    env["PYTHONPATH"] = os.pathsep.join([str(root), env.get("PYTHONPATH", "")])
+    code = _CHILD.format(tests=str(Path(__file__).resolve().parent))
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-2000:]
+    return [line for line in out.stdout.splitlines() if line.startswith("DIGEST")][-1]
+
+
+@pytest.mark.slow
+def test_two_processes_with_one_seed_give_bit_identical_runs(whole):
+    # ``whole`` first: the kernels are in numba's cache before the children start
+    assert _child_digest("0", "2") == _child_digest("12345", "1")
