@@ -163,3 +163,23 @@ def test_demo_smoke(tmp_path, capsys):
     assert im.ndim == 3 and im.shape[2] == 3 and im.shape[0] > 48 * 4
     assert len(list((out / "renders" / "ebad").glob("*.png"))) == 3
     assert (out / "run_ebad" / "point_cloud.ply").exists()
+    _demo_run_folders_are_ordinary(out, capsys, steps=5)
+
+
+def _demo_run_folders_are_ordinary(out, capsys, steps: int) -> None:
+    """``ebad demo``'s run folders are ordinary run folders (issue 30: they had no checkpoints/last.pt
+    although the README lists it): made from a capture written beside them, resumable and loadable."""
+    from ebad.runfolder import load_run
+
+    for name in ("3dgs", "ebad"):
+        run = out / f"run_{name}"
+        assert (run / "checkpoints" / "last.pt").is_file() and (run / "config.json").is_file()
+        assert json.loads((run / "metrics.json").read_text())["complete"] is True
+        assert load_run(run).names == load_run(out / "run_ebad").names  # what render / eval / view open
+    assert (out / "capture" / "capture.json").is_file()
+    assert json.loads((out / "run_ebad" / "metrics.json").read_text())["steps"] == steps
+    # `--resume` continues the demo's checkpoint from the demo's capture
+    cmd = ["reconstruct", str(out / "capture"), "--out", str(out / "run_ebad"), "--resume"]
+    assert main([*cmd, "--train.iters", str(steps + 1), "--train.progress", "False"]) == 0
+    assert f"--resume applies train.iters = {steps + 1} (was {steps})" in capsys.readouterr().err
+    assert json.loads((out / "run_ebad" / "metrics.json").read_text())["steps"] == steps + 1
