@@ -77,7 +77,11 @@ def test_the_learnt_curve_moves_to_the_synthetic_gamma(black, gain, lr, learnt):
     torch.manual_seed(0)
     run = reconstruct(sc.capture, cfg)
     gamma = run.response.values()["gamma"]
-    assert gamma == pytest.approx(learnt, abs=0.01)
+    # pinned within 0.02: 1500 steps amplify the last-bit differences between numba's kernels compiled in
+    # this process and those loaded from its cache (the README, on --train.seed): the pure power law
+    # learnt 0.771 with a warm cache and 0.759 from a cold one (a fresh CI venv). The old units sit
+    # further off (0.793 and 0.815 above)
+    assert gamma == pytest.approx(learnt, abs=0.02)
     assert abs(gamma - sc.sensor.gamma) < 0.05
 
 
