@@ -75,21 +75,22 @@ class Response(nn.Module):
     def learnable(self) -> bool:
         return self.kind != "linear"
 
+    def curve(self) -> tuple[Tensor, Tensor, Tensor]:
+        """The curve's black level, gain and exponent as tensors of ``raw`` (differentiable)."""
+        return MAX_BLACK * torch.sigmoid(self.raw[0]), torch.exp(self.raw[1]), torch.exp(self.raw[2])
+
     def values(self) -> dict[str, float]:
         """The curve's black level, gain and exponent."""
-        b, g, k = self.raw.detach().tolist()
-        return {
-            "black": MAX_BLACK * float(torch.sigmoid(torch.tensor(b))),
-            "gain": float(torch.exp(torch.tensor(g))),
-            "gamma": float(torch.exp(torch.tensor(k))),
-        }
+        with torch.no_grad():
+            black, gain, gamma = self.curve()
+        return {"black": float(black), "gain": float(gain), "gamma": float(gamma)}
 
     def forward(self, irradiance: Tensor) -> Tensor:  # [..., D] -> [..., D]
         if self.kind == "linear":
             return irradiance
-        black = MAX_BLACK * torch.sigmoid(self.raw[0])
-        x = (torch.exp(self.raw[1]) * irradiance).clamp(_TINY, 1.0)
-        return black + (1 - black) * x ** torch.exp(self.raw[2])
+        black, gain, gamma = self.curve()
+        x = (gain * irradiance).clamp(_TINY, 1.0)
+        return black + (1 - black) * x**gamma
 
 
 def edi_targets(
@@ -109,7 +110,7 @@ def edi_targets(
     if response.kind == "linear":
         black, gamma = blurry.new_zeros(()), blurry.new_ones(())
     else:
-        black, gamma = MAX_BLACK * torch.sigmoid(response.raw[0]), torch.exp(response.raw[2])
+        black, _, gamma = response.curve()
     s = 1.0 / gamma if c_recorded else torch.ones_like(gamma)
     K = int(scales.shape[0])
     if K == 1:
