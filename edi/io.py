@@ -297,8 +297,8 @@ class _NpzStream:
             fin = np.isfinite(b) if b.dtype.kind == "f" else None
             vals = b if fin is None else b[fin]
             if len(vals):
-                s["min"] = min(s.get("min", vals.min()), vals.min())
-                s["max"] = max(s.get("max", vals.max()), vals.max())
+                lo, hi = vals.min(), vals.max()
+                s["min"], s["max"] = min(s.get("min", lo), lo), max(s.get("max", hi), hi)
             if fin is not None:
                 frac = vals[vals != np.round(vals)]
                 if len(frac):
