@@ -337,14 +337,18 @@ def read_cameras_json(path: str | Path) -> dict:
 # --------------------------------------------------------------------------- .splat
 
 
-def write_splat(path: str | Path, params: dict[str, torch.Tensor], response=None) -> Path:
+def write_splat(
+    path: str | Path, params: dict[str, torch.Tensor], response=None, recorded: dict[str, torch.Tensor] | None = None
+) -> Path:
     """The antimatter15 ``.splat`` file of a model's parameters (see module docstring), colours through
-    the camera ``response`` (None: the identity)."""
+    the camera ``response`` (None: the identity). ``recorded``: ``to_recorded_params(params, response)``
+    when the caller has it already (the PLY's fit), so the SH fit is not made twice."""
     act = {k: v.detach().double().cpu().numpy() for k, v in activate(params).items()}
     N = act["means"].shape[0]
     colors = recorded_colors(act["colors"], response)
     if params.get("sh_rest") is not None and _curve(response) is not None:  # the PLY's DC: R's mean over directions
-        colors = np.clip(0.5 + SH_C0 * to_recorded_params(params, response)["colors"].detach().double().numpy(), 0, 1)
+        recorded = to_recorded_params(params, response) if recorded is None else recorded
+        colors = np.clip(0.5 + SH_C0 * recorded["colors"].detach().double().numpy(), 0, 1)
     if colors.shape[1] == 1:
         colors = np.repeat(colors, 3, axis=1)
     elif colors.shape[1] != 3:
@@ -447,15 +451,15 @@ def exposure_samples(
 # --------------------------------------------------------------------------- run folder
 
 
-def write_exports(run, out: str | Path) -> list[Path]:
+def write_exports(run, out: str | Path, recorded: dict[str, torch.Tensor] | None = None) -> list[Path]:
     """``cameras.json`` (training cameras at mid-exposure), ``point_cloud.splat`` and the TUM
-    trajectories of a ``Run`` into the run folder ``out``."""
+    trajectories of a ``Run`` into the run folder ``out`` (``recorded``: as ``write_splat``'s)."""
     out = Path(out)
     mid = run.trajectories.mid_poses().numpy()
     poses, u = run.exposure_poses(_TUM_SAMPLES)
     times, flat = exposure_samples(run.exposures, poses, u)
     return [
         write_cameras_json(out / CAMERAS_JSON, run.names, mid, run.K, run.width, run.height),
-        write_splat(out / SPLAT_FILE, run.params, run.response),
+        write_splat(out / SPLAT_FILE, run.params, run.response, recorded),
         write_tum(out / TUM_FILE, times, flat),
     ]

@@ -219,8 +219,9 @@ def write_run(run: Run, out: str | Path, gt_trajectories: np.ndarray | None = No
     if not (out / "config.json").exists():
         save_config(run.config, out / "config.json")
     write_text_atomic(out / "history.json", json.dumps(json_safe([h.to_dict() for h in run.history])) + "\n")
+    recorded = to_recorded_params(run.params, run.response)  # the colours the PLY and the .splat show
     with atomic_path(out / "point_cloud.ply") as tmp:
-        write_ply(tmp, to_recorded_params(run.params, run.response))  # the colours the .splat shows
+        write_ply(tmp, recorded)
     model = {
         "K": run.K.tolist(),
         "width": run.width,
@@ -245,7 +246,7 @@ def write_run(run: Run, out: str | Path, gt_trajectories: np.ndarray | None = No
         write_trajectories(tmp, run.names, run.exposures, poses, u)
     with atomic_path(out / "trajectories.png") as tmp:
         plot_trajectories(tmp, poses, gt_trajectories)
-    write_exports(run, out)  # cameras.json, point_cloud.splat, trajectories_tum.txt
+    write_exports(run, out, recorded)  # cameras.json, point_cloud.splat, trajectories_tum.txt
     write_inria_layout(out, run.step, white_background=run.config.model.background >= 0.5, eval=bool(run.test_c2w))
     for name, img in zip(run.names, run.deblurred_frames()):
         write_png16(file_in(out / "deblurred", name, ".png"), img)  # atomic itself (scenes.images, scenes._atomic)

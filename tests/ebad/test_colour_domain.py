@@ -169,3 +169,24 @@ def test_tum_has_one_line_per_timestamp(tiny_run, tmp_path):
     t, c2w = read_tum(tmp_path / TUM_FILE)
     assert len(np.unique(t)) == len(t) == 1 + 9 * (len(run.names) - 1)
     assert np.all(np.diff(t) > 0) and t[0] == t0
+
+
+def test_a_run_folder_fits_the_sh_colours_through_the_response_once(tiny_run, tmp_path, monkeypatch):
+    """With view-dependent colour and a learnt response the PLY's SH are a least-squares fit through the
+    curve; the ``.splat`` shows that fit's DC, taken from the same fit (not a second one)."""
+    import ebad.export as export
+
+    run = load_run(tiny_run.run)
+    run.response = _gamma_response()
+    n, d = run.params["colors"].shape
+    run.params["sh_rest"] = 0.05 * torch.randn(n, 15, d, generator=torch.Generator().manual_seed(0))
+    fits = []
+    real = export._refit_sh
+    monkeypatch.setattr(export, "_refit_sh", lambda *a, **k: fits.append(1) or real(*a, **k))
+    write_run(run, tmp_path / "run")
+    assert len(fits) == 1
+    ply, splat = read_ply(tmp_path / "run" / "point_cloud.ply"), read_splat(tmp_path / "run" / SPLAT_FILE)
+    rgb = np.clip(0.5 + SH_C0 * ply["colors"].double().numpy(), 0, 1)
+    rgb = np.repeat(rgb, 3, 1) if rgb.shape[1] == 1 else rgb
+    order = [int(np.argmin(np.abs(ply["means"].numpy() - m).sum(1))) for m in splat["means"]]
+    assert np.abs(splat["colors"] - rgb[order]).max() <= 0.5 / 255 + 1e-6
