@@ -2,6 +2,7 @@
 and the slider_depth frames against their ground-truth poses.
 
     python -m benchmarks.colmap_poses [--sizes tiny,small] [--seeds 0,1,2] [--sensors realistic,ideal]
+                                      [--frames 12] [--test-views 3]
                                       [--slider-steps 2,4 | --no-slider] [--out benchmarks/results/colmap_poses.json]
 
 Synthetic rows: ``scenes.make_scene(..., poses="none")`` (the capture carries no pose at all,
@@ -21,6 +22,7 @@ scored the same way. One thread per SfM (deterministic). Writes JSON.
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import time
 from pathlib import Path
@@ -42,6 +44,7 @@ def synthetic_row(sc, size: str, seed: int, sensor: str, inp: str, threads: int)
         SfMError,
         align_similarity,
         apply_similarity,
+        choose_matcher,
         estimate_poses,
         pose_errors,
         rotation_errors_deg,
@@ -56,6 +59,7 @@ def synthetic_row(sc, size: str, seed: int, sensor: str, inp: str, threads: int)
         "input": inp,
         "frames": cap.num_frames,
         "test_views": len(cap.test_views),
+        "matcher": choose_matcher(ColmapConfig(), cap.num_frames + len(cap.test_views)),
     }
     t0 = time.perf_counter()
     try:
@@ -133,6 +137,8 @@ def main(argv=None) -> int:
     ap.add_argument("--seeds", default="0,1,2")
     ap.add_argument("--sensors", default="realistic,ideal")
     ap.add_argument("--inputs", default=",".join(INPUTS), help=f"comma separated, of {list(INPUTS)}")
+    ap.add_argument("--frames", default="12", help="training frames per capture, comma separated (issue 31: 30,40)")
+    ap.add_argument("--test-views", type=int, default=3, help="held-out views per capture, registered with them")
     ap.add_argument("--threads", type=int, default=1, help="COLMAP threads (1: deterministic)")
     ap.add_argument("--slider-steps", default="2,4", help="slider_depth frame steps")
     ap.add_argument("--no-slider", dest="slider", action="store_false")
@@ -145,8 +151,10 @@ def main(argv=None) -> int:
     for size in split(args.sizes):
         for sensor in split(args.sensors):
             for name in split(args.scenes):
-                for seed in (int(s) for s in split(args.seeds)):
-                    sc = scenes.make_scene(name, size, seed=seed, sensor=sensor, poses="none", n_frames=12, n_test=3)
+                for seed, n in itertools.product((int(s) for s in split(args.seeds)), map(int, split(args.frames))):
+                    sc = scenes.make_scene(
+                        name, size, seed=seed, sensor=sensor, poses="none", n_frames=n, n_test=args.test_views
+                    )
                     for inp in split(args.inputs):
                         r = synthetic_row(sc, size, seed, sensor, inp, args.threads)
                         rows.append(r)
@@ -155,25 +163,34 @@ def main(argv=None) -> int:
                             flush=True,
                         )
     print(
-        "\nSfM on synthetic blurry captures without poses (12 frames + 3 test views registered together); "
-        "mean ± std over scenes and seeds"
+        f"\nSfM on synthetic blurry captures without poses ({args.frames} frames + {args.test_views} test views "
+        "registered together); mean ± std over scenes and seeds"
     )
     print(
-        f"{'size':>6} {'sensor':>9} {'input':>8} {'runs':>4} {'failed':>6} {'ATE %':>14} {'rot deg':>14} "
+        f"{'size':>6} {'frames':>6} {'sensor':>9} {'input':>8} {'runs':>4} {'failed':>6} {'reg %':>6} "
+        f"{'ATE %':>14} {'rot deg':>14} "
         f"{'test pos %':>14} {'test rot deg':>14} {'time s':>7}"
     )
     summary = []
-    for size in split(args.sizes):
+    for size, n in itertools.product(split(args.sizes), map(int, split(args.frames))):
         for sensor in split(args.sensors):
             for inp in split(args.inputs):
-                sel = [r for r in rows if r["size"] == size and r["sensor"] == sensor and r["input"] == inp]
+                sel = [
+                    r
+                    for r in rows
+                    if r["size"] == size and r["frames"] == n and r["sensor"] == sensor and r["input"] == inp
+                ]
                 ok = [r for r in sel if "error" not in r]
                 tst = [r for r in ok if "test_pos_pct" in r]
                 s = {
                     "size": size,
+                    "frames": n,
                     "sensor": sensor,
                     "input": inp,
                     "runs": len(sel),
+                    "registered_pct": [
+                        100 * (r["registered"] + r["test_registered"]) / (r["frames"] + r["test_views"]) for r in ok
+                    ],
                     "failed": len(sel) - len(ok),
                     "ate_pct": [r["ate_pct"] for r in ok],
                     "rot_deg": [r["rot_mean_deg"] for r in ok],
@@ -183,7 +200,8 @@ def main(argv=None) -> int:
                 }
                 summary.append(s)
                 print(
-                    f"{size:>6} {sensor:>9} {inp:>8} {len(sel):>4} {s['failed']:>6} {_mean_std(s['ate_pct']):>14} "
+                    f"{size:>6} {n:>6} {sensor:>9} {inp:>8} {len(sel):>4} {s['failed']:>6} "
+                    f"{np.mean(s['registered_pct']) if ok else float('nan'):>6.1f} {_mean_std(s['ate_pct']):>14} "
                     f"{_mean_std(s['rot_deg']):>14} {_mean_std(s['test_pos_pct']):>14} "
                     f"{_mean_std(s['test_rot_deg']):>14} {np.mean(s['time_s']) if ok else float('nan'):>7.1f}"
                 )
