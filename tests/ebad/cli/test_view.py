@@ -72,19 +72,15 @@ class Chromium:
 
         cmd_r, self._cmd_w = os.pipe()
         self._out_r, out_w = os.pipe()
-        # copies above fd 4 (so dup2 onto 3 and 4 in the child overwrites neither), closed on our own exec
+        # the child's ends above fd 4 (so moving them onto 3 and 4 overwrites neither); bash moves them there
+        # and execs Chromium (no preexec_fn: this process runs the server's threads; dash takes fds 0-9 only)
         fd3, fd4 = (fcntl.fcntl(fd, fcntl.F_DUPFD_CLOEXEC, 10) for fd in (cmd_r, out_w))
         os.close(cmd_r)
         os.close(out_w)
-
-        def child() -> None:
-            os.dup2(fd3, 3)  # dup2's copies stay open across exec
-            os.dup2(fd4, 4)
-
+        args = [*CHROMIUM_FLAGS, f"--user-data-dir={profile}", "--remote-debugging-pipe", "about:blank"]
         self.proc = subprocess.Popen(
-            [browser, *CHROMIUM_FLAGS, f"--user-data-dir={profile}", "--remote-debugging-pipe", "about:blank"],
-            preexec_fn=child,
-            close_fds=False,
+            ["bash", "-c", f'exec "$0" "$@" 3<&{fd3} 4>&{fd4} {fd3}<&- {fd4}>&-', browser, *args],
+            pass_fds=(fd3, fd4),
             stdout=subprocess.DEVNULL,
             stderr=subprocess.DEVNULL,
         )

@@ -4,19 +4,13 @@ them, as from the first camera of a slider, they cross the whole view as lines) 
 from __future__ import annotations
 
 import math
-import socket
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from ebad.runfolder import load_run
-
-
-def _free_loopback_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+from tests.ebad.cli.test_view import _free_loopback_port
 
 
 def test_frustum_depth_is_vipers():
