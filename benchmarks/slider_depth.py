@@ -40,11 +40,12 @@ def held_out_capture(cap, every: int = 8, stride: int = 1):
     out.frames = cap.frames[train]
     out.exposures = cap.exposures[train]
     out.c2w = cap.c2w[train]
-    out.names = [cap.names[i] for i in train] if cap.names else [f"{i:04d}" for i in train]
+    names = cap.frame_names()
+    out.names = [names[i] for i in train]
     out.split = ["train"] * len(train)
     out.test_views = [
         TestView(
-            name=(cap.names[i] if cap.names else f"{i:04d}"),
+            name=names[i],
             t=float(cap.exposures[i].mean()),
             c2w=cap.c2w[i],
             image=cap.frames[i],

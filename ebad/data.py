@@ -633,7 +633,8 @@ def prepare(capture: Capture, cfg: Config) -> TrainingData:
     lc, tc = cfg.loss, cfg.trajectory
     wants_events = lc.w_event > 0 or lc.w_edi > 0 or lc.target == "edi"
     use_events = wants_events and has_events
-    names = [(capture.names[i] if capture.names else f"{i:04d}") for i in idx]
+    all_names = capture.frame_names()
+    names = [all_names[i] for i in idx]
     no_events: list[str] | None = None
     if has_events:
         no_events = frames_without_events(events, exposures, names)

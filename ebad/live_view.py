@@ -80,6 +80,8 @@ class LiveView:
 
     def update(self, state: TrainState) -> None:
         """Show ``state`` now."""
+        from scenes.capture import frame_name
+
         from .cli.view import build_scene, update_scene
 
         t0 = time.perf_counter()
@@ -88,7 +90,7 @@ class LiveView:
             params=state.params,
             response=state.response,  # the colours the run will export (recorded domain)
             trajectories=state.trajectories,
-            names=self.names if len(self.names) == F else [f"{i:04d}" for i in range(F)],
+            names=self.names if len(self.names) == F else [frame_name(i) for i in range(F)],
             K=self.K,
             width=self.width,
             height=self.height,

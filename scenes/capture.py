@@ -17,6 +17,7 @@ from .errors import CaptureError
 __all__ = [
     "Capture",
     "TestView",
+    "frame_name",
     "check_rigid",
     "check_file_name",
     "file_in",
@@ -38,6 +39,13 @@ POSE_TRUST = ("exact", "approximate", "none")
 ROTATION_REPAIR_TOL = 1e-3
 EXACT_RIGID_TOL = 1e-9  # a pose this close to rigid is kept bit for bit (float64 round trips of rigid poses)
 DAVIS_DEFAULT_HFOV_DEG = 70.0  # used only when a recording comes with no K
+
+
+def frame_name(i: int) -> str:
+    """The name of frame ``i`` of a capture whose frames carry none: its index in 5 digits (``00042``), as
+    every reader, ``scenes.convert``, ``save`` and ``ebad`` name them. Names already given (a capture written
+    with 4-digit names, read back) are kept as they are."""
+    return f"{int(i):05d}"
 
 
 def check_file_name(name: Any, file: str | None, field_name: str) -> str:
@@ -208,6 +216,10 @@ class Capture:
     @property
     def num_frames(self) -> int:
         return int(self.frames.shape[0])
+
+    def frame_names(self) -> list[str]:
+        """``names``, or each frame's ``frame_name`` when the capture has none."""
+        return list(self.names) if self.names else [frame_name(i) for i in range(self.num_frames)]
 
     @property
     def height(self) -> int:

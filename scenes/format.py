@@ -24,7 +24,15 @@ import numpy as np
 
 from edi import CorruptFileError, EbadError, EventStream, read_events
 
-from .capture import EXACT_RIGID_TOL, ROTATION_REPAIR_TOL, Capture, TestView, check_file_name, nearest_rigid
+from .capture import (
+    EXACT_RIGID_TOL,
+    ROTATION_REPAIR_TOL,
+    Capture,
+    TestView,
+    check_file_name,
+    frame_name,
+    nearest_rigid,
+)
 from .e2nerf import ground_truth_blur
 from .errors import CaptureError
 from .images import read_image, write_image
@@ -159,7 +167,7 @@ def load_capture_folder(path: str | os.PathLike) -> Capture:
     if inferred:
         meta["events_t_unit_inferred"] = inferred[0]
     if len(set(names)) != len(names):
-        names = [f"{i:04d}" for i in range(len(names))]
+        names = [frame_name(i) for i in range(len(names))]
     cap = Capture(
         frames=np.stack(frames).astype(np.float32),
         exposures=np.array(exposures, dtype=np.float64),
@@ -415,14 +423,14 @@ def save(capture: Capture, path: str | os.PathLike, overwrite: bool = False) -> 
 
 def _write(cap: Capture, root: Path) -> None:
     (root / "frames").mkdir()
-    names = cap.names or [f"{i:04d}" for i in range(cap.num_frames)]
+    names = cap.frame_names()
     split = cap.split or ["train"] * cap.num_frames
     frames = []
     used: set[str] = set()
     for i in range(cap.num_frames):
         stem = _safe_name(names[i])
         if stem in used:
-            stem = f"{i:04d}_{stem}"
+            stem = f"{frame_name(i)}_{stem}"
         used.add(stem)
         out = write_image(root / "frames" / stem, cap.frames[i])
         fr: dict[str, Any] = {
@@ -443,7 +451,7 @@ def _write(cap: Capture, root: Path) -> None:
         if tv.c2w is not None:
             d["c2w"] = np.asarray(tv.c2w, dtype=np.float64).tolist()
         if tv.image is not None:
-            out = write_image(root / "test" / f"{j:04d}_{_safe_name(tv.name)}", tv.image)
+            out = write_image(root / "test" / f"{frame_name(j)}_{_safe_name(tv.name)}", tv.image)
             d["file"] = out.relative_to(root).as_posix()
         tvs.append(d)
     ev = cap.events

@@ -20,7 +20,7 @@ def hold_out(
     """``cap`` with frames held out as test views and its pose trust stated (``cap`` is not changed).
 
     ``test_every`` N > 0 holds out frames 0, N, 2N, ... (the LLFF / EBAD-NeRF split), ``test_frames``
-    the frames of those names (``Capture.names``, else the index as ``%04d``). Each held-out frame
+    the frames of those names (``Capture.frame_names``: the index in 5 digits when unnamed). Each held-out frame
     leaves the frames and becomes a ``TestView`` named as the frame, at its mid-exposure, with its
     recorded image and its pose (when the capture has poses). ``pose_trust`` (one of
     ``POSE_TRUST``) replaces the capture's; None keeps it.
@@ -35,7 +35,7 @@ def hold_out(
             raise EbadError(f"--pose-trust must be one of {', '.join(POSE_TRUST)}, got {pose_trust!r}")
         if pose_trust != "none" and cap.c2w is None:
             raise EbadError(f"--pose-trust {pose_trust}: the capture's frames carry no poses (c2w)")
-    names = list(cap.names) if cap.names else [f"{i:04d}" for i in range(cap.num_frames)]
+    names = cap.frame_names()
     held = set(range(0, cap.num_frames, test_every)) if test_every > 0 else set()
     unknown = [n for n in test_frames if n not in names]
     if unknown:

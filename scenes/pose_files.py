@@ -254,7 +254,7 @@ def _by_name(pf: PoseFile) -> dict[str, np.ndarray]:
 
 
 def _frame_names(cap: Capture) -> list[str]:
-    return list(cap.names) if cap.names else [f"{i:04d}" for i in range(cap.num_frames)]
+    return cap.frame_names()
 
 
 def _at_times(pf: PoseFile, t: np.ndarray, what: list[str]) -> np.ndarray:  # [Q] -> [Q, 4, 4]

@@ -29,7 +29,7 @@ import numpy as np
 from edi import CorruptFileError, EbadError, EventStream, read_aedat4
 from edi.cfa import check_pattern
 
-from .capture import Capture, guess_K
+from .capture import Capture, frame_name, guess_K
 from .cdavis import CDAVIS_CFA, EV_MAP, read_cdavis_events, snap_to_channel
 from .e2nerf import LLFF_HOLD, detect_e2nerf, load_e2nerf, load_ebad_nerf
 from .errors import CaptureError
@@ -383,7 +383,7 @@ def load_aedat4(path: str | os.PathLike, K: np.ndarray | None = None) -> Capture
         events=rec.events,
         K=np.asarray(K, dtype=np.float64),
         split=["train"] * f,
-        names=[f"{i:05d}" for i in range(f)],
+        names=[frame_name(i) for i in range(f)],
         meta=meta,
         cfa=cfa,
     )

@@ -36,7 +36,7 @@ import numpy as np
 
 from edi import EventStream
 
-from .capture import Capture, guess_K
+from .capture import Capture, frame_name, guess_K
 from .errors import CaptureError
 
 __all__ = [
@@ -249,7 +249,7 @@ def load_rosbag(path: str | os.PathLike, K: np.ndarray | None = None, exposure_u
         K=np.asarray(K, dtype=np.float64),
         distortion=distortion,
         split=["train"] * f,
-        names=[f"{i:05d}" for i in range(f)],
+        names=[frame_name(i) for i in range(f)],
         meta=meta,
         cfa=cfa,
     )

@@ -64,7 +64,7 @@ from scipy.spatial.transform import Rotation
 from edi import LOG_EPS, EventStream
 from edi.cfa import check_pattern, demosaic, mosaic
 
-from .capture import Capture, TestView
+from .capture import Capture, TestView, frame_name
 from .errors import CaptureError
 from .format import save
 from .images import quantize, write_image
@@ -775,7 +775,7 @@ def make_scene(
         c2w=given,
         split=["train"] * n_frames,
         test_views=test_views,
-        names=[f"{k:04d}" for k in range(n_frames)],
+        names=[frame_name(k) for k in range(n_frames)],
         meta=meta,
         pose_trust=POSE_TRUST_OF[sen.poses],
         cfa=cfa,

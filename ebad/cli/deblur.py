@@ -101,9 +101,11 @@ def _parse_gamma(s: str) -> float:
 
 
 def _frame_names(n: int) -> list[str]:
-    """Names of n frames that carry none: their index in 5 digits, as scenes' readers name a recording's frames
-    (so ``scenes.convert`` of the same recording and this command write the same file names)."""
-    return [f"{i:05d}" for i in range(n)]
+    """Names of n frames that carry none: ``scenes.capture.frame_name``, as scenes' readers name a recording's
+    frames (so ``scenes.convert`` of the same recording and this command write the same file names)."""
+    from scenes.capture import frame_name
+
+    return [frame_name(i) for i in range(n)]
 
 
 def _load_input(args):
@@ -117,7 +119,7 @@ def _load_input(args):
         from scenes import load  # the capture reader
 
         cap = load(path)
-        names = list(cap.names) or _frame_names(cap.num_frames)
+        names = cap.frame_names()
         unit = f"capture.json's t_unit ({path / 'capture.json'})"
         return np.asarray(cap.frames), np.asarray(cap.exposures, np.float64), cap.events, names, unit, cap.cfa
     ext = path.suffix.lower()

@@ -265,7 +265,8 @@ def _live_view(args: Args, capture) -> list:
 
     views = [v for v in capture.test_views if getattr(v, "c2w", None) is not None]
     train = [i for i, s in enumerate(capture.split) if s == "train"] if capture.split else range(capture.num_frames)
-    names = [capture.names[i] if capture.names else f"{i:04d}" for i in train]  # as ebad.data names them
+    all_names = capture.frame_names()
+    names = [all_names[i] for i in train]  # as ebad.data names them
     return [
         LiveView(
             capture.K,

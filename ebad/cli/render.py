@@ -74,7 +74,7 @@ def run(args: Args) -> int:
         path_poses = smooth_path(run_.trajectories.mid_poses().numpy().astype(np.float64), args.path)
         imgs = run_.render(path_poses)
         for i, img in enumerate(imgs):
-            write_render(out / f"path_{i:04d}.png", img, args.bits)
+            write_render(out / f"path_{i:05d}.png", img, args.bits)
         print(f"ebad render: {len(imgs)} path frames ({kind} PNG) -> {out}")
         return 0
     if args.split == "train":

@@ -131,7 +131,7 @@ def write_video(path: str | Path, frames: np.ndarray, fps: float) -> Path:  # [T
         if suffix == "":
             path.mkdir(parents=True, exist_ok=True)
             for i, fr in enumerate(frames):
-                with atomic_path(path / f"frame_{i:04d}.png") as tmp:
+                with atomic_path(path / f"frame_{i:05d}.png") as tmp:
                     pil(fr).save(tmp, format="PNG")
         elif suffix == ".gif":
             ims = [pil(fr) for fr in frames]

@@ -8,9 +8,12 @@ colour (spherical harmonics above degree 0) is recoloured for the browser's came
 (``ViewColours``: a few times a second at most, the response applied as in every output).
 
 The first view is the first training camera's: its mid-exposure pose and the capture's vertical
-field of view, so the browser opens on what that camera saw. A click on a training camera's frustum
-flies there; the "trajectory" choice and the "exposure instant" slider (0: exposure start, 8: end)
-move the view along that frame's recovered exposure trajectory. (The browser console's
+field of view, so the browser opens on what that camera saw. The frustums of the cameras near the
+browser's camera (within ``NEARBY_DEPTHS`` frustum depths) are hidden, and shown again when it moves
+away: beside it on a slider or a row of photos, they start in its own image plane and would cross the
+whole view as long lines (one scene is shared: the browser that moved last decides). A click on a
+training camera's frustum flies there; the "trajectory" choice and the "exposure instant" slider
+(0: exposure start, 8: end) move the view along that frame's recovered exposure trajectory. (The browser console's
 "THREE.BufferGeometry.computeBoundingSphere(): Computed radius is NaN" comes from viser's own splat
 mesh, whose quad "position" attribute has two components; ebad's arrays are finite, and viser draws
 the splats all the same.)
@@ -53,6 +56,7 @@ TRAJECTORY_COLOR = (220, 40, 40)
 TEST_COLOR = (30, 170, 60)
 VIEW_COLOUR_INTERVAL = 0.25  # seconds: view-dependent colours follow the browser's camera at most 4 times a second
 VIEW_COLOUR_MOVE = 1e-6  # a camera that moved less than this (scene units, any axis) did not move
+NEARBY_DEPTHS = 2.0  # frustums of cameras within this many frustum depths of the browser's camera are hidden
 
 
 @dataclass
@@ -234,6 +238,13 @@ def _frustum(
     )
 
 
+def frustum_depth(scale: float, fov: float, aspect: float) -> float:
+    """How far ahead of its centre viser draws a camera frustum of ``scale``, vertical field of view ``fov``
+    (radians) and ``aspect`` (width / height): its pyramid (tan(fov/2) aspect, tan(fov/2), 1) is divided by
+    cbrt(its volume x 3) before the scale, so its depth is scale / cbrt(tan^2(fov/2) aspect / 3)."""
+    return float(scale) / (math.tan(0.5 * fov) ** 2 * aspect / 3.0) ** (1.0 / 3.0)
+
+
 def camera_view(c2w: np.ndarray, K: np.ndarray, height: int, depth: float) -> dict:
     """The browser camera that sees what a camera at ``c2w`` (OpenCV axes) with intrinsics ``K``
     sees: its centre, a look-at point ``depth`` ahead on its optical axis, its up (-y) and its
@@ -310,10 +321,11 @@ def _add_trajectories(server, poses: np.ndarray):
 def build_scene(server, run, test_views=()) -> dict:
     """Add the run's Gaussians, training cameras, exposure trajectories and ``test_views``
     (objects with ``name`` and ``c2w``) to a viser server, with the browser's first view at the first
-    training camera's mid-exposure pose and field of view, a click on a training camera flying there,
-    and a "trajectory" choice with an "exposure instant" slider moving the view along a recovered
-    exposure trajectory. ``run`` needs ``params``, ``trajectories``, ``names``, ``K``, ``width`` and
-    ``height`` (a ``Run``, or a training state's: ``update_scene`` follows it). Returns the scene handles."""
+    training camera's mid-exposure pose and field of view, the frustums near the browser's camera hidden
+    (``hide_nearby``, as it moves), a click on a training camera flying there, and a "trajectory" choice
+    with an "exposure instant" slider moving the view along a recovered exposure trajectory. ``run`` needs
+    ``params``, ``trajectories``, ``names``, ``K``, ``width`` and ``height`` (a ``Run``, or a training
+    state's: ``update_scene`` follows it). Returns the scene handles."""
     geo = _geometry(run)
     mid, scale = geo["mid"], geo["scale"]
     up = -mid[:, :3, 1].mean(0)  # OpenCV: y points down in the image
@@ -353,7 +365,20 @@ def build_scene(server, run, test_views=()) -> dict:
     server.initial_camera.look_at = tuple(float(v) for v in first["look_at"])
     server.initial_camera.up = tuple(float(v) for v in first["up"])
     server.initial_camera.fov = first["fov"]
+    handles["nearby"] = NEARBY_DEPTHS * frustum_depth(scale, first["fov"], run.width / run.height)
+    hide_nearby(handles, first["position"])
+    server.on_client_connect(lambda client: client.camera.on_update(lambda cam: hide_nearby(handles, cam.position)))
     return handles
+
+
+def hide_nearby(handles: dict, eye) -> None:
+    """Hide the frustums (training and test) of the cameras within ``handles["nearby"]`` of ``eye`` (the
+    browser camera's position, world [3]) and show the others: seen from among them, they cross the view."""
+    eye = np.asarray(eye, np.float64).reshape(3)
+    for frustum in handles["train"] + handles["test"]:
+        visible = bool(np.linalg.norm(np.asarray(frustum.position, np.float64) - eye) >= handles["nearby"])
+        if frustum.visible != visible:
+            frustum.visible = visible
 
 
 def update_scene(server, handles: dict, run) -> None:

@@ -44,7 +44,7 @@ def test_render_test_views_and_path(tiny_run, tmp_path):
     assert main(["render", str(tiny_run.run), "--capture", str(tiny_run.capture), "--out", str(out)]) == 0
     assert sorted(p.stem for p in out.glob("*.png")) == sorted(v.name for v in tiny_run.scene.capture.test_views)
     assert main(["render", str(tiny_run.run), "--path", "4", "--out", str(tmp_path / "path")]) == 0
-    with Image.open(tmp_path / "path" / "path_0003.png") as im:
+    with Image.open(tmp_path / "path" / "path_00003.png") as im:
         assert im.size == (64, 48) and im.mode == "L"
 
 

@@ -182,7 +182,7 @@ def test_exposure_video_panels_are_labelled(tiny_run, tmp_path):
     out = tmp_path / "exp"
     argv = ["video", str(tiny_run.run), "--out", str(out), "--exposure", name, "--instants", "2"]
     assert main([*argv, "--capture", str(tiny_run.capture), "--no-progress"]) == 0
-    with Image.open(out / "frame_0000.png") as im:
+    with Image.open(out / "frame_00000.png") as im:
         got = np.asarray(im)
     W, H = run.width, run.height
     strip = got[: got.shape[0] - H]
