@@ -140,7 +140,9 @@ def run(args: Args) -> int:
         assert r.metrics is not None  # reconstruct() always sets the metrics
         runs[name] = r
         renders: dict[str, np.ndarray] = {}
-        ev = evaluate(r, cap, refine=refine, gt_frames=scene.gt_frames, renders_to=renders.__setitem__)
+        ev = evaluate(
+            r, cap, refine=refine, gt_frames=scene.gt_frames, renders_to=renders.__setitem__, show=not args.no_progress
+        )
         test = ev["test_refined" if refine else "test"]
         results[name] = {
             "test_psnr": test.psnr,

@@ -61,7 +61,13 @@ def run(args: Args) -> int:
             scenes.write_image(file_in(folder, name, ".png", "test view name"), img, bits=16)
 
     res = evaluate(
-        run_, cap, refine=args.refine_poses, gt_frames=gt, refine_iters=args.refine_iters, renders_to=renders_to
+        run_,
+        cap,
+        refine=args.refine_poses,
+        gt_frames=gt,
+        refine_iters=args.refine_iters,
+        renders_to=renders_to,
+        show=True,
     )
     if not any(k in res for k in ("test", "deblurred")):
         raise UserError(
