@@ -239,24 +239,9 @@ def _hits(rows, r):  # does candidate/entry r touch any row of either half?
     return rows[r, 0] <= rows[r, 1] or rows[r, 2] <= rows[r, 3]
 
 
-def bin_tiles(
-    order,  # [C, N] int64: per camera, Gaussian indices front to back (first n_valid[c] are valid)
-    n_valid,  # [C] int64
-    pix_box,  # [C, N, 4] int64 inclusive pixel box (x0, x1, y0, y1), inside the image
-    means2d,  # [C, N, 2]
-    conics,  # [C, N, 3]
-    opacities,  # [N]
-    width,
-    height,
-    tiles_x,
-    tiles_y,
-):  # -> tile_start [C * n_tiles + 1] int64, gid [n_isect] int32, rows [n_isect, 4] int8
-    """Lists of the Gaussians meeting each tile, front to back, with the rows of the tile each
-    may touch: the tiles of each pixel box, less those its alpha >= ALPHA_MIN ellipse misses
-    (gsplat's tile culling), and per kept entry the ellipse's row range inside each half of the
-    tile (its left and right HALF columns), counted from the tile's top row. (`bin_tiles_indexed`
-    returns the same with the index the backward's per-Gaussian sums need.)"""
-    return bin_tiles_indexed(order, n_valid, pix_box, means2d, conics, opacities, width, height, tiles_x, tiles_y)[:3]
+def bin_tiles(*args):  # -> tile_start [C * n_tiles + 1] int64, gid [n_isect] int32, rows [n_isect, 4] int8
+    """`bin_tiles_indexed` (same arguments) without the index the backward's per-Gaussian sums use."""
+    return bin_tiles_indexed(*args)[:3]
 
 
 def bin_tiles_indexed(
@@ -270,8 +255,13 @@ def bin_tiles_indexed(
     height,
     tiles_x,
     tiles_y,
-):  # -> tile_start, gid, rows (as bin_tiles), cam_start [C + 1] int64, box_start [C, N + 1] int64, ent [n_cand] int64
-    """`bin_tiles` and, for `reduce_grads`: cam_start (where each camera's valid Gaussians start when all
+):  # -> tile_start [C * n_tiles + 1] int64, gid [n_isect] int32, rows [n_isect, 4] int8, cam_start, box_start, ent
+    """Lists of the Gaussians meeting each tile, front to back, with the rows of the tile each
+    may touch: the tiles of each pixel box, less those its alpha >= ALPHA_MIN ellipse misses
+    (gsplat's tile culling), and per kept entry the ellipse's row range inside each half of the
+    tile (its left and right HALF columns), counted from the tile's top row.
+
+    Also, for `reduce_grads`: cam_start (where each camera's valid Gaussians start when all
     cameras' are put back to back), box_start (where the candidate tiles of camera c's j-th Gaussian start)
     and ent (each candidate tile's entry in gid, or -1 where culled). The geometry and the counting sort by
     tile both run in parallel over chunks of the Gaussians (per-chunk tile counts keep the front-to-back order)."""
