@@ -16,8 +16,9 @@ Gaussians, 346x260, one grey camera (`--target` times that configuration only).
 - `--baseline ROOT` also times the fast path of the splat_cpu found under ROOT (e.g. the
   main checkout), so a before/after pair comes from one run. With `--rounds R` each path
   runs in R subprocesses, the two alternately; the table shows each path's median run, and
-  the JSON's `rounds` keeps every round's pair and its ratio of units (a round's two
-  subprocesses see about the same load on a shared machine).
+  the JSON's `rounds` keeps every round's pair and its ratios of units and of milliseconds
+  (a round's two subprocesses see about the same load on a shared machine; the unit, a
+  memory-bound kernel, moves with other processes' memory traffic more than the rasteriser).
 - Each row's JSON carries `phases_ms`: the median per stage of the forward+backward as the
   rasteriser reports it in `meta["timings"]` (project, bin, forward compositing, and on
   checkouts that report them the backward compositing and the backward projection); the
@@ -307,6 +308,9 @@ def _alternate(cfg: dict, args: argparse.Namespace) -> tuple[dict, dict, list[di
                         "fast_units": f["fwd_bwd_units"],
                         "base_units": b["fwd_bwd_units"],
                         "units_ratio": f["fwd_bwd_units"] / b["fwd_bwd_units"],
+                        "fast_ms": f["fwd_bwd_ms"],
+                        "base_ms": b["fwd_bwd_ms"],
+                        "ms_ratio": f["fwd_bwd_ms"] / b["fwd_bwd_ms"],
                         "load_avg_1min": os.getloadavg()[0],
                     }
                 )
@@ -395,12 +399,13 @@ def main(argv: list[str] | None = None) -> int:
     _print_phases(rows)
     for r in rows:
         if r["rounds"]:
-            ratios = sorted(p["units_ratio"] for p in r["rounds"])
-            cells = " ".join(f"{p['fast_units']:.2f}/{p['base_units']:.2f}" for p in r["rounds"])
-            print(
-                f"rounds (units, this checkout / baseline): {cells}; median ratio {ratios[len(ratios) // 2]:.3f}"
-                f" ({r['config']['width']}x{r['config']['height']}, N={r['config']['n']})"
-            )
+            for key in ("units", "ms"):
+                ratios = sorted(p[f"{key}_ratio"] for p in r["rounds"])
+                cells = " ".join(f"{p[f'fast_{key}']:.2f}/{p[f'base_{key}']:.2f}" for p in r["rounds"])
+                print(
+                    f"rounds ({key}, this checkout / baseline): {cells}; median ratio {ratios[len(ratios) // 2]:.3f}"
+                    f" ({r['config']['width']}x{r['config']['height']}, N={r['config']['n']})"
+                )
     notes = sorted({r["reference"]["skipped"] for r in rows if "skipped" in r["reference"]})
     for note in notes:
         print(f"reference skipped: {note}")

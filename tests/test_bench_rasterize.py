@@ -16,7 +16,8 @@ def test_rounds_alternate_the_paths_and_report_the_median_run(monkeypatch: pytes
     def fake_run(cfg: dict, timeout: float, policy: str) -> dict:
         path = "base" if cfg.get("root") else "fast"
         calls.append(path)
-        return {"fwd_bwd_units": next(base_units if path == "base" else fast_units), "tag": f"{path}{len(calls)}"}
+        units = next(base_units if path == "base" else fast_units)
+        return {"fwd_bwd_units": units, "fwd_bwd_ms": 10 * units, "tag": f"{path}{len(calls)}"}
 
     monkeypatch.setattr(bench, "_run_sub", fake_run)
     args = argparse.Namespace(rounds=3, baseline="/somewhere", timeout=1.0, omp_wait_policy="unset")
@@ -24,6 +25,7 @@ def test_rounds_alternate_the_paths_and_report_the_median_run(monkeypatch: pytes
     assert calls == ["fast", "base"] * 3
     assert (fast["fwd_bwd_units"], base["fwd_bwd_units"]) == (2.5, 3.0)  # the medians of 3, 2, 2.5 and 4, 2.5, 3
     assert [p["units_ratio"] for p in pairs] == [0.75, 0.8, 2.5 / 3.0]
+    assert [p["ms_ratio"] for p in pairs] == pytest.approx([0.75, 0.8, 2.5 / 3.0])
 
 
 def test_one_round_without_a_baseline_runs_the_fast_path_once(monkeypatch: pytest.MonkeyPatch) -> None:
