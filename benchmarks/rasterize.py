@@ -4,7 +4,7 @@ Forward and forward+backward milliseconds for N in {2k, 20k, 100k} Gaussians at 
 346x260, C in {1, 5} cameras, grey (D=1) and colour (D=3); peak memory. Each measurement
 runs in its own subprocess so that its peak resident memory is its own.
 
-    python -m benchmarks.rasterize [--quick | --target] [--baseline /work/main] [--omp-check]
+    python -m benchmarks.rasterize [--quick | --target] [--baseline /work/main] [--rounds 3] [--omp-check]
 
 A "unit" (issue 31) is the time of `torch.exp` over 16M float32 values into a preallocated
 output (`torch.exp(x, out=y)`), timed in the same subprocess between the repetitions; every
@@ -14,7 +14,11 @@ it as `unit_fresh_ms`.) The target for the fast path is forward+backward <= 3 un
 Gaussians, 346x260, one grey camera (`--target` times that configuration only).
 
 - `--baseline ROOT` also times the fast path of the splat_cpu found under ROOT (e.g. the
-  main checkout), so a before/after pair comes from one run.
+  main checkout), so a before/after pair comes from one run. With `--rounds R` each path
+  runs in R subprocesses, the two alternately; the table shows each path's median run, and
+  the JSON's `rounds` keeps every round's pair and its ratios of units and of milliseconds
+  (a round's two subprocesses see about the same load on a shared machine; the unit, a
+  memory-bound kernel, moves with other processes' memory traffic more than the rasteriser).
 - Each row's JSON carries `phases_ms`: the median per stage of the forward+backward as the
   rasteriser reports it in `meta["timings"]` (project, bin, forward compositing, and on
   checkouts that report them the backward compositing and the backward projection); the
@@ -282,6 +286,38 @@ def _print_phases(rows: list[dict]) -> None:
             print(f"{size} {cfg['n']:>7} {cfg['c']:>2} {cfg['d']:>2} | {label:>8} | {cells}")
 
 
+def _median_run(runs: list[dict]) -> dict:
+    """The run with the median fwd_bwd_units (the first run when none has a time)."""
+    ok = sorted((r for r in runs if "fwd_bwd_units" in r), key=lambda r: r["fwd_bwd_units"])
+    return ok[len(ok) // 2] if ok else runs[0]
+
+
+def _alternate(cfg: dict, args: argparse.Namespace) -> tuple[dict, dict, list[dict]]:
+    """The fast path (and with --baseline the baseline's) in `args.rounds` rounds, each round one subprocess of each
+    back to back: on a shared machine the load drifts between subprocesses, and a round's pair sees about the same.
+    Returns the median run of each and per round the pair's ratio of units (this checkout over the baseline)."""
+    fasts, bases, pairs = [], [], []
+    for _ in range(args.rounds):
+        fasts.append(_run_sub({**cfg, "path": "fast"}, args.timeout, args.omp_wait_policy))
+        if args.baseline:
+            bases.append(_run_sub({**cfg, "path": "fast", "root": args.baseline}, args.timeout, args.omp_wait_policy))
+            f, b = fasts[-1], bases[-1]
+            if "fwd_bwd_units" in f and "fwd_bwd_units" in b:
+                pairs.append(
+                    {
+                        "fast_units": f["fwd_bwd_units"],
+                        "base_units": b["fwd_bwd_units"],
+                        "units_ratio": f["fwd_bwd_units"] / b["fwd_bwd_units"],
+                        "fast_ms": f["fwd_bwd_ms"],
+                        "base_ms": b["fwd_bwd_ms"],
+                        "ms_ratio": f["fwd_bwd_ms"] / b["fwd_bwd_ms"],
+                        "load_avg_1min": os.getloadavg()[0],
+                    }
+                )
+    base = _median_run(bases) if bases else {"skipped": "no --baseline"}
+    return _median_run(fasts), base, pairs
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default=None, help="JSON output path (default benchmarks/results/rasterize[_quick].json)")
@@ -297,6 +333,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--omp-rounds", type=int, default=3, help="subprocess pairs for --omp-check")
     ap.add_argument("--reps", type=int, default=7, help="timed repetitions per configuration (median reported)")
     ap.add_argument("--timeout", type=float, default=300.0, help="seconds before a configuration is skipped")
+    ap.add_argument(
+        "--rounds",
+        type=int,
+        default=1,
+        help="subprocesses per path, this checkout and the baseline alternately (the median run is reported)",
+    )
     ap.add_argument(
         "--omp-wait-policy",
         default="unset",
@@ -333,12 +375,7 @@ def main(argv: list[str] | None = None) -> int:
     print("-" * len(hdr))
     for w, h, n, c, d in configs:
         cfg = {"width": w, "height": h, "n": n, "c": c, "d": d, "reps": args.reps}
-        fast = _run_sub({**cfg, "path": "fast"}, args.timeout, args.omp_wait_policy)
-        base = (
-            _run_sub({**cfg, "path": "fast", "root": args.baseline}, args.timeout, args.omp_wait_policy)
-            if args.baseline
-            else {"skipped": "no --baseline"}
-        )
+        fast, base, pairs = _alternate(cfg, args)
         if args.no_reference:
             ref = {"skipped": "--no-reference"}
         elif n * w * h * c > REF_LIMIT:
@@ -348,7 +385,9 @@ def main(argv: list[str] | None = None) -> int:
                 {**cfg, "path": "reference", "reps": max(1, min(args.reps, 2))}, args.timeout, args.omp_wait_policy
             )
         ratio = ref["fwd_bwd_ms"] / fast["fwd_bwd_ms"] if "fwd_bwd_ms" in ref and "fwd_bwd_ms" in fast else None
-        rows.append({"config": cfg, "fast": fast, "baseline": base, "reference": ref, "ratio_fwd_bwd": ratio})
+        rows.append(
+            {"config": cfg, "fast": fast, "baseline": base, "reference": ref, "ratio_fwd_bwd": ratio, "rounds": pairs}
+        )
         print(
             f"{w:>4}x{h:<4} {n:>7} {c:>2} {d:>2} | {_cell(fast, 'unit_ms', '{:6.1f}')} | "
             f"{_cell(fast, 'fwd_ms')} {_cell(fast, 'fwd_bwd_ms')} {_cell(fast, 'fwd_bwd_units', '{:6.2f}')} "
@@ -358,6 +397,15 @@ def main(argv: list[str] | None = None) -> int:
             flush=True,
         )
     _print_phases(rows)
+    for r in rows:
+        if r["rounds"]:
+            for key in ("units", "ms"):
+                ratios = sorted(p[f"{key}_ratio"] for p in r["rounds"])
+                cells = " ".join(f"{p[f'fast_{key}']:.2f}/{p[f'base_{key}']:.2f}" for p in r["rounds"])
+                print(
+                    f"rounds ({key}, this checkout / baseline): {cells}; median ratio {ratios[len(ratios) // 2]:.3f}"
+                    f" ({r['config']['width']}x{r['config']['height']}, N={r['config']['n']})"
+                )
     notes = sorted({r["reference"]["skipped"] for r in rows if "skipped" in r["reference"]})
     for note in notes:
         print(f"reference skipped: {note}")

@@ -39,17 +39,10 @@ _CHUNK = 2  # tiles per scheduling chunk: tiles cost very different amounts, sma
 class _Plan:
     """Per-call binning: which Gaussians touch which tile, front to back (no gradients)."""
 
-    def __init__(
-        self,
-        rows: np.ndarray,
-        tile_start: np.ndarray,
-        gid: np.ndarray,
-        width: int,
-        height: int,
-        tiles_x: int,
-        tiles_y: int,
-    ):
-        self.rows, self.tile_start, self.gid = rows, tile_start, gid
+    def __init__(self, binned: tuple, order: np.ndarray, width: int, height: int, tiles_x: int, tiles_y: int):
+        # K.bin_tiles_indexed's outputs; order, cam_start, box_start and ent locate each Gaussian's entries
+        self.tile_start, self.gid, self.rows, self.cam_start, self.box_start, self.ent = binned
+        self.order = order
         self.width, self.height, self.tiles_x, self.tiles_y = width, height, tiles_x, tiles_y
 
 
@@ -229,7 +222,7 @@ class _Composite(torch.autograd.Function):
         v_c = np.zeros((c_n, n, 3))
         v_o = np.zeros((c_n, n))
         v_col = np.zeros((c_n, n, d))
-        K.reduce_grads(p.tile_start, p.gid, p.tiles_x * p.tiles_y, geo, col, v_m, v_c, v_o, v_col)
+        K.reduce_grads(p.order, p.cam_start, p.box_start, p.ent, geo, col, v_m, v_c, v_o, v_col)
         v_o = v_o.sum(axis=0)
         if ctx.shared:  # colours shared by the cameras: their gradient is the sum over the cameras
             v_col = v_col.sum(axis=0)
@@ -239,6 +232,19 @@ class _Composite(torch.autograd.Function):
         out = [_tensor(a, dt) for a in (v_m, v_c, v_o, v_col, v_bg)]
         ctx.timings["backward_composite_ms"] = 1e3 * (time.perf_counter() - t0)
         return (*out, None, None)
+
+
+def _depth_order(depths: np.ndarray, valid: np.ndarray) -> np.ndarray:  # [C, N], [C, N] -> [C, N] int64
+    """Per camera, the Gaussians front to back, the valid ones first, ties in index order (a stable argsort).
+
+    float32 depths (positive: z > NEAR) sort as their bit patterns: one unstable sort of (bits << 32 | index),
+    unique keys, gives the stable order several times faster than a stable argsort (+inf, the invalid ones, last)."""
+    key = np.where(valid, depths, np.inf).astype(depths.dtype, copy=False)
+    if key.dtype != np.float32:
+        return np.argsort(key, axis=1, kind="stable")
+    packed = (key.view(np.uint32).astype(np.uint64) << np.uint64(32)) | np.arange(key.shape[1], dtype=np.uint64)
+    packed.sort(axis=1)
+    return (packed & np.uint64(0xFFFFFFFF)).astype(np.int64)
 
 
 def rasterize_numba(
@@ -265,15 +271,13 @@ def rasterize_numba(
     means2d, conics = _Project.apply(means, quats, scales, opacities, viewmats, Ks, width, height, pr, timings)
     t1 = time.perf_counter()
     valid = pr["valid"]
-    key = np.where(valid, pr["depths"].numpy(), np.inf)
-    order = np.argsort(key, axis=1, kind="stable")
+    order = _depth_order(pr["depths"].numpy(), valid)
     n_valid = valid.sum(axis=1)
     tiles_x, tiles_y = -(-width // TILE), -(-height // TILE)
-    pix_box = pr["pix_box"]
-    tile_start, gid, rows = K.bin_tiles(
-        order, n_valid, pix_box, _np(means2d), _np(conics), _np(opacities), width, height, tiles_x, tiles_y
+    binned = K.bin_tiles_indexed(
+        order, n_valid, pr["pix_box"], _np(means2d), _np(conics), _np(opacities), width, height, tiles_x, tiles_y
     )
-    plan = _Plan(rows, tile_start, gid, width, height, tiles_x, tiles_y)
+    plan = _Plan(binned, order, width, height, tiles_x, tiles_y)
     t2 = time.perf_counter()
     bg = background if background is not None else torch.zeros(colors.shape[-1], dtype=colors.dtype)
     images, alphas = _Composite.apply(means2d, conics, opacities, colors, bg, plan, timings)
@@ -284,7 +288,7 @@ def rasterize_numba(
         "means2d": means2d,
         "depths": pr["depths"],
         "n_visible": torch.from_numpy(n_valid),
-        "n_isect": int(gid.shape[0]),
+        "n_isect": int(plan.gid.shape[0]),
         "timings": timings,
     }
     timings.update(

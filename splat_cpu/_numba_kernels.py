@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 
+import numba
 import numpy as np
 from llvmlite import ir
 from numba import njit, prange, types
@@ -153,23 +154,21 @@ def _band_extent(ell, xa, xb):  # -> (ylo, yhi), (inf, -inf) when empty
 
 
 @njit(cache=True, inline="always")
-def _band_rows(ell, trusted, bx0, bx1, by0, by1, col0, col1, ty, height):  # -> (row0, row1), row0 > row1: miss
-    """The image rows of tile row ty, in the pixel columns col0..col1, where the Gaussian's alpha >= ALPHA_MIN
-    ellipse `ell` may have pixels (a superset: widened by _CULL_MARGIN in sigma and _ROW_MARGIN in
-    pixels), within its inclusive pixel box (bx0, bx1, by0, by1)."""
-    row0 = max(by0, ty * TILE)
-    row1 = min(by1, ty * TILE + TILE - 1)
+def _band_span(ell, trusted, bx0, bx1, by0, by1, col0, col1, height):  # -> (lo, hi) image rows, lo > hi: a miss
+    """The image rows, in the pixel columns col0..col1, where the Gaussian's alpha >= ALPHA_MIN ellipse `ell`
+    may have pixels (a superset: widened by _CULL_MARGIN in sigma and _ROW_MARGIN in pixels), within its
+    inclusive pixel box (bx0, bx1, by0, by1). Independent of the tile row: computed once per column band."""
     if max(col0, bx0) > min(col1, bx1):
-        return row0, row0 - 1  # the box misses these columns
+        return height, -1  # the box misses these columns
     if not trusted or (col0 <= bx0 and bx1 <= col1):
-        return row0, row1  # an untrusted conic, or the whole box within the columns: the box's rows
+        return by0, by1  # an untrusted conic, or the whole box within the columns: the box's rows
     ylo, yhi = _band_extent(ell, col0 + 0.5, col1 + 0.5)
     if not ylo <= yhi:
-        return row0, row0 - 1
+        return height, -1
     # row j (pixel centre j + 0.5) is kept when ylo <= j + 0.5 <= yhi, widened by _ROW_MARGIN
-    row0 = max(row0, int(math.ceil(max(ylo - _ROW_MARGIN - 0.5, -1.0))))
-    row1 = min(row1, int(math.floor(min(yhi + _ROW_MARGIN - 0.5, float(height)))))
-    return row0, row1
+    lo = max(by0, int(math.ceil(max(ylo - _ROW_MARGIN - 0.5, -1.0))))
+    hi = min(by1, int(math.floor(min(yhi + _ROW_MARGIN - 0.5, float(height)))))
+    return lo, hi
 
 
 @njit(cache=True, inline="always")
@@ -182,15 +181,29 @@ def _tile_range(pix_box, c, g):  # -> (tx0, tx1, ty0, ty1): the tiles of the pix
     )
 
 
+@njit(cache=True, inline="always")
+def _camera_of(cam_start, f, c):  # -> the camera of flat index f (cameras' valid Gaussians back to back), from c on
+    while f >= cam_start[c + 1]:
+        c += 1
+    return c
+
+
 @njit(cache=True, parallel=True)
-def _tile_hits(order, n_valid, means2d, conics, smax, pix_box, width, height, box_start, out_rows):
-    """out_rows[box_start[c, j] + r] = rows of each half of the r-th tile of the j-th Gaussian's box
-    (camera c) it may touch, counted from the tile's top row: (row0, row1) of the left HALF
-    columns, then of the right ones; (0, -1) where it touches none."""
-    for c in range(order.shape[0]):
-        for j in prange(n_valid[c]):
+def _tile_hits(order, cam_start, means2d, conics, smax, pix_box, width, height, box_start, tiles_x, out_rows, counts):
+    """out_rows[box_start[c, j] + r] = rows of each half of the r-th tile (row-major) of the j-th Gaussian's box
+    (camera c) it may touch, counted from the tile's top row: (row0, row1) of the left HALF columns, then of the
+    right ones; (0, -1) where it touches none. counts[q, tile] += the tile's kept candidates in chunk q of the
+    Gaussians (all cameras' valid Gaussians back to back, cut into counts.shape[0] chunks)."""
+    n_chunks = counts.shape[0]
+    total = cam_start[-1]
+    n_tiles = counts.shape[1] // (cam_start.shape[0] - 1)  # tiles per camera
+    for q in prange(n_chunks):
+        c = 0
+        for f in range(q * total // n_chunks, (q + 1) * total // n_chunks):
+            c = _camera_of(cam_start, f, c)
+            j = f - cam_start[c]
             g = order[c, j]
-            r = box_start[c, j]
+            r0 = box_start[c, j]
             ca, cb, cc = np.float64(conics[c, g, 0]), np.float64(conics[c, g, 1]), np.float64(conics[c, g, 2])
             # an underflowed or needle-thin conic is not trusted: its box's rows are kept
             trusted = ca > 0.0 and cc > 0.0 and ca * cc - cb * cb > _ILL_CONDITIONED * ca * cc
@@ -201,16 +214,23 @@ def _tile_hits(order, n_valid, means2d, conics, smax, pix_box, width, height, bo
             )
             bx0, bx1, by0, by1 = pix_box[c, g, 0], pix_box[c, g, 1], pix_box[c, g, 2], pix_box[c, g, 3]
             tx0, tx1, ty0, ty1 = _tile_range(pix_box, c, g)
-            for ty in range(ty0, ty1 + 1):
-                for tx in range(tx0, tx1 + 1):
-                    for h in range(2):
-                        col0 = tx * TILE + h * HALF
-                        row0, row1 = _band_rows(
-                            ell, trusted, bx0, bx1, by0, by1, col0, min(col0 + HALF, width) - 1, ty, height
-                        )
+            ntx = tx1 - tx0 + 1
+            for tx in range(tx0, tx1 + 1):
+                for h in range(2):
+                    col0 = tx * TILE + h * HALF
+                    lo, hi = _band_span(ell, trusted, bx0, bx1, by0, by1, col0, min(col0 + HALF, width) - 1, height)
+                    for ty in range(ty0, ty1 + 1):
+                        r = r0 + (ty - ty0) * ntx + (tx - tx0)
+                        row0 = max(lo, ty * TILE)
+                        row1 = min(hi, ty * TILE + TILE - 1)
                         miss = row0 > row1
                         out_rows[r, 2 * h] = 0 if miss else row0 - ty * TILE
                         out_rows[r, 2 * h + 1] = -1 if miss else row1 - ty * TILE
+            r = r0
+            for ty in range(ty0, ty1 + 1):
+                for tx in range(tx0, tx1 + 1):
+                    if _hits(out_rows, r):
+                        counts[q, c * n_tiles + ty * tiles_x + tx] += 1
                     r += 1
 
 
@@ -219,7 +239,12 @@ def _hits(rows, r):  # does candidate/entry r touch any row of either half?
     return rows[r, 0] <= rows[r, 1] or rows[r, 2] <= rows[r, 3]
 
 
-def bin_tiles(
+def bin_tiles(*args):  # -> tile_start [C * n_tiles + 1] int64, gid [n_isect] int32, rows [n_isect, 4] int8
+    """`bin_tiles_indexed` (same arguments) without the index the backward's per-Gaussian sums use."""
+    return bin_tiles_indexed(*args)[:3]
+
+
+def bin_tiles_indexed(
     order,  # [C, N] int64: per camera, Gaussian indices front to back (first n_valid[c] are valid)
     n_valid,  # [C] int64
     pix_box,  # [C, N, 4] int64 inclusive pixel box (x0, x1, y0, y1), inside the image
@@ -230,18 +255,30 @@ def bin_tiles(
     height,
     tiles_x,
     tiles_y,
-):  # -> tile_start [C * n_tiles + 1] int64, gid [n_isect] int32, rows [n_isect, 4] int8
+):  # -> tile_start [C * n_tiles + 1] int64, gid [n_isect] int32, rows [n_isect, 4] int8, cam_start, box_start, ent
     """Lists of the Gaussians meeting each tile, front to back, with the rows of the tile each
     may touch: the tiles of each pixel box, less those its alpha >= ALPHA_MIN ellipse misses
     (gsplat's tile culling), and per kept entry the ellipse's row range inside each half of the
-    tile (its left and right HALF columns), counted from the tile's top row. The geometry runs
-    in parallel, the counting sort by tile after it."""
+    tile (its left and right HALF columns), counted from the tile's top row.
+
+    Also, for `reduce_grads`: cam_start (where each camera's valid Gaussians start when all
+    cameras' are put back to back), box_start (where the candidate tiles of camera c's j-th Gaussian start)
+    and ent (each candidate tile's entry in gid, or -1 where culled). The geometry and the counting sort by
+    tile both run in parallel over chunks of the Gaussians (per-chunk tile counts keep the front-to-back order)."""
     # alpha >= ALPHA_MIN iff sigma <= smax
     smax = np.log(np.maximum(opacities.astype(np.float64), ALPHA_MIN) / ALPHA_MIN)
     box_start = _box_starts(order, n_valid, pix_box)
+    cam_start = np.zeros(n_valid.shape[0] + 1, dtype=np.int64)
+    np.cumsum(n_valid, out=cam_start[1:])
+    n_chunks = max(1, min(int(cam_start[-1]), _CHUNKS_PER_THREAD * numba.get_num_threads()))
+    counts = np.zeros((n_chunks, n_valid.shape[0] * tiles_x * tiles_y), dtype=np.int64)
     cand = np.empty((box_start[-1, -1], 4), dtype=np.int8)  # small: fresh memory costs page faults
-    _tile_hits(order, n_valid, means2d, conics, smax, pix_box, width, height, box_start, cand)
-    return _tile_lists(order, n_valid, pix_box, box_start, cand, tiles_x, tiles_y)
+    _tile_hits(order, cam_start, means2d, conics, smax, pix_box, width, height, box_start, tiles_x, cand, counts)
+    tile_start, gid, rows, ent = _tile_lists(order, cam_start, pix_box, box_start, cand, counts, tiles_x, tiles_y)
+    return tile_start, gid, rows, cam_start, box_start, ent
+
+
+_CHUNKS_PER_THREAD = 4  # binning's chunks of Gaussians per thread (their costs differ: more chunks balance them)
 
 
 @njit(cache=True)
@@ -260,43 +297,45 @@ def _box_starts(order, n_valid, pix_box):  # -> box_start [C, N + 1] int64 (box_
 
 
 @njit(cache=True, parallel=True)
-def _tile_lists(order, n_valid, pix_box, box_start, cand, tiles_x, tiles_y):  # -> tile_start, gid, rows
-    """Counting sort of the kept candidates by tile, keeping each camera's front-to-back order
-    (cameras in parallel: their tiles are disjoint)."""
-    n_cam = order.shape[0]
+def _tile_lists(order, cam_start, pix_box, box_start, cand, counts, tiles_x, tiles_y):  # -> tile_start, gid, rows, ent
+    """Counting sort of the kept candidates by tile, keeping each camera's front-to-back order: chunk q of
+    the Gaussians writes each tile's entries after those of the chunks before it (chunks in parallel)."""
+    n_chunks, n_all = counts.shape
     n_tiles = tiles_x * tiles_y
-    counts = np.zeros(n_cam * n_tiles + 1, dtype=np.int64)
-    for c in prange(n_cam):
-        base = c * n_tiles
-        for j in range(n_valid[c]):
-            r = box_start[c, j]
-            tx0, tx1, ty0, ty1 = _tile_range(pix_box, c, order[c, j])
-            for ty in range(ty0, ty1 + 1):
-                for tx in range(tx0, tx1 + 1):
-                    if _hits(cand, r):
-                        counts[base + ty * tiles_x + tx + 1] += 1
-                    r += 1
-    tile_start = np.cumsum(counts)
-    fill = tile_start[:-1].copy()
+    tile_start = np.zeros(n_all + 1, dtype=np.int64)
+    fill = np.empty((n_chunks, n_all), dtype=np.int64)
+    for t in range(n_all):
+        f = tile_start[t]
+        for q in range(n_chunks):
+            fill[q, t] = f
+            f += counts[q, t]
+        tile_start[t + 1] = f
     gid = np.empty(tile_start[-1], dtype=np.int32)
     rows = np.empty((tile_start[-1], 4), dtype=np.int8)
-    for c in prange(n_cam):
-        base = c * n_tiles
-        for j in range(n_valid[c]):
+    ent = np.empty(cand.shape[0], dtype=np.int64)
+    total = cam_start[-1]
+    for q in prange(n_chunks):
+        c = 0
+        for f in range(q * total // n_chunks, (q + 1) * total // n_chunks):
+            c = _camera_of(cam_start, f, c)
+            j = f - cam_start[c]
             g = order[c, j]
             r = box_start[c, j]
-            tx0, tx1, ty0, ty1 = _tile_range(pix_box, c, order[c, j])
+            tx0, tx1, ty0, ty1 = _tile_range(pix_box, c, g)
             for ty in range(ty0, ty1 + 1):
                 for tx in range(tx0, tx1 + 1):
                     if _hits(cand, r):
-                        t = base + ty * tiles_x + tx
-                        f = fill[t]
-                        gid[f] = g
-                        for q in range(4):
-                            rows[f, q] = cand[r, q]
-                        fill[t] = f + 1
+                        t = c * n_tiles + ty * tiles_x + tx
+                        e = fill[q, t]
+                        gid[e] = g
+                        for i in range(4):
+                            rows[e, i] = cand[r, i]
+                        fill[q, t] = e + 1
+                        ent[r] = e
+                    else:
+                        ent[r] = -1
                     r += 1
-    return tile_start, gid, rows
+    return tile_start, gid, rows, ent
 
 
 @njit(cache=True, inline="always")
@@ -570,26 +609,41 @@ def backward_tiles(  # noqa: C901  (one fused numba pass over each tile, for spe
 
 @njit(cache=True, parallel=True)
 def reduce_grads(
-    tile_start,  # [C * n_tiles + 1] int64
-    gid,  # [n_isect] int32
-    n_tiles,
+    order,  # [C, N] int64 (as given to bin_tiles_indexed)
+    cam_start,  # [C + 1] int64 from bin_tiles_indexed
+    box_start,  # [C, N + 1] int64 from bin_tiles_indexed
+    ent,  # [n_cand] int64 from bin_tiles_indexed: each candidate tile's list entry, -1 where culled
     geo,  # [n_isect, 6]
     col,  # [n_isect, D]
-    v_means2d,  # [C, N, 2] accumulated
-    v_conics,  # [C, N, 3] accumulated
-    v_opac,  # [C, N] accumulated: per camera, summed over cameras by the caller
-    v_colors,  # [C, N, D] accumulated: per camera, summed over cameras by the caller
+    v_means2d,  # [C, N, 2] written for the valid Gaussians (zeros elsewhere)
+    v_conics,  # [C, N, 3] written likewise
+    v_opac,  # [C, N] written likewise: per camera, summed over cameras by the caller
+    v_colors,  # [C, N, D] zeros, accumulated likewise: per camera, summed over cameras by the caller
 ):
-    """Sum the per-entry gradient rows per Gaussian, one camera per thread."""
+    """Sum the per-entry gradient rows per Gaussian, the Gaussians in parallel: a Gaussian's entries are its
+    kept candidate tiles, found through `ent` in tile order (the order of the lists: the same sums as adding
+    the rows in list order)."""
     d = col.shape[1]
-    for cam in prange(v_means2d.shape[0]):
-        for k in range(tile_start[cam * n_tiles], tile_start[(cam + 1) * n_tiles]):
-            g = gid[k]
-            v_means2d[cam, g, 0] += geo[k, 0]
-            v_means2d[cam, g, 1] += geo[k, 1]
-            v_conics[cam, g, 0] += geo[k, 2]
-            v_conics[cam, g, 1] += geo[k, 3]
-            v_conics[cam, g, 2] += geo[k, 4]
-            v_opac[cam, g] += geo[k, 5]
+    for f in prange(cam_start[-1]):
+        c = _camera_of(cam_start, f, 0)
+        j = f - cam_start[c]
+        g = order[c, j]
+        s0, s1, s2, s3, s4, s5 = 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+        for r in range(box_start[c, j], box_start[c, j + 1]):
+            k = ent[r]
+            if k < 0:
+                continue
+            s0 += geo[k, 0]
+            s1 += geo[k, 1]
+            s2 += geo[k, 2]
+            s3 += geo[k, 3]
+            s4 += geo[k, 4]
+            s5 += geo[k, 5]
             for ch in range(d):
-                v_colors[cam, g, ch] += col[k, ch]
+                v_colors[c, g, ch] += col[k, ch]
+        v_means2d[c, g, 0] = s0
+        v_means2d[c, g, 1] = s1
+        v_conics[c, g, 0] = s2
+        v_conics[c, g, 1] = s3
+        v_conics[c, g, 2] = s4
+        v_opac[c, g] = s5
