@@ -58,11 +58,20 @@ class Texture:
     gain: float
 
     def render(self, t: float) -> np.ndarray:
-        yy, xx = np.mgrid[0 : self.height, 0 : self.width].astype(np.float64)
-        u = xx + 0.5 - self.velocity[0] * t
-        v = yy + 0.5 - self.velocity[1] * t
-        arg = 2 * np.pi * (self.freqs[:, 0, None, None] * u[None] + self.freqs[:, 1, None, None] * v[None])
-        f = np.einsum("k,khwd->hwd", self.amps, np.sin(arg[..., None] + self.phases[:, None, None, :]))
+        return self.render_many(np.array([t]))[0]
+
+    def render_many(self, ts: np.ndarray) -> np.ndarray:
+        """[T, H, W, D] the sharp images at the times ``ts`` (seconds). Each wave sin(a(x) + b(y))
+        is split as sin a cos b + cos a sin b: one product over the waves instead of K H W sines."""
+        ts = np.asarray(ts, np.float64)[:, None, None]
+        u = np.arange(self.width) + 0.5 - self.velocity[0] * ts  # [T, 1, W]
+        v = np.arange(self.height)[:, None] + 0.5 - self.velocity[1] * ts[..., None]  # [T, 1, H, 1]
+        a = 2 * np.pi * self.freqs[:, 0, None] * u  # [T, K, W]
+        b = 2 * np.pi * self.freqs[:, 1, None, None] * v + self.phases[:, None, :]  # [T, K, H, D]
+        amps = self.amps[:, None, None]
+        by_row = np.concatenate([amps * np.cos(b), amps * np.sin(b)], axis=1)  # [T, 2K, H, D]
+        by_col = np.concatenate([np.sin(a), np.cos(a)], axis=1)  # [T, 2K, W]
+        f = (by_row.transpose(0, 3, 2, 1) @ by_col[:, None]).transpose(0, 2, 3, 1)  # [T, D, H, W] -> [T, H, W, D]
         return self.lo + (self.hi - self.lo) / (1.0 + np.exp(-self.gain * f))
 
 
@@ -132,26 +141,24 @@ def moving_texture(
         return img.mean(axis=-1) if cfa is None else mosaic(img, cfa)  # the grey level, or its own channel
 
     ref = np.log(seen(tex.render(0.0)) + LOG_EPS)
-    ts, xs, ys, ps = [], [], [], []
-    images = {}
-    for tj in steps:
-        img = tex.render(tj * 1e-6)
-        images[int(tj)] = img
-        lg = np.log(seen(img) + LOG_EPS)
-        d = lg - ref
-        n_up = np.floor(np.maximum(d, 0) / c_pos_px).astype(np.int64)
-        n_dn = np.floor(np.maximum(-d, 0) / c_neg_px).astype(np.int64)
+    images = np.concatenate([tex.render_many(chunk * 1e-6) for chunk in np.array_split(steps, len(steps) // 256 + 1)])
+    lgs = np.log(seen(images) + LOG_EPS)  # [T, H, W]
+    n_ups, n_dns = np.zeros(lgs.shape, np.int64), np.zeros(lgs.shape, np.int64)
+    for j in range(len(steps)):  # each pixel's reference level follows its own events
+        d = lgs[j] - ref
+        n_ups[j] = n_up = np.floor(np.maximum(d, 0) / c_pos_px)
+        n_dns[j] = n_dn = np.floor(np.maximum(-d, 0) / c_neg_px)
         ref = ref + n_up * c_pos_px - n_dn * c_neg_px
-        for n, pol in ((n_up, 1), (n_dn, -1)):
-            yy, xx = np.nonzero(n)
-            reps = n[yy, xx]
-            if len(reps):
-                xs.append(np.repeat(xx, reps))
-                ys.append(np.repeat(yy, reps))
-                ps.append(np.full(reps.sum(), pol, np.int8))
-                ts.append(np.full(reps.sum(), tj, np.int64))
-    if ts:
-        t = np.concatenate(ts)
+    ts, xs, ys, ps = [], [], [], []
+    for n, pol in ((n_ups, 1), (n_dns, -1)):  # one step's up events, then its down events, each in (y, x) order
+        jj, yy, xx = np.nonzero(n)
+        reps = n[jj, yy, xx]
+        xs.append(np.repeat(xx, reps))
+        ys.append(np.repeat(yy, reps))
+        ps.append(np.full(reps.sum(), pol, np.int8))
+        ts.append(np.repeat(steps[jj], reps))
+    t = np.concatenate(ts)
+    if len(t):
         order = np.argsort(t, kind="stable")
         ev = EventStream(
             t[order], np.concatenate(xs)[order], np.concatenate(ys)[order], np.concatenate(ps)[order], width, height
@@ -162,8 +169,7 @@ def moving_texture(
     frames = []
     for t0, t1 in exposures:
         a, b = seconds_to_us(t0), seconds_to_us(t1)
-        sel = [images[int(tj)] for tj in steps if a <= tj < b]
-        frames.append(np.mean(sel, axis=0))
+        frames.append(np.mean(images[(a <= steps) & (steps < b)], axis=0))
     fr = np.stack(frames)
     if cfa is not None:  # what the camera software gives: the blurry mosaic, demosaiced
         fr = np.clip(demosaic(mosaic(fr, cfa), cfa), 0.0, 1.0)

@@ -95,10 +95,13 @@ def test_a_run_interrupted_and_resumed_across_a_pass_boundary_equals_the_uninter
     _assert_same_run(whole, resumed)
 
 
-# one seed, one run across processes: a child process hashes every parameter, the knots and the history of the
-# 11-step run; two children with different PYTHONHASHSEED (set and dict order) and NUMBA_NUM_THREADS (numba's
-# reductions) must agree bit for bit. The module's own run above has loaded (or compiled and cached) the kernels
-# first, so that both children load the same compiled code (see the note in ``TrainConfig.max_seconds``).
+# one seed, one run across processes: a child process hashes every parameter, the knots and the history of a
+# run of CHILD_ITERS steps (past the pass boundary at step 4, where the frame order draws again, with
+# refinements at steps 1 and 4, random L_ev windows and the knots' running mean); two children with different
+# PYTHONHASHSEED (set and dict order) and NUMBA_NUM_THREADS (numba's reductions), run at the same time, must
+# agree bit for bit. The module's own run above has loaded (or compiled and cached) the kernels first, so that
+# both children load the same compiled code (see the note in ``TrainConfig.max_seconds``).
+CHILD_ITERS = 5
 _CHILD = """
 import hashlib, sys, torch
 sys.path.insert(0, {tests!r})
@@ -106,7 +109,10 @@ import scenes
 from ebad.run import reconstruct
 from test_determinism import _config, _trace
 tiny = scenes.make_scene("boxes", size="tiny", seed=0, n_frames=4, n_test=1)
-run = reconstruct(tiny.capture, _config())
+cfg = _config()
+cfg.train.iters = {iters}
+run = reconstruct(tiny.capture, cfg)
+assert len({{h.frame for h in run.history}}) == 4 and sum(h.refine.cloned + h.refine.split for h in run.history) > 0
 h = hashlib.sha256(repr(_trace(run)).encode())
 for k in sorted(run.params):
     h.update(run.params[k].detach().contiguous().numpy().tobytes())
@@ -115,22 +121,33 @@ print("DIGEST", h.hexdigest())
 """
 
 
-def _child_digest(hash_seed: str, threads: str) -> str:
+def _child_digests(*settings: tuple[str, str]) -> list[str]:
+    """The digests of children run side by side, one per (PYTHONHASHSEED, NUMBA_NUM_THREADS)."""
     import os
     import subprocess
     import sys
+    import tempfile
     from pathlib import Path
 
     root = Path(__file__).resolve().parents[2]
-    env = dict(os.environ, PYTHONHASHSEED=hash_seed, NUMBA_NUM_THREADS=threads)
-    env["PYTHONPATH"] = os.pathsep.join([str(root), env.get("PYTHONPATH", "")])
-    code = _CHILD.format(tests=str(Path(__file__).resolve().parent))
-    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=600)
-    assert out.returncode == 0, out.stderr[-2000:]
-    return [line for line in out.stdout.splitlines() if line.startswith("DIGEST")][-1]
+    code = _CHILD.format(tests=str(Path(__file__).resolve().parent), iters=CHILD_ITERS)
+    procs = []
+    for hash_seed, threads in settings:
+        env = dict(os.environ, PYTHONHASHSEED=hash_seed, NUMBA_NUM_THREADS=threads)
+        env["PYTHONPATH"] = os.pathsep.join([str(root), env.get("PYTHONPATH", "")])
+        out, err = tempfile.TemporaryFile("w+"), tempfile.TemporaryFile("w+")  # no pipe to fill while we wait
+        procs.append((subprocess.Popen([sys.executable, "-c", code], env=env, stdout=out, stderr=err), out, err))
+    digests = []
+    for proc, out, err in procs:
+        rc = proc.wait(timeout=600)
+        out.seek(0), err.seek(0)
+        assert rc == 0, err.read()[-2000:]
+        digests.append([line for line in out.read().splitlines() if line.startswith("DIGEST")][-1])
+    return digests
 
 
 @pytest.mark.slow
 def test_two_processes_with_one_seed_give_bit_identical_runs(whole):
     # ``whole`` first: the kernels are in numba's cache before the children start
-    assert _child_digest("0", "2") == _child_digest("12345", "1")
+    a, b = _child_digests(("0", "2"), ("12345", "1"))
+    assert a == b
