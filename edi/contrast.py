@@ -107,6 +107,9 @@ _NEIGHBOURS_CFA[::2, ::2] = 1.0
 _NEIGHBOURS_CFA[2, 2] = 0.0
 #: consistency: key of the (pixel, time) sort of the events, pixel * _TIME_KEY + t (t < 2^40 us: 12.7 days)
 _TIME_KEY = np.int64(2**40)
+#: ``_mean_residual`` works on the sensor's rows in blocks of about this many events: its arrays take
+#: about 100 bytes an event (101 measured at 2M events), so 36M events at once took 3.6 GB (issue 31)
+RESIDUAL_BLOCK_EVENTS = 1_000_000
 #: consistency: the residual between two events of opposite polarity, in units of the closing
 #: event's threshold and signed like it: TURN_A u^2 - TURN_B u over the interval's fraction u
 #: (``_mean_residual``)
@@ -505,18 +508,39 @@ def _mean_residual(events: EventStream, exposures: np.ndarray) -> np.ndarray:
     * 0 before a pixel's first event (unknown).
 
     Row 0 is the mean over the intervals that end with a + event, row 1 with a - event, so the
-    residual is c_pos row 0 - c_neg row 1."""
+    residual is c_pos row 0 - c_neg row 1.
+
+    Pixels are independent: the sensor's rows go in blocks of about ``RESIDUAL_BLOCK_EVENTS``
+    events (``_block_residual``), so the working arrays (about 100 bytes an event) stay bounded
+    whatever the stream's length."""
     H, W = events.height, events.width
     F = len(exposures)
     out = np.zeros((F, 2, H * W))
     M = len(events)
     if M == 0:
         return out.reshape(F, 2, H, W)
-    pix = events.y.astype(np.int64) * W + events.x
-    order = np.lexsort((events.t, pix))
-    t = events.t[order].astype(np.float64)
+    rows = max(1, int(H * RESIDUAL_BLOCK_EVENTS // M))
+    for y0 in range(0, H, rows):
+        y1 = min(H, y0 + rows)
+        sel = np.flatnonzero((events.y >= y0) & (events.y < y1)) if rows < H else slice(None)
+        block = out[:, :, y0 * W : y1 * W]
+        _block_residual(events.t[sel], events.x[sel], events.y[sel] - y0, events.p[sel], W, exposures, block)
+    return out.reshape(F, 2, H, W)
+
+
+def _block_residual(
+    t_raw: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray, W: int, exposures: np.ndarray, out: np.ndarray
+) -> None:
+    """``_mean_residual`` of the pixels of ``out`` [F, 2, P] (P = rows x ``W``, row-major) from their
+    events (``y`` counted from the block's first row), added into ``out``."""
+    M = len(t_raw)
+    if M == 0:
+        return
+    pix = y.astype(np.int64) * W + x
+    order = np.lexsort((t_raw, pix))
+    t = t_raw[order].astype(np.float64)
     q = pix[order]
-    pos = events.p[order] > 0
+    pos = p[order] > 0
     t_prev = np.empty(M)
     t_prev[0] = t[0]
     t_prev[1:] = t[:-1]
@@ -531,8 +555,8 @@ def _mean_residual(events: EventStream, exposures: np.ndarray) -> np.ndarray:
     prefix = np.zeros((2, M + 1))
     prefix[0, 1:] = np.cumsum(np.where(pos, whole, 0.0))
     prefix[1, 1:] = np.cumsum(np.where(~pos, whole, 0.0))
-    key = q * _TIME_KEY + events.t[order]
-    base = np.arange(H * W, dtype=np.int64) * _TIME_KEY
+    key = q * _TIME_KEY + t_raw[order]
+    base = np.arange(out.shape[-1], dtype=np.int64) * _TIME_KEY
 
     def add(f: int, k: np.ndarray, ok: np.ndarray, lo: float, hi: float) -> None:
         """the interval ending at event k (where ``ok``), the integral of its residual over [lo, hi]"""
@@ -570,7 +594,6 @@ def _mean_residual(events: EventStream, exposures: np.ndarray) -> np.ndarray:
         own_b[own_b] = q[b[own_b]] == np.flatnonzero(own_b)
         add(f, b, own_b, A, B)  # the interval running past B
         out[f] /= B - A
-    return out.reshape(F, 2, H, W)
 
 
 def _consistency_pairs(
