@@ -253,10 +253,6 @@ def _by_name(pf: PoseFile) -> dict[str, np.ndarray]:
     return out
 
 
-def _frame_names(cap: Capture) -> list[str]:
-    return cap.frame_names()
-
-
 def _at_times(pf: PoseFile, t: np.ndarray, what: list[str]) -> np.ndarray:  # [Q] -> [Q, 4, 4]
     assert pf.times is not None
     if len(pf.times) == 1:
@@ -285,7 +281,7 @@ def apply_pose_file(cap: Capture, pf: PoseFile) -> Capture:
     Raises:
         CaptureError: a frame the file has no pose for (names it), a count mismatch (llff).
     """
-    names = _frame_names(cap)
+    names = cap.frame_names()
     tv_pose: list[np.ndarray | None]
     if pf.format == "tum":
         mid = np.asarray(cap.exposures, dtype=np.float64).mean(axis=1)
