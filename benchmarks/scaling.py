@@ -19,7 +19,11 @@ Per run:
   or compiled) and the steps/s after it;
 * test PSNR (poses refined against the images, ``ebad.evaluate``) of snapshots at ``--marks``
   instants against wall time (the prepare time included);
-* the subprocess's peak RSS and the stored stream's bytes per event.
+* the subprocess's peak RSS (its own ``VmHWM``: ``ru_maxrss`` would report the parent's peak, which
+  Linux carries over ``exec``), its resident set at each of those lines and after loading, training
+  and each evaluation (``memory_mb``), and the stored stream's bytes per event.
+
+The parent's own peak while it simulates and writes each capture is ``simulate_peak_rss_mb``.
 
 ``--events N`` also measures one stream of N events (default 50M, 0: skip) in a subprocess: written
 as an uncompressed .npz, read with ``edi.read_events`` (peak RSS, seconds, bytes per event), and
@@ -49,16 +53,52 @@ if TYPE_CHECKING:
 POSES: dict[str, PoseSource] = {"noisy": "capture", "sfm": "colmap"}  # --poses -> trajectory.pose_source
 
 
+def memory_mb() -> tuple[float | None, float | None]:
+    """This process's resident set and its peak so far, MB (``VmRSS``, ``VmHWM`` of /proc/self/status;
+    None where there is no /proc).
+
+    Not ``getrusage``'s ``ru_maxrss``: Linux carries it over ``exec``, so a child started by a process
+    that once held 6 GB (this benchmark's parent, simulating a 40-view capture) reports 6 GB before it
+    allocates anything. ``VmHWM`` belongs to the process's own address space, which ``exec`` replaces."""
+    try:
+        text = Path("/proc/self/status").read_text()
+    except OSError:
+        return None, None
+    kb = {k: int(v.split()[0]) for k, v in (ln.split(":", 1) for ln in text.splitlines() if ln.startswith("Vm"))}
+    return kb["VmRSS"] / 1024, kb["VmHWM"] / 1024
+
+
+def peak_rss_mb() -> float:
+    """This process's peak resident set so far, MB: ``VmHWM`` (see ``memory_mb``), or ``ru_maxrss``
+    where there is no /proc."""
+    import resource
+
+    hwm = memory_mb()[1]
+    return hwm if hwm is not None else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+def reset_peak() -> bool:
+    """Start this process's ``VmHWM`` again from its current resident set (Linux: /proc/self/clear_refs 5)."""
+    try:
+        Path("/proc/self/clear_refs").write_text("5")
+    except OSError:
+        return False
+    return True
+
+
 class Timeline(logging.Handler):
-    """The (seconds since ``t0``, message) of every line of the progress and SfM logs."""
+    """The (seconds since ``t0``, message, resident MB, peak resident MB so far) of every line of the
+    progress and SfM logs: a phase's memory is the peak at its end line against the resident set at its
+    start line."""
 
     def __init__(self, t0: float):
         super().__init__(logging.INFO)
         self.t0 = t0
-        self.lines: list[tuple[float, str]] = []
+        self.lines: list[tuple[float, str, float | None, float | None]] = []
 
     def emit(self, record: logging.LogRecord) -> None:
-        self.lines.append((round(time.perf_counter() - self.t0, 3), record.getMessage()))
+        rss, hwm = memory_mb()
+        self.lines.append((round(time.perf_counter() - self.t0, 3), record.getMessage(), rss, hwm))
 
 
 class FirstStep:
@@ -78,8 +118,6 @@ class FirstStep:
 
 def run_child(spec: dict) -> dict:
     """One reconstruction of a written capture; what the module docstring lists."""
-    import resource
-
     import scenes
     from ebad.evaluate import evaluate
     from ebad.run import reconstruct
@@ -92,8 +130,10 @@ def run_child(spec: dict) -> dict:
         lg = logging.getLogger(name)
         lg.setLevel(logging.INFO)
         lg.addHandler(timeline)
+    memory = {"start": memory_mb()}  # (resident, peak so far) MB at the run's milestones
     capture = scenes.load(spec["capture"])
     load_s = time.perf_counter() - t0
+    memory["loaded"] = memory_mb()
     ev = capture.events
     cfg = config_spec(spec["preset"])
     cfg.train.iters, cfg.train.max_seconds = 1_000_000, float(spec["seconds"])
@@ -104,6 +144,7 @@ def run_child(spec: dict) -> dict:
     first = FirstStep(t0)
     run = reconstruct(capture, cfg, callbacks=[first, snaps])
     wall = time.perf_counter() - t0
+    memory["trained"] = memory_mb()
     m = run.metrics
     assert m is not None  # reconstruct sets it
     before_train = wall - m.train_seconds  # loading, prepare, initialisation, the initial scoring
@@ -122,12 +163,13 @@ def run_child(spec: dict) -> dict:
                 "test_psnr": res["test"].psnr if "test" in res else None,
             }
         )
+        memory[f"evaluated {len(points)}"] = memory_mb()
     first_step = None if first.at is None else first.at - before_train
     later = (m.train_seconds - (first_step or 0.0)) / max(m.steps - 1, 1)
     return {
         **spec,
         "load_seconds": load_s,
-        "timeline": timeline.lines,  # (seconds since start, what began or ended)
+        "timeline": timeline.lines,  # (seconds since start, what began or ended, resident MB, peak MB so far)
         "prepare_seconds": m.prepare_seconds,
         "before_first_step_seconds": before_train + (first_step or 0.0),
         "first_step_seconds": first_step,  # numba's kernels loaded (or compiled) and one step
@@ -138,7 +180,8 @@ def run_child(spec: dict) -> dict:
         "gaussians": m.gaussians,
         "events": len(ev),
         "bytes_per_event": ev.nbytes() / max(len(ev), 1),
-        "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+        "peak_rss_mb": peak_rss_mb(),
+        "memory_mb": memory,
         "sharp_frames": m.prepare.sharp_frames,
         "sharp_reason": m.prepare.sharp_reason,
         "points": points,
@@ -148,8 +191,6 @@ def run_child(spec: dict) -> dict:
 
 def events_measure(n: int, path: str, frames: int = 30) -> dict:
     """Read n events (already written to ``path``) and window them per frame; peak RSS of this process."""
-    import resource
-
     import numpy as np
 
     from ebad.virtual_views import event_counts
@@ -158,7 +199,7 @@ def events_measure(n: int, path: str, frames: int = 30) -> dict:
     t0 = time.perf_counter()
     ev = read_events(path, t_unit="us")
     read_s = time.perf_counter() - t0
-    rss_read = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    rss_read = peak_rss_mb()
     span = ev.duration_s
     t1 = time.perf_counter()
     counts = 0
@@ -176,7 +217,7 @@ def events_measure(n: int, path: str, frames: int = 30) -> dict:
         "peak_rss_mb_after_read": rss_read,
         "window_seconds": win_s,
         "windowed_events": counts,
-        "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+        "peak_rss_mb": peak_rss_mb(),
     }
 
 
@@ -263,13 +304,15 @@ def main(argv=None) -> int:
     import scenes
 
     work = Path(a.workdir) if a.workdir else Path(tempfile.mkdtemp(prefix="ebad-scaling-"))
-    results: dict = {"args": vars(a), "runs": {}, "simulate_seconds": {}}
+    results: dict = {"args": vars(a), "runs": {}, "simulate_seconds": {}, "simulate_peak_rss_mb": {}}
     for n in views:
         t0 = time.perf_counter()
+        reset_peak()  # this process's peak while it simulates and writes this capture
         sc = scenes.make_scene("boxes", a.size, seed=a.seed, n_frames=n, n_test=a.test_views, sensor="realistic")
         cap_dir = work / f"{a.size}_{n}"
         scenes.write_scene(sc, cap_dir)
         results["simulate_seconds"][n] = time.perf_counter() - t0
+        results["simulate_peak_rss_mb"][n] = memory_mb()[1]
         del sc
         rows = []
         for preset in presets:

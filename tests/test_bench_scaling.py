@@ -1,0 +1,50 @@
+"""benchmarks.scaling's memory figures: a child's peak RSS is its own, not its parent's."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from benchmarks import scaling
+
+ROOT = Path(__file__).resolve().parents[1]
+
+_CHILD = """
+import json, resource
+from benchmarks.scaling import peak_rss_mb
+print(json.dumps([peak_rss_mb(), resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024]))
+"""
+
+
+@pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="VmHWM needs Linux's /proc")
+def test_child_peak_rss_is_not_the_parents():
+    # The scaling benchmark's parent simulated the capture (6 GB at 40 views) before it started the
+    # child that reconstructs it; Linux carries ``ru_maxrss`` over fork + exec, so the child reported
+    # the parent's 6368 MB as its own. Here the parent holds 400 MB (touched) while it starts a child
+    # that allocates nothing: the child's ``ru_maxrss`` shows the 400 MB, its ``peak_rss_mb`` must not
+    # (it imports numpy and the benchmarks' preamble: well under 300 MB).
+    held = np.ones(50_000_000)  # 400 MB, every page touched
+    out = subprocess.run(
+        [sys.executable, "-c", _CHILD], capture_output=True, text=True, cwd=ROOT, env={"PYTHONPATH": str(ROOT)}
+    )
+    assert out.returncode == 0, out.stderr
+    peak, inherited = json.loads(out.stdout.strip().splitlines()[-1])
+    assert held.nbytes / 2**20 <= inherited  # what the benchmark reported before
+    assert peak < 300, peak
+
+
+def test_memory_mb_sees_an_allocation():
+    rss0, hwm0 = scaling.memory_mb()
+    if rss0 is None:
+        pytest.skip("no /proc")
+    held = np.ones(25_000_000)  # 200 MB, touched
+    rss1, hwm1 = scaling.memory_mb()
+    assert rss1 - rss0 >= 0.9 * held.nbytes / 2**20
+    assert hwm1 >= rss1
+    del held
+    assert scaling.reset_peak()
+    rss2, hwm2 = scaling.memory_mb()
+    assert hwm2 < hwm1 - 150  # the peak starts again from the resident set
