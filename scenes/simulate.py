@@ -34,6 +34,7 @@ __all__ = ["simulate_events", "MIN_C_FRACTION", "HOT_PIXEL_HZ"]
 
 MIN_C_FRACTION = 0.25  # per-pixel thresholds are clipped to >= this fraction of c
 HOT_PIXEL_HZ = 500.0  # default firing rate of a hot pixel
+LOG_BLOCK_VALUES = 8_000_000  # simulate_events logs the renders this many values (64 MB) at a time
 
 
 @numba.njit(cache=True)
@@ -123,7 +124,8 @@ def _check(images, times, c, sigma_c, refractory, noise_hz, hot_pixels, eps, lea
         raise ValueError(f"images: need at least 2 renders, got {imgs.shape[0]}")
     if imgs.dtype.kind not in "fiu":
         raise ValueError(f"images: must be numeric, got {imgs.dtype}")
-    if not np.isfinite(imgs).all() or imgs.min() < 0:
+    lo, hi = (imgs.min(), imgs.max()) if imgs.size else (0, 0)  # NaN propagates: no [S, H, W] mask
+    if not (np.isfinite(lo) and np.isfinite(hi)) or lo < 0:
         raise ValueError("images: must be finite, non-negative linear intensity")
     t = np.asarray(times, dtype=np.float64)
     if t.shape != (imgs.shape[0],):
@@ -242,7 +244,7 @@ def simulate_events(
             )
         imgs = mosaic(imgs, cfa)
     elif imgs.ndim == 4:
-        imgs = imgs.mean(axis=3)
+        imgs = imgs[..., 0] if imgs.shape[3] == 1 else imgs.mean(axis=3)  # one channel: a view, not a copy
     s, h, w = imgs.shape
     rng = np.random.default_rng(seed)
     c_pos = (
@@ -255,10 +257,21 @@ def simulate_events(
         if sigma_c > 0
         else np.full(h * w, cn)
     )
-    logi = np.log(imgs.reshape(s, h * w).astype(np.float64) + eps)
     kern = _crossings_reference if reference else _crossings_numba
-    te, pix, pol = kern(np.ascontiguousarray(logi), t, c_pos, c_neg, float(refractory))
-    parts_t, parts_pix, parts_p = [te], [pix], [pol]
+    flat = imgs.reshape(s, h * w)
+    parts_t, parts_pix, parts_p = [], [], []
+    # Each pixel's crossings depend on that pixel alone: log(I + eps) in float64 a block of pixels at a
+    # time (about LOG_BLOCK_VALUES values), never the whole [S, H * W] (8 bytes a value, 2 GB at 40
+    # views of 346x260); the blocks' events, in pixel order, are what one pass over all pixels gives.
+    step = max(1, LOG_BLOCK_VALUES // s)
+    for p0 in range(0, h * w, step):
+        logi = np.array(flat[:, p0 : p0 + step], dtype=np.float64)  # a contiguous copy, logged in place
+        logi += eps
+        np.log(logi, out=logi)
+        te, pix, pol = kern(logi, t, c_pos[p0 : p0 + step], c_neg[p0 : p0 + step], float(refractory))
+        parts_t.append(te.copy())  # not the kernel's upper-bound buffers
+        parts_pix.append(pix + p0)
+        parts_p.append(pol.copy())
     span = float(t[-1] - t[0])
     if noise_hz > 0:
         n = rng.poisson(noise_hz * span, size=h * w)
@@ -281,11 +294,12 @@ def simulate_events(
     te = np.concatenate(parts_t)
     pix = np.concatenate(parts_pix)
     pol = np.concatenate(parts_p)
+    del parts_t, parts_pix, parts_p
     t_us = seconds_to_us(te)
+    del te
     order = np.argsort(t_us, kind="stable")
-    ev = EventStream(
-        t_us[order], (pix[order] % w).astype(np.int32), (pix[order] // w).astype(np.int32), pol[order], w, h
-    )
+    pix = pix[order]
+    ev = EventStream(t_us[order], (pix % w).astype(np.int32), (pix // w).astype(np.int32), pol[order], w, h)
     if return_thresholds:
         return ev, c_pos.reshape(h, w), c_neg.reshape(h, w)
     return ev
