@@ -246,8 +246,8 @@ class LossConfig:
     cfa_frames: CfaFrames = "rgb"
     """a colour DAVIS capture with RGB (demosaiced) frames: L_blur and L_EDI compare RGB, or each pixel's own channel
     of the frame and of the render (mosaic); raw mosaic frames always compare the render's mosaic. The ebad preset
-    sets mosaic: on the ablation's colour DAVIS (500 steps, refined test poses) mosaic led rgb by 1.40 dB (seed
-    0) and events-as-luminance by 1.2-1.6 dB per seed (docs/results.md); the default stays rgb for the baselines"""
+    sets mosaic: on the ablation's colour DAVIS (500 steps, refined test poses) mosaic led rgb by 1.06-1.40 dB (seeds
+    0-2) and events-as-luminance by 1.2-1.6 dB per seed (docs/results.md); the default stays rgb for the baselines"""
 
     def check(self) -> None:
         _finite(self, "loss")
@@ -436,7 +436,7 @@ class Config:
 def _ebad() -> Config:
     c = Config(name="ebad")
     # a colour DAVIS's demosaiced frames compared through the mosaic (each pixel's own channel, no demosaic
-    # error): +1.40 dB on novel views over RGB at 500 steps (docs/results.md, "Colour DAVIS on an equal step
+    # error): +1.23 dB novel over RGB at 500 steps, seeds 0-2 (docs/results.md, "Colour DAVIS on an equal step
     # budget"); the baselines fit the RGB frames as given
     c.loss.cfa_frames = "mosaic"
     return c
