@@ -24,10 +24,17 @@ pose optimisation, gsplat's pose_opt), ``bad``, ``edi-3dgs``, ``ebad``, and ``3d
 ``ebad-luma``: ebad given the colour-DAVIS capture without its ``cfa`` (events taken as the
 luminance of the RGB frames: what ebad did before it modelled the filter). In
 ``ideal`` the poses are exact and held by every preset (3dgs-po is left out there). Each preset
-gets the same wall-time budget and step cap per run. Scores (``ebad.evaluate``): novel views
-at their run-frame poses refined against their images (scene frozen), and the deblurred
-training frames against the sharp truth; mean +- std over seeds. Timings are noisy on a
-shared machine: compare presets within one run.
+gets the same wall-time budget and step cap per run; ``--seconds 0`` drops the wall-time budget,
+so every preset makes exactly ``--iters`` steps (repeatable, independent of the machine's load).
+Scores (``ebad.evaluate``): novel views at their run-frame poses refined against their images
+(scene frozen), and the deblurred training frames against the sharp truth; mean +- std over
+seeds. Timings are noisy on a shared machine: compare presets within one run.
+
+Colour diagnostics (``colour_split``, in every row): of the refined novel views and the deblurred
+frames, the luminance (channel mean) PSNR and, for colour, each channel's PSNR and the split of the
+squared error into its achromatic part (the error of the channel mean) and its chromatic part (the
+rest), all pooled over the views; on ``cfa`` captures the same of the camera's demosaic itself
+(``demosaic_ceiling``: the sharp truth mosaicked and demosaiced bilinearly against the truth).
 """
 
 from __future__ import annotations
@@ -50,6 +57,16 @@ SETTINGS = {
 }
 
 
+def wall_budget(seconds: float | None, quick: bool = False) -> float | None:
+    """The wall-time budget per run of ``--seconds``: its default when not given (60 s, 15 with
+    ``--quick``), None (no wall-time budget: ``--iters`` steps exactly) for 0; ValueError below 0."""
+    if seconds is None:
+        return 15.0 if quick else 60.0
+    if seconds < 0:
+        raise ValueError(f"--seconds must be >= 0 (0: no wall-time budget), got {seconds:g}")
+    return float(seconds) or None
+
+
 def make_config(name: str, iters: int, seconds: float | None, seed: int):
     """A preset, ``3dgs-po``, or a preset with options (``_common.config_spec``: ``ebad+trajectory.kind=cubic``)."""
     cfg = config_spec({"3dgs-po": "3dgs", "ebad-luma": "ebad"}.get(name, name))
@@ -67,6 +84,45 @@ def make_config(name: str, iters: int, seconds: float | None, seed: int):
     return cfg
 
 
+def colour_split(images: np.ndarray, truth: np.ndarray) -> dict[str, float]:  # [N, H, W, D] x2, D = 1 or 3
+    """Where the squared error of ``images`` (clamped to [0, 1]) against ``truth`` lies, pooled over all
+    pixels: ``mse``; ``mse_luma``, the error of the channel mean (the achromatic part) and
+    ``mse_chroma`` = ``mse - mse_luma``, each channel's error about that mean (the chromatic part;
+    zero for grey); ``psnr_luma`` of the channel means; for colour ``psnr_r``, ``psnr_g``,
+    ``psnr_b``. PSNRs in dB for data range 1."""
+    a = np.clip(np.asarray(images, np.float64), 0.0, 1.0)
+    b = np.asarray(truth, np.float64)
+    if a.shape != b.shape or a.shape[-1] not in (1, 3):
+        raise ValueError(f"colour_split needs two [..., H, W, 1 or 3] arrays of one shape, got {a.shape}, {b.shape}")
+    e = a - b
+    mse, mse_luma = float((e**2).mean()), float((e.mean(-1) ** 2).mean())
+
+    def db(m: float) -> float:
+        return 100.0 if m <= 1e-10 else float(-10 * np.log10(m))
+
+    out = {"mse": mse, "mse_luma": mse_luma, "mse_chroma": mse - mse_luma, "psnr_luma": db(mse_luma)}
+    if a.shape[-1] == 3:
+        out |= {f"psnr_{c}": db(float((e[..., d] ** 2).mean())) for d, c in enumerate("rgb")}
+    return out
+
+
+def demosaic_ceiling(scene) -> dict[str, dict[str, float]] | None:
+    """``colour_split`` of the sharp truth (the test images, the training frames' ``gt_frames``)
+    mosaicked with the capture's ``cfa`` and demosaiced bilinearly, against itself: what the camera's
+    demosaic alone loses, the ceiling of anything that fits the RGB frames. None without a cfa."""
+    from edi.cfa import demosaic, mosaic
+
+    cfa = scene.capture.cfa
+    if cfa is None:
+        return None
+    tests = np.stack([v.image for v in scene.capture.test_views if v.image is not None])
+    out = {}
+    for key, truth in (("test", tests), ("frames", np.asarray(scene.gt_frames))):
+        truth = np.clip(np.asarray(truth, np.float64), 0.0, 1.0)
+        out[key] = colour_split(demosaic(mosaic(truth, cfa), cfa), truth)
+    return out
+
+
 def run_one(scene, name: str, iters: int, seconds: float | None, seed: int, refine_iters: int) -> dict:
     from ebad.evaluate import evaluate, sharp_capture
     from ebad.run import reconstruct
@@ -80,7 +136,16 @@ def run_one(scene, name: str, iters: int, seconds: float | None, seed: int, refi
     t0 = time.perf_counter()
     run = reconstruct(cap, cfg)
     wall = time.perf_counter() - t0
-    ev = evaluate(run, scene.capture, refine=True, gt_frames=scene.gt_frames, refine_iters=refine_iters)
+    renders: dict[str, np.ndarray] = {}
+    ev = evaluate(
+        run,
+        scene.capture,
+        refine=True,
+        gt_frames=scene.gt_frames,
+        refine_iters=refine_iters,
+        renders_to=renders.__setitem__,
+    )
+    views = [v for v in scene.capture.test_views if v.name in renders and v.image is not None]
     m = run.metrics
     return {
         "preset": name,
@@ -99,6 +164,10 @@ def run_one(scene, name: str, iters: int, seconds: float | None, seed: int, refi
         "test_views": ev["test"].n if "test" in ev else 0,
         "deblur_psnr": ev["deblurred"].psnr,
         "deblur_ssim": ev["deblurred"].ssim,
+        "novel_colour": colour_split(np.stack([renders[v.name] for v in views]), np.stack([v.image for v in views]))
+        if views and views[0].image.shape[-1] == renders[views[0].name].shape[-1]
+        else None,
+        "deblur_colour": colour_split(run.deblurred_frames(), scene.gt_frames),
     }
 
 
@@ -163,14 +232,22 @@ def main(argv=None) -> int:
     )
     ap.add_argument("--seeds", default="0,1,2")
     ap.add_argument("--size", default=None, help="scene size (default small; quick tiny)")
-    ap.add_argument("--seconds", type=float, default=None, help="wall-time budget per run (default 60; quick 15)")
+    ap.add_argument(
+        "--seconds",
+        type=float,
+        default=None,
+        help="wall-time budget per run (default 60; quick 15); 0: none, --iters steps exactly",
+    )
     ap.add_argument("--iters", type=int, default=None, help="step cap per run (default 3000; quick 300)")
     ap.add_argument("--refine-iters", type=int, default=REFINE_ITERS, help="test-pose refinement steps at most")
     ap.add_argument("--name", default="ablation", help="results file benchmarks/results/NAME.json")
     args = ap.parse_args(argv)
     import scenes
 
-    seconds = args.seconds if args.seconds is not None else (15.0 if args.quick else 60.0)
+    try:
+        seconds = wall_budget(args.seconds, args.quick)
+    except ValueError as exc:
+        ap.error(str(exc))
     iters = args.iters if args.iters is not None else (300 if args.quick else 3000)
     size = args.size or ("tiny" if args.quick else "small")
     seeds = [0] if args.quick else [int(s) for s in args.seeds.split(",")]
@@ -188,7 +265,17 @@ def main(argv=None) -> int:
     warm_up(
         [*colours, *(["rgb"] if "cfa" in colours else [])]
     )  # numba compiles once, outside every budget (ebad-luma: rgb)
-    rows = []
+    rows: list[dict] = []
+    header = {
+        "size": size,
+        "seconds": seconds,
+        "iters": iters,
+        "seeds": seeds,
+        "settings": {k: SETTINGS[k] for k in settings},
+        "colours": {k: COLOURS[k] for k in colours},
+        "scene": args.scene,
+        "argv": sys.argv[1:],
+    }
     for setting, colour in [(s, c) for s in settings for c in colours]:
         label = setting if colours == ["grey"] else f"{setting}/{colour}"
         for seed in seeds:
@@ -196,21 +283,33 @@ def main(argv=None) -> int:
             from ebad.evaluate import score_frames
 
             blurry = score_frames(sc.capture.frames, sc.gt_frames).psnr
+            ceiling = demosaic_ceiling(sc)
             for name in presets:
                 if (name == "3dgs-po" and setting == "ideal") or (name == "ebad-luma" and colour != "cfa"):
                     continue
                 r = run_one(sc, name, iters, seconds, seed, args.refine_iters)
-                r.update({"setting": label, "colour": colour, "size": size, "blurry_psnr": blurry})
+                r.update(
+                    {
+                        "setting": label,
+                        "colour": colour,
+                        "size": size,
+                        "blurry_psnr": blurry,
+                        "demosaic_ceiling": ceiling,
+                    }
+                )
                 rows.append(r)
+                write_json(args.name, header | {"rows": rows, "partial": True})  # what is done survives a stop
                 print(
                     f"{label:10s} seed {seed} {name:10s} "
                     f"novel (refined) {r['test_refined_psnr'] or float('nan'):6.2f} dB"
+                    f" (luma {r['novel_colour']['psnr_luma'] if r['novel_colour'] else float('nan'):6.2f})"
                     f"  deblurred {r['deblur_psnr']:6.2f} dB  {r['steps']:5d} steps  {r['train_seconds']:6.1f} s"
                     f"  poses {r['pose_source']}{' (held)' if r['anchored'] else ''}",
                     flush=True,
                 )
     summary = summarise(rows)
-    print(f"\n{size}, {seconds:g} s / {iters} steps per run, seeds {seeds}; mean ± std over seeds")
+    budget = f"{iters} steps" if seconds is None else f"{seconds:g} s / {iters} steps"
+    print(f"\n{size}, {budget} per run, seeds {seeds}; mean ± std over seeds")
     print("| setting | preset | novel PSNR (refined) | novel SSIM | deblurred PSNR | deblurred SSIM | steps |")
     print("|---|---|---|---|---|---|---|")
     for setting, by in summary.items():
@@ -231,22 +330,7 @@ def main(argv=None) -> int:
     for setting, res in marg.items():
         for other, (m, sd, d) in res.items():
             print(f"  {setting:12s} ebad - {other:9s} {m:+6.2f} ± {sd:.2f}  [{', '.join(f'{x:+.2f}' for x in d)}]")
-    path = write_json(
-        args.name,
-        {
-            "size": size,
-            "seconds": seconds,
-            "iters": iters,
-            "seeds": seeds,
-            "settings": {k: SETTINGS[k] for k in settings},
-            "colours": {k: COLOURS[k] for k in colours},
-            "scene": args.scene,
-            "rows": rows,
-            "summary": summary,
-            "margins": marg,
-            "argv": sys.argv[1:],
-        },
-    )
+    path = write_json(args.name, header | {"rows": rows, "summary": summary, "margins": marg})
     print(f"\nwrote {path}")
     return 0
 

@@ -44,6 +44,7 @@ def _cfg(**loss):
     cfg.trajectory.num_views = 3
     cfg.model.init_points = 300
     cfg.model.init = "random"
+    cfg.loss.cfa_frames = "rgb"  # RGB frames compared as RGB unless a test says otherwise
     for k, v in loss.items():
         setattr(cfg.loss, k, v)
     return cfg
@@ -128,6 +129,7 @@ def test_view_latents_made_again_for_a_new_V_follow_the_filter(monkeypatch):
     cap = scenes.make_scene("boxes", size="tiny", seed=0, n_frames=4, cfa="RGGB").capture
     cfg = preset("ebad")
     cfg.loss.edi_instants = "views"
+    cfg.loss.cfa_frames = "rgb"  # RGB latents, where the filter shows (on the mosaic both are per pixel)
     data = prepare(cap, cfg)
     f = int(np.flatnonzero(data.V > 1)[0])
     new_V = data.V.copy()
@@ -138,3 +140,14 @@ def test_view_latents_made_again_for_a_new_V_follow_the_filter(monkeypatch):
     want = view_latents(frame, exposure, cap.events, int(new_V[f]), data.c, cfa="RGGB")
     assert torch.equal(data.view_latents[f], want)
     assert not torch.allclose(data.view_latents[f], view_latents(frame, exposure, cap.events, int(new_V[f]), data.c))
+
+
+def test_the_ebad_preset_compares_rgb_frames_through_the_mosaic_and_the_baselines_do_not():
+    assert preset("ebad").loss.cfa_frames == "mosaic"
+    assert {preset(p).loss.cfa_frames for p in ("3dgs", "bad", "edi-3dgs")} == {"rgb"}
+    cap = _capture(False)
+    cfg = preset("ebad")
+    cfg.loss.contrast, cfg.loss.w_edi, cfg.model.init, cfg.model.init_points = (0.2, 0.2), 0.0, "random", 300
+    data = prepare(cap, cfg)
+    assert data.raw_mosaic and data.targets.shape == (F, H, W, 1)
+    assert torch.equal(data.frames[..., 0], torch.from_numpy(mosaic(cap.frames, "GRBG")))

@@ -33,6 +33,7 @@ def test_prepare_passes_the_captures_cfa_to_the_c_estimate_and_the_latents(captu
         monkeypatch.setattr(edi, name, spy)
     cfg = preset("ebad")
     cfg.loss.edi_prior = prior
+    cfg.loss.cfa_frames = "rgb"  # the latents of the RGB frames (the ebad preset compares their mosaic)
     data = prepare(capture, cfg)
     assert seen["estimate_c"] == ["RGGB"]
     used = seen["medi"] if prior == "medi" else seen["deblur"]
