@@ -109,7 +109,8 @@ def colour_split(images: np.ndarray, truth: np.ndarray) -> dict[str, float]:  # 
 def demosaic_ceiling(scene) -> dict[str, dict[str, float]] | None:
     """``colour_split`` of the sharp truth (the test images, the training frames' ``gt_frames``)
     mosaicked with the capture's ``cfa`` and demosaiced bilinearly, against itself: what the camera's
-    demosaic alone loses, the ceiling of anything that fits the RGB frames. None without a cfa."""
+    demosaic alone loses in one frame, the error every RGB frame carries into a fit (not a ceiling: a fit
+    to many frames, whose filter phase moves across the view, averages part of it away). None without a cfa."""
     from edi.cfa import demosaic, mosaic
 
     cfa = scene.capture.cfa
