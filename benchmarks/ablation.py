@@ -69,12 +69,12 @@ def wall_budget(seconds: float | None, quick: bool = False) -> float | None:
 
 def make_config(name: str, iters: int, seconds: float | None, seed: int):
     """A preset, ``3dgs-po``, or a preset with options (``_common.config_spec``: ``ebad+trajectory.kind=cubic``)."""
-    cfg = config_spec({"3dgs-po": "3dgs", "ebad-luma": "ebad"}.get(name, name))
-    if name == "3dgs":
+    base, plus, options = name.partition("+")
+    cfg = config_spec({"3dgs-po": "3dgs", "ebad-luma": "ebad"}.get(base, base) + plus + options)
+    cfg.name = name
+    if base == "3dgs":
         cfg.trajectory.anchor_mid = "yes"  # poses held as given (the baseline without pose freedom)
-    if name in ("3dgs-po", "ebad-luma"):
-        cfg.name = name
-    if name == "3dgs-po":
+    if base == "3dgs-po":
         cfg.trajectory.anchor_mid = "no"  # per-frame pose optimisation
     cfg.train.iters = iters
     cfg.train.max_seconds = seconds
@@ -194,9 +194,18 @@ def summarise(rows: list[dict]) -> dict:
     return out
 
 
+_STARRED = {"3dgs*": ("3dgs", "3dgs-po"), "bad*": ("bad",)}
+
+
+def _base(preset: str) -> str:
+    """``bad`` of ``bad+loss.cfa_frames=mosaic``: the preset without its options."""
+    return preset.split("+", 1)[0]
+
+
 def margins(rows: list[dict]) -> dict:
-    """Per setting: ebad's novel-view (refined) margin over each other preset, paired by seed
-    (``3dgs*``: the stronger of 3dgs and 3dgs-po in that seed), as (mean, std, per-seed list)."""
+    """Per setting: ebad's novel-view (refined) margin over each other preset, paired by seed, as
+    (mean, std, per-seed list). ``3dgs*``: the strongest in that seed of 3dgs, 3dgs-po and their
+    variants with options (``3dgs-po+loss.cfa_frames=mosaic``); ``bad*`` the same of bad's."""
     out: dict = {}
     for setting in dict.fromkeys(r["setting"] for r in rows):
         by_seed: dict[int, dict[str, float]] = {}
@@ -204,12 +213,12 @@ def margins(rows: list[dict]) -> dict:
             if r["setting"] == setting and r["test_refined_psnr"] is not None:
                 by_seed.setdefault(r["seed"], {})[r["preset"]] = r["test_refined_psnr"]
         res: dict = {}
-        for other in ("3dgs*", "bad", "ebad-luma", "edi-3dgs"):
+        for other in ("3dgs*", "bad", "bad*", "ebad-luma", "edi-3dgs"):
             d = []
             for v in by_seed.values():
                 ref = (
-                    max((v[p] for p in ("3dgs", "3dgs-po") if p in v), default=None)
-                    if other == "3dgs*"
+                    max((v[p] for p in v if _base(p) in _STARRED[other]), default=None)
+                    if other in _STARRED
                     else v.get(other)
                 )
                 if "ebad" in v and ref is not None:
@@ -286,7 +295,11 @@ def main(argv=None) -> int:
             blurry = score_frames(sc.capture.frames, sc.gt_frames).psnr
             ceiling = demosaic_ceiling(sc)
             for name in presets:
-                if (name == "3dgs-po" and setting == "ideal") or (name == "ebad-luma" and colour != "cfa"):
+                if (
+                    (_base(name) == "3dgs-po" and setting == "ideal")
+                    or (name == "ebad-luma" and colour != "cfa")
+                    or ("loss.cfa_" in name and colour != "cfa")  # the same run as the plain preset's
+                ):
                     continue
                 r = run_one(sc, name, iters, seconds, seed, args.refine_iters)
                 r.update(

@@ -61,3 +61,44 @@ def test_demosaic_ceiling_is_exact_on_flat_colour_and_pins_an_edge():
     assert c["test"]["mse_luma"] == pytest.approx(12 * (0.25 / 3) ** 2 / (6 * 8))
     assert c["test"]["psnr_r"] == pytest.approx(c["test"]["psnr_b"]) == pytest.approx(-10 * np.log10(6 * 0.25**2 / 48))
     assert A.demosaic_ceiling(_scene(flat, flat, cfa=None)) is None
+
+
+def test_baselines_with_options_count_in_the_starred_margins():
+    """``3dgs*``/``bad*`` take the strongest variant in each seed, options included (a baseline
+    comparing through the mosaic is a baseline too); plain ``bad`` stays the plain preset."""
+    rows = [
+        {"setting": "sfm/cfa", "seed": s, "preset": p, "test_refined_psnr": v}
+        for s, vals in enumerate(
+            [
+                {
+                    "3dgs": 20.0,
+                    "3dgs-po": 19.0,
+                    "3dgs-po+loss.cfa_frames=mosaic": 21.5,
+                    "bad": 21.0,
+                    "bad+loss.cfa_frames=mosaic": 22.0,
+                    "ebad": 24.0,
+                },
+                {
+                    "3dgs": 20.5,
+                    "3dgs-po": 19.5,
+                    "3dgs-po+loss.cfa_frames=mosaic": 20.0,
+                    "bad": 21.0,
+                    "bad+loss.cfa_frames=mosaic": 20.5,
+                    "ebad": 24.5,
+                },
+            ]
+        )
+        for p, v in vals.items()
+    ]
+    m = A.margins(rows)["sfm/cfa"]
+    assert m["3dgs*"][2] == [2.5, 4.0]
+    assert m["bad*"][2] == [2.0, 3.5]
+    assert m["bad"][2] == [3.0, 3.5]
+
+
+def test_make_config_keeps_the_baseline_pose_rule_with_options():
+    po = A.make_config("3dgs-po+loss.cfa_frames=mosaic", 10, None, 0)
+    held = A.make_config("3dgs+loss.cfa_frames=mosaic", 10, None, 0)
+    assert (po.trajectory.anchor_mid, po.loss.cfa_frames, po.name) == ("no", "mosaic", "3dgs-po+loss.cfa_frames=mosaic")
+    assert (held.trajectory.anchor_mid, held.loss.cfa_frames) == ("yes", "mosaic")
+    assert A.make_config("3dgs-po", 10, None, 0).trajectory.anchor_mid == "no"
