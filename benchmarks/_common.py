@@ -118,3 +118,36 @@ def config_spec(spec: str):
     cfg = config_from_dict(d)
     cfg.name = spec
     return cfg
+
+
+def memory_mb() -> tuple[float | None, float | None]:
+    """This process's resident set and its peak so far, MB (``VmRSS``, ``VmHWM`` of /proc/self/status;
+    None where there is no /proc).
+
+    Not ``getrusage``'s ``ru_maxrss``: Linux carries it over ``exec``, so a child started by a process
+    that once held 6 GB (this benchmark's parent, simulating a 40-view capture) reports 6 GB before it
+    allocates anything. ``VmHWM`` belongs to the process's own address space, which ``exec`` replaces."""
+    try:
+        text = Path("/proc/self/status").read_text()
+    except OSError:
+        return None, None
+    kb = {k: int(v.split()[0]) for k, v in (ln.split(":", 1) for ln in text.splitlines() if ln.startswith("Vm"))}
+    return kb["VmRSS"] / 1024, kb["VmHWM"] / 1024
+
+
+def peak_rss_mb() -> float:
+    """This process's peak resident set so far, MB: ``VmHWM`` (see ``memory_mb``), or ``ru_maxrss``
+    where there is no /proc."""
+    import resource
+
+    hwm = memory_mb()[1]
+    return hwm if hwm is not None else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+def reset_peak() -> bool:
+    """Start this process's ``VmHWM`` again from its current resident set (Linux: /proc/self/clear_refs 5)."""
+    try:
+        Path("/proc/self/clear_refs").write_text("5")
+    except OSError:
+        return False
+    return True

@@ -45,45 +45,12 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from ._common import RESULTS, config_spec, write_json
+from ._common import RESULTS, config_spec, memory_mb, peak_rss_mb, reset_peak, write_json
 
 if TYPE_CHECKING:
     from ebad.config import PoseSource
 
 POSES: dict[str, PoseSource] = {"noisy": "capture", "sfm": "colmap"}  # --poses -> trajectory.pose_source
-
-
-def memory_mb() -> tuple[float | None, float | None]:
-    """This process's resident set and its peak so far, MB (``VmRSS``, ``VmHWM`` of /proc/self/status;
-    None where there is no /proc).
-
-    Not ``getrusage``'s ``ru_maxrss``: Linux carries it over ``exec``, so a child started by a process
-    that once held 6 GB (this benchmark's parent, simulating a 40-view capture) reports 6 GB before it
-    allocates anything. ``VmHWM`` belongs to the process's own address space, which ``exec`` replaces."""
-    try:
-        text = Path("/proc/self/status").read_text()
-    except OSError:
-        return None, None
-    kb = {k: int(v.split()[0]) for k, v in (ln.split(":", 1) for ln in text.splitlines() if ln.startswith("Vm"))}
-    return kb["VmRSS"] / 1024, kb["VmHWM"] / 1024
-
-
-def peak_rss_mb() -> float:
-    """This process's peak resident set so far, MB: ``VmHWM`` (see ``memory_mb``), or ``ru_maxrss``
-    where there is no /proc."""
-    import resource
-
-    hwm = memory_mb()[1]
-    return hwm if hwm is not None else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-
-
-def reset_peak() -> bool:
-    """Start this process's ``VmHWM`` again from its current resident set (Linux: /proc/self/clear_refs 5)."""
-    try:
-        Path("/proc/self/clear_refs").write_text("5")
-    except OSError:
-        return False
-    return True
 
 
 class Timeline(logging.Handler):
@@ -102,15 +69,18 @@ class Timeline(logging.Handler):
 
 
 class FirstStep:
-    """A ``Callback`` noting the wall time of the first step's end."""
+    """A ``Callback`` noting, in seconds since ``t0``, the first step's end (``at``) and the training
+    loop's start (``train_start``: ``at`` less the loop's own clock at that step, ``stats.time``)."""
 
     def __init__(self, t0: float):
         self.t0 = t0
         self.at: float | None = None
+        self.train_start: float | None = None
 
     def on_step(self, state, stats) -> None:
         if self.at is None:
             self.at = time.perf_counter() - self.t0
+            self.train_start = self.at - stats.time
 
     def on_end(self, state, reason: str) -> None:
         return None
@@ -147,7 +117,9 @@ def run_child(spec: dict) -> dict:
     memory["trained"] = memory_mb()
     m = run.metrics
     assert m is not None  # reconstruct sets it
-    before_train = wall - m.train_seconds  # loading, prepare, initialisation, the initial scoring
+    # loading, prepare, initialisation, the initial scoring: up to the loop's start (not the wall less the
+    # training seconds: reconstruct's work after the loop would count as before it)
+    before_train = first.train_start if first.train_start is not None else wall - m.train_seconds
     points = []
     for snap in snaps.taken:
         r = copy.copy(run)
@@ -164,7 +136,7 @@ def run_child(spec: dict) -> dict:
             }
         )
         memory[f"evaluated {len(points)}"] = memory_mb()
-    first_step = None if first.at is None else first.at - before_train
+    first_step = None if first.at is None else first.at - before_train  # the first step's own duration
     later = (m.train_seconds - (first_step or 0.0)) / max(m.steps - 1, 1)
     return {
         **spec,

@@ -36,10 +36,10 @@ import sys
 import time
 from pathlib import Path
 
-from ._common import RESULTS, config_spec, seed_all, write_json
+from ._common import RESULTS, config_spec, peak_rss_mb, seed_all, write_json
 
 OLD_DRIVER = r"""
-import os, sys, time, resource
+import os, sys, time
 import torch
 import scenes, ebad.trainer as T
 from ebad.config import preset
@@ -68,7 +68,9 @@ m = run.metrics
 torch.save({"snaps": snaps, "wall_seconds": wall, "steps": m["steps"], "stop_reason": m["stop_reason"],
             "train_seconds": m["train_seconds"], "prepare_seconds": m["prepare_seconds"],
             "own_test_psnr": (m.get("test") or {}).get("psnr"),
-            "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}, out)
+            # VmHWM, this process's own peak (ru_maxrss is carried over exec: it would be the parent's)
+            "peak_rss_mb": int(next(ln for ln in open("/proc/self/status") if ln.startswith("VmHWM")).split()[1])
+            / 1024}, out)
 """
 
 
@@ -176,9 +178,7 @@ def run_one(scene, name: str, seconds: float, marks: int, exact: bool, refine_it
             }
         )
     m = run.metrics
-    import resource
-
-    peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # Linux: kB; the process's peak so far
+    peak_mb = peak_rss_mb()  # this process's peak so far
     return {
         "preset": name,
         "peak_rss_mb_so_far": peak_mb,

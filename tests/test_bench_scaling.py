@@ -48,3 +48,19 @@ def test_memory_mb_sees_an_allocation():
     assert scaling.reset_peak()
     rss2, hwm2 = scaling.memory_mb()
     assert hwm2 < hwm1 - 150  # the peak starts again from the resident set
+
+
+def test_first_step_takes_the_loop_start_from_the_loops_own_clock():
+    """The training loop started ``stats.time`` before its first step ended: work after the loop (the
+    final scoring) must not move it, as ``wall - train_seconds`` did (a negative first step)."""
+    import time
+    from types import SimpleNamespace
+
+    t0 = time.perf_counter() - 10.0
+    fs = scaling.FirstStep(t0)
+    fs.on_step(None, SimpleNamespace(time=2.5))
+    assert fs.at is not None and fs.train_start is not None
+    assert 10.0 <= fs.at < 11.0
+    assert abs((fs.at - fs.train_start) - 2.5) < 1e-9
+    fs.on_step(None, SimpleNamespace(time=99.0))  # later steps change nothing
+    assert abs((fs.at - fs.train_start) - 2.5) < 1e-9
