@@ -112,6 +112,29 @@ def loss_rose(history: Sequence[StepStats]) -> str | None:
     )
 
 
+COLLAPSED_PSNR_DROP = 10.0  # dB: the last steps' training PSNR this far below the run's best window
+
+
+def psnr_collapsed(history: Sequence[StepStats]) -> str | None:
+    """A warning when the mean training PSNR of the last steps lies ``COLLAPSED_PSNR_DROP`` dB below the
+    best mean over any window of as many steps, else None: a run that learnt the scene and then lost it
+    (the loss can end below its first step's, so ``loss_rose`` stays silent: an SfM start with 26 points
+    on a tiny colour capture rose to 20.8 dB, fell to 4 at step 700 and ended there, with exit 0)."""
+    w = min(DIVERGED_LOSS_WINDOW, len(history) // 4)
+    if w < 1:
+        return None
+    ps = np.clip(np.nan_to_num(np.array([h.train_psnr for h in history], float), nan=0.0), 0.0, 100.0)
+    means = np.convolve(ps, np.ones(w) / w, mode="valid")
+    best = int(np.argmax(means))
+    if not means[best] - means[-1] > COLLAPSED_PSNR_DROP:
+        return None
+    return (
+        f"training collapsed: the training PSNR fell from {means[best]:.1f} dB (steps {history[best].step}-"
+        f"{history[best + w - 1].step}) to {means[-1]:.1f} dB over the last {w} steps; the result is far worse "
+        "than the run's best: lower the learning rates (--train.lr_means, --trajectory.lr) or check the poses"
+    )
+
+
 StopReason = Literal["iters", "time", "plateau", "interrupted (SIGINT)", "interrupted (SIGTERM)"]  # why train() stopped
 
 
@@ -507,7 +530,7 @@ def train(
                 if stop:
                     reason = stop
                     break
-            warning = loss_rose(state.history)
+            warning = loss_rose(state.history) or psnr_collapsed(state.history)
             if warning:
                 log.warning("%s", warning)
         finally:

@@ -74,7 +74,10 @@ class ColmapConfig:
     init_min_num_inliers: int = 50  # initial pair (COLMAP's default 100 is too strict for tiny frames)
     abs_pose_min_num_inliers: int = 15  # registering a new frame (COLMAP default 30)
     min_num_matches: int = 15  # verified matches for a pair to count
-    num_threads: int = 2
+    # threads of feature extraction, matching and mapping: with more than one, each of the three differs from run
+    # to run (the same tiny capture SfM'd 5 times with 2 threads: 54 to 207 points, other poses each time; with 2
+    # for extraction and 1 for the rest, still other poses each time), so one: the same capture, the same poses
+    num_threads: int = 1
     seed: int = 0
     upsample_below: int = 200  # frames narrower than this are upsampled x2 (SIFT needs pixels)
     verbose: bool = False  # COLMAP's log lines (INFO and up) on stderr; off: none (a failure raises SfMError)
@@ -279,7 +282,7 @@ def estimate_poses(
         reader.camera_params = ",".join(
             f"{v:.10g}" for v in (K[0, 0] * scale, K[1, 1] * scale, K[0, 2] * scale, K[1, 2] * scale)
         )
-        if hasattr(pycolmap, "set_random_seed"):  # RANSAC in matching and mapping; bit-exact only with 1 thread
+        if hasattr(pycolmap, "set_random_seed"):  # RANSAC in matching and mapping
             pycolmap.set_random_seed(cfg.seed)
         ext = pycolmap.FeatureExtractionOptions()
         ext.num_threads = cfg.num_threads

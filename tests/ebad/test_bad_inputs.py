@@ -175,10 +175,43 @@ def test_a_run_whose_loss_rose_ends_with_a_warning(monkeypatch, caplog):
 
         def step(data, state, *a, losses=losses, **k):
             state.step += 1
-            return SimpleNamespace(step=state.step, loss=float(losses[state.step - 1]), time=0.0, alpha=1.0)
+            return SimpleNamespace(
+                step=state.step, loss=float(losses[state.step - 1]), train_psnr=20.0, time=0.0, alpha=1.0
+            )
 
         monkeypatch.setattr(loop, "train_step", step)
         caplog.clear()
         with caplog.at_level("WARNING", logger="ebad.loop"):
             assert loop.train(data, state, None, cfg) == "iters"
         assert ("training diverged: the loss rose from 0.32 at step 1 to 1.39" in caplog.text) == warned
+
+
+def test_a_run_that_learnt_and_lost_the_scene_ends_with_a_warning(monkeypatch, caplog):
+    """The training PSNR rose to about 21 dB and fell to 4 (an SfM start on a tiny colour capture, issue
+    29's ablation): the loss ended below its first step's, so the loss check was silent; a coarse-to-fine
+    drop of a few dB is not a collapse."""
+    cfg = preset("ebad")
+    cfg.train.iters, cfg.train.coarse_scale, cfg.train.plateau_patience = 80, 1, 0
+    data = SimpleNamespace(scale=1.0, V=np.ones(2, np.int64), height=16, width=16)
+    rise = np.r_[np.linspace(4.0, 20.8, 20), np.full(20, 20.8)]
+    cases = (
+        (np.r_[rise, np.full(40, 4.2)], True),  # collapsed
+        (np.r_[rise, np.full(40, 11.0)], False),  # 9.8 dB below: under the 10 dB rule
+        (np.r_[np.linspace(20, 33, 20), np.full(20, 33), np.full(40, 30.5)], False),  # coarse to fine
+    )
+    for psnr, warned in cases:
+        state = _state()
+        state.step = 0
+
+        def step(data, state, *a, psnr=psnr, **k):
+            state.step += 1
+            p = float(psnr[state.step - 1])
+            return SimpleNamespace(step=state.step, loss=0.5 * 10 ** (-p / 20), train_psnr=p, time=0.0, alpha=1.0)
+
+        monkeypatch.setattr(loop, "train_step", step)
+        caplog.clear()
+        with caplog.at_level("WARNING", logger="ebad.loop"):
+            assert loop.train(data, state, None, cfg) == "iters"
+        assert ("training collapsed: the training PSNR fell from 20.8 dB" in caplog.text) == warned, caplog.text
+        if warned:
+            assert "to 4.2 dB over the last 20 steps" in caplog.text
