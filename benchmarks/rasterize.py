@@ -4,7 +4,7 @@ Forward and forward+backward milliseconds for N in {2k, 20k, 100k} Gaussians at 
 346x260, C in {1, 5} cameras, grey (D=1) and colour (D=3); peak memory. Each measurement
 runs in its own subprocess so that its peak resident memory is its own.
 
-    python -m benchmarks.rasterize [--quick | --target] [--baseline /work/main] [--rounds 3] [--omp-check]
+    python -m benchmarks.rasterize [--quick | --target] [--baseline /work/main] [--rounds 3] [--omp-check] [--name N]
 
 A "unit" (issue 31) is the time of `torch.exp` over 16M float32 values into a preallocated
 output (`torch.exp(x, out=y)`), timed in the same subprocess between the repetitions; every
@@ -321,6 +321,7 @@ def _alternate(cfg: dict, args: argparse.Namespace) -> tuple[dict, dict, list[di
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default=None, help="JSON output path (default benchmarks/results/rasterize[_quick].json)")
+    ap.add_argument("--name", default=None, help="write benchmarks/results/NAME.json (when --out is not given)")
     ap.add_argument("--quick", action="store_true", help="a small subset (128x96 and 346x260, N=2k/20k, C=1, grey)")
     ap.add_argument("--target", action="store_true", help="only the target configuration (20k, 346x260, C=1, grey)")
     ap.add_argument("--no-reference", action="store_true", help="time only the fast path")
@@ -436,7 +437,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"  unset / PASSIVE = {chk['ratio_unset_over_passive_ms']:.2f}")
     result["load_avg"] = os.getloadavg()
     name = "rasterize_target.json" if args.target else "rasterize_quick.json" if args.quick else "rasterize.json"
-    out = Path(args.out) if args.out else RESULTS / name
+    out = Path(args.out) if args.out else RESULTS / (f"{args.name}.json" if args.name else name)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(result, indent=1))
     print(f"wrote {out}")

@@ -33,3 +33,10 @@ def test_one_round_without_a_baseline_runs_the_fast_path_once(monkeypatch: pytes
     args = argparse.Namespace(rounds=1, baseline=None, timeout=1.0, omp_wait_policy="unset")
     fast, base, pairs = bench._alternate({"n": 1}, args)
     assert fast == {"skipped": "took more than 1 s"} and "skipped" in base and pairs == []
+
+
+def test_name_writes_the_json_under_that_name(monkeypatch: pytest.MonkeyPatch, tmp_path) -> None:
+    monkeypatch.setattr(bench, "RESULTS", tmp_path)
+    monkeypatch.setattr(bench, "_run_sub", lambda cfg, timeout, policy: {"skipped": "took more than 1 s"})
+    assert bench.main(["--target", "--no-reference", "--name", "rasterize_r7_run1"]) == 0
+    assert [p.name for p in tmp_path.iterdir()] == ["rasterize_r7_run1.json"]
