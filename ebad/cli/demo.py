@@ -97,6 +97,7 @@ def run(args: Args) -> int:
     from ..errors import ConfigError
     from ..evaluate import evaluate, score_frames
     from ..export import write_render
+    from ..precompile import Precompile
     from ..run import reconstruct, warm_up
     from ..runfolder import json_safe, write_run
 
@@ -108,23 +109,27 @@ def run(args: Args) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     camera = f"{args.sensor} colour DAVIS ({RGB_CFA})" if args.rgb else f"{args.sensor} camera"
-    print(f"ebad demo: building the synthetic scene '{args.scene}' ({args.size}, {camera}) ...", flush=True)
-    scene = scenes.make_scene(
-        args.scene, size=args.size, seed=args.seed, rgb=args.rgb, sensor=args.sensor, cfa=RGB_CFA if args.rgb else None
-    )
-    cap = scene.capture
-    scenes.save(cap, out / "capture", overwrite=True)  # what the run folders were made from (eval, --resume)
-    print(
-        f"  {cap.num_frames} blurry {cap.width}x{cap.height} frames, {len(cap.events)} events, "
-        f"{len(cap.test_views)} held-out views, poses given: {cap.effective_pose_trust}",
-        flush=True,
-    )
-    results, runs = {}, {}
-    blurry_scores = score_frames(cap.frames, scene.gt_frames)
-    blurry = {"train_psnr": blurry_scores.psnr, "train_ssim": blurry_scores.ssim}
-    refine = cap.effective_pose_trust != "exact"
-    print("  compiling numba's kernels (a first run only), outside both methods' time ...", end=" ", flush=True)
-    print(f"{warm_up(['cfa' if args.rgb else 'grey']):.0f} s", flush=True)
+    kinds = ["cfa" if args.rgb else "grey"]
+    with Precompile(kinds) as pre:  # on a cold cache: numba compiles in two processes while the scene is built
+        print(f"ebad demo: building the synthetic scene '{args.scene}' ({args.size}, {camera}) ...", flush=True)
+        cfa = RGB_CFA if args.rgb else None
+        scene = scenes.make_scene(args.scene, size=args.size, seed=args.seed, rgb=args.rgb, sensor=args.sensor, cfa=cfa)
+        cap = scene.capture
+        scenes.save(cap, out / "capture", overwrite=True)  # what the run folders were made from (eval, --resume)
+        print(
+            f"  {cap.num_frames} blurry {cap.width}x{cap.height} frames, {len(cap.events)} events, "
+            f"{len(cap.test_views)} held-out views, poses given: {cap.effective_pose_trust}",
+            flush=True,
+        )
+        results, runs = {}, {}
+        blurry_scores = score_frames(cap.frames, scene.gt_frames)
+        blurry = {"train_psnr": blurry_scores.psnr, "train_ssim": blurry_scores.ssim}
+        refine = cap.effective_pose_trust != "exact"
+        if pre.started:
+            print("  compiling numba's kernels in two processes (a first run only) ...", end=" ", flush=True)
+            print(f"{pre.wait():.0f} s from the start", flush=True)
+    print("  loading numba's kernels, outside both methods' time ...", end=" ", flush=True)
+    print(f"{warm_up(kinds):.0f} s", flush=True)  # compiles what no child did (when none failed: loads them all)
     for name, _ in METHODS:
         cfg = preset(name)
         cfg.train.iters = args.iters
