@@ -22,6 +22,7 @@ import tempfile
 import time
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 __all__ = ["Precompile", "kernels_cached"]
 
@@ -36,7 +37,7 @@ def kernels_cached() -> bool:
 
         from .kernels import _numba_ssim
 
-        kernels = (_numba_kernels.backward_tiles, _numba_ssim.ssim_backward)
+        kernels: tuple[Any, ...] = (_numba_kernels.backward_tiles, _numba_ssim.ssim_backward)  # numba's private API
         return all(bool(k._cache._cache_file._load_index()) for k in kernels)  # numba's index, {} when stale
     except Exception:  # noqa: BLE001  (numba's private cache API moved: just compile)
         return False
