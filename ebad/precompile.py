@@ -24,9 +24,10 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-__all__ = ["Precompile", "kernels_cached"]
+__all__ = ["Precompile", "end_with_parent", "kernels_cached"]
 
 _PARTS = ("raster", "losses")  # what each child compiles (``_child``)
+_PARENT = "EBAD_PRECOMPILE_PARENT"  # the pid of the process that started the children
 
 
 def kernels_cached() -> bool:
@@ -57,6 +58,7 @@ class Precompile:
             return
         root = str(Path(__file__).resolve().parents[1])
         env = dict(os.environ, NUMBA_NUM_THREADS="1", OMP_NUM_THREADS="1")  # compiling is serial in each child
+        env[_PARENT] = str(os.getpid())
         env["PYTHONPATH"] = os.pathsep.join(p for p in (root, env.get("PYTHONPATH")) if p)
         self._logs = [tempfile.TemporaryFile() for _ in _PARTS]
         for part, log in zip(_PARTS, self._logs, strict=True):
@@ -86,9 +88,25 @@ class Precompile:
         self.stop()
 
 
+def end_with_parent(parent: int, poll: float = 1.0) -> None:
+    """End this process (exit status 1) once ``parent`` (a pid) is no longer its parent: a demo killed
+    outright (SIGKILL, a timeout) leaves no compiling child behind, even one killed before this ran.
+    A daemon thread polls the parent's pid."""
+    import threading
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(poll)
+        os._exit(1)
+
+    threading.Thread(target=watch, daemon=True, name="end_with_parent").start()
+
+
 def _child(part: str, kinds: Sequence[str]) -> None:
     """Run ``warm_up(kinds)`` with the other half's kernels on their torch reference."""
     import contextlib
+
+    end_with_parent(int(os.environ[_PARENT]))
 
     import splat_cpu
 

@@ -6,6 +6,7 @@ import json
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -46,6 +47,39 @@ def test_a_failed_child_is_named(monkeypatch):
     with precompile.Precompile(["grey"]) as pre:
         pre.wait()
     assert pre.failed == ["losses"]
+
+
+_ORPHAN = """
+import os, subprocess, sys
+code = "import sys, time; from ebad.precompile import end_with_parent as e; e(int(sys.argv[1]), 0.05); time.sleep(60)"
+child = subprocess.Popen([sys.executable, "-c", code, str(os.getpid())])
+print(child.pid, flush=True)
+child.wait()
+"""
+
+
+def test_a_child_ends_when_its_parent_is_killed():
+    # a demo killed outright (SIGKILL: no __exit__ runs) must not leave a child compiling for a minute
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in (str(ROOT), os.environ.get("PYTHONPATH")) if p))
+    parent = subprocess.Popen([sys.executable, "-c", _ORPHAN], env=env, stdout=subprocess.PIPE, text=True)
+    assert parent.stdout is not None
+    pid = int(parent.stdout.readline())
+    parent.kill()
+    parent.wait()
+    deadline = time.monotonic() + 50  # a loaded machine starts python slowly
+    while time.monotonic() < deadline and Path(f"/proc/{pid}").exists() and "Z" not in _state(pid):
+        time.sleep(0.05)
+    gone = not Path(f"/proc/{pid}").exists() or "Z" in _state(pid)
+    if not gone:
+        os.kill(pid, 9)
+    assert gone
+
+
+def _state(pid: int) -> str:  # the process's state letter (Z: exited, not yet reaped), "" when gone
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (OSError, IndexError):
+        return ""
 
 
 class _Stop(Exception):
