@@ -12,9 +12,12 @@ import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from ..run import CaptureKind
 
 NAME = "demo"
 HELP = "reconstruct a synthetic blurry scene with ebad and with 3dgs, and compare (about 3 minutes)"
@@ -89,42 +92,51 @@ def comparison_image(
 
 
 def run(args: Args) -> int:
-    from PIL import Image
-
-    import scenes
-
-    from ..config import preset, save_config
     from ..errors import ConfigError
-    from ..evaluate import evaluate, score_frames
-    from ..export import write_render
-    from ..run import reconstruct, warm_up
-    from ..runfolder import json_safe, write_run
+    from ..precompile import Precompile
 
     if args.iters < 1:
         raise ConfigError(f"--iters must be >= 1, got {args.iters}")
     if not args.seconds > 0:
         raise ConfigError(f"--seconds must be > 0, got {args.seconds:g}")
     t_all = time.perf_counter()
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    camera = f"{args.sensor} colour DAVIS ({RGB_CFA})" if args.rgb else f"{args.sensor} camera"
-    print(f"ebad demo: building the synthetic scene '{args.scene}' ({args.size}, {camera}) ...", flush=True)
-    scene = scenes.make_scene(
-        args.scene, size=args.size, seed=args.seed, rgb=args.rgb, sensor=args.sensor, cfa=RGB_CFA if args.rgb else None
-    )
-    cap = scene.capture
-    scenes.save(cap, out / "capture", overwrite=True)  # what the run folders were made from (eval, --resume)
-    print(
-        f"  {cap.num_frames} blurry {cap.width}x{cap.height} frames, {len(cap.events)} events, "
-        f"{len(cap.test_views)} held-out views, poses given: {cap.effective_pose_trust}",
-        flush=True,
-    )
+    kinds: list[CaptureKind] = ["cfa" if args.rgb else "grey"]
+    # on a cold cache numba compiles in two child processes from here on, while this one imports and builds the scene
+    with Precompile(kinds) as pre:
+        from PIL import Image
+
+        import scenes
+
+        from ..config import preset, save_config
+        from ..evaluate import evaluate, score_frames
+        from ..export import write_render
+        from ..run import reconstruct, warm_up
+        from ..runfolder import json_safe, write_run
+
+        out = Path(args.out)
+        out.mkdir(parents=True, exist_ok=True)
+        camera = f"{args.sensor} colour DAVIS ({RGB_CFA})" if args.rgb else f"{args.sensor} camera"
+        print(f"ebad demo: building the synthetic scene '{args.scene}' ({args.size}, {camera}) ...", flush=True)
+        cfa = RGB_CFA if args.rgb else None
+        scene = scenes.make_scene(args.scene, size=args.size, seed=args.seed, rgb=args.rgb, sensor=args.sensor, cfa=cfa)
+        cap = scene.capture
+        scenes.save(cap, out / "capture", overwrite=True)  # what the run folders were made from (eval, --resume)
+        print(
+            f"  {cap.num_frames} blurry {cap.width}x{cap.height} frames, {len(cap.events)} events, "
+            f"{len(cap.test_views)} held-out views, poses given: {cap.effective_pose_trust}",
+            flush=True,
+        )
+        if pre.started:
+            print("  compiling numba's kernels in two processes (a first run only) ...", end=" ", flush=True)
+            seconds = pre.wait()
+            failed = f" (the {' and '.join(pre.failed)} process failed: compiled below)" if pre.failed else ""
+            print(f"{seconds:.0f} s from the start{failed}", flush=True)
+    print("  loading numba's kernels, outside both methods' time ...", end=" ", flush=True)
+    print(f"{warm_up(kinds):.0f} s", flush=True)  # compiles what no child did (when none failed: loads them all)
     results, runs = {}, {}
-    blurry_scores = score_frames(cap.frames, scene.gt_frames)
+    blurry_scores = score_frames(cap.frames, scene.gt_frames)  # SSIM's kernel: loaded by warm_up, not compiled twice
     blurry = {"train_psnr": blurry_scores.psnr, "train_ssim": blurry_scores.ssim}
     refine = cap.effective_pose_trust != "exact"
-    print("  compiling numba's kernels (a first run only), outside both methods' time ...", end=" ", flush=True)
-    print(f"{warm_up(['cfa' if args.rgb else 'grey']):.0f} s", flush=True)
     for name, _ in METHODS:
         cfg = preset(name)
         cfg.train.iters = args.iters

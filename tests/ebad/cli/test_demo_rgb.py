@@ -10,6 +10,13 @@ class _Stop(Exception):
     pass
 
 
+@pytest.fixture(autouse=True)
+def _no_precompile(monkeypatch):  # these tests stop before training: no child compiles numba's kernels for them
+    import ebad.precompile
+
+    monkeypatch.setattr(ebad.precompile, "kernels_cached", lambda: True)
+
+
 @pytest.mark.parametrize("rgb, cfa", [(True, "RGGB"), (False, None)])
 def test_demo_rgb_builds_a_colour_davis_capture(tmp_path, monkeypatch, rgb, cfa):
     seen = {}

@@ -1,0 +1,179 @@
+"""ebad.precompile: numba's kernels compiled into the cache by two child processes, the caller loading them."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+
+from ebad import precompile
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def test_no_child_starts_on_a_warm_cache(monkeypatch):
+    monkeypatch.setattr(precompile, "kernels_cached", lambda: True)
+    with precompile.Precompile(["grey"]) as pre:
+        assert not pre.started and pre.procs == []
+        assert pre.wait() >= 0 and pre.failed == []
+
+
+def test_children_are_ended_when_the_caller_raises(monkeypatch):
+    class Sleeper(subprocess.Popen):  # a child that would outlive the caller
+        def __init__(self, cmd, **kw):
+            super().__init__([sys.executable, "-c", "import time; time.sleep(60)"], **kw)
+
+    monkeypatch.setattr(precompile, "kernels_cached", lambda: False)
+    monkeypatch.setattr(precompile.subprocess, "Popen", Sleeper)
+    with pytest.raises(KeyError), precompile.Precompile(["grey"]) as pre:
+        assert pre.started and len(pre.procs) == 2
+        raise KeyError("the caller failed")
+    assert all(p.poll() is not None for p in pre.procs)
+
+
+def test_a_failed_child_is_named(monkeypatch):
+    class Failing(subprocess.Popen):
+        def __init__(self, cmd, **kw):
+            super().__init__([sys.executable, "-c", f"raise SystemExit({int(cmd[-2] == 'losses')})"], **kw)
+
+    monkeypatch.setattr(precompile, "kernels_cached", lambda: False)
+    monkeypatch.setattr(precompile.subprocess, "Popen", Failing)
+    with precompile.Precompile(["grey"]) as pre:
+        pre.wait()
+    assert pre.failed == ["losses"]
+
+
+_ORPHAN = """
+import os, subprocess, sys
+code = "import sys, time; from ebad.precompile import end_with_parent as e; e(int(sys.argv[1]), 0.05); time.sleep(60)"
+child = subprocess.Popen([sys.executable, "-c", code, str(os.getpid())])
+print(child.pid, flush=True)
+child.wait()
+"""
+
+
+def test_a_child_ends_when_its_parent_is_killed():
+    # a demo killed outright (SIGKILL: no __exit__ runs) must not leave a child compiling for a minute
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in (str(ROOT), os.environ.get("PYTHONPATH")) if p))
+    parent = subprocess.Popen([sys.executable, "-c", _ORPHAN], env=env, stdout=subprocess.PIPE, text=True)
+    assert parent.stdout is not None
+    pid = int(parent.stdout.readline())
+    parent.kill()
+    parent.wait()
+    deadline = time.monotonic() + 50  # a loaded machine starts python slowly
+    while time.monotonic() < deadline and Path(f"/proc/{pid}").exists() and "Z" not in _state(pid):
+        time.sleep(0.05)
+    gone = not Path(f"/proc/{pid}").exists() or "Z" in _state(pid)
+    if not gone:
+        os.kill(pid, 9)
+    assert gone
+
+
+def _state(pid: int) -> str:  # the process's state letter (Z: exited, not yet reaped), "" when gone
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (OSError, IndexError):
+        return ""
+
+
+class _Stop(Exception):
+    pass
+
+
+def test_the_demo_compiles_while_it_builds_its_scene_and_scores_after_loading_the_kernels(
+    tmp_path, monkeypatch, capsys
+):
+    # the children start before the scene is built, and the demo scores the blurry frames (SSIM's kernel) once
+    # warm_up has loaded the kernels: scored before, its process would compile SSIM's kernel beside a child
+    import ebad.evaluate
+    import ebad.run
+    import scenes
+    from ebad.cli import demo
+
+    events: list = []
+
+    class Recorder:
+        started = True
+        failed = ["losses"]  # its kernels are left to the demo's warm_up, and the demo says so
+
+        def __init__(self, kinds):
+            events.append(("start", list(kinds)))
+
+        def wait(self) -> float:
+            events.append("wait")
+            return 0.0
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            events.append("stop")
+
+    def score_frames(*args):
+        events.append("score")
+        raise _Stop
+
+    cap = SimpleNamespace(
+        num_frames=3, width=8, height=6, events=[], test_views=[], effective_pose_trust="exact", frames=None
+    )
+    monkeypatch.setattr(precompile, "Precompile", Recorder)
+    monkeypatch.setattr(
+        scenes, "make_scene", lambda *a, **kw: events.append("scene") or SimpleNamespace(capture=cap, gt_frames=None)
+    )
+    monkeypatch.setattr(scenes, "save", lambda *a, **kw: None)
+    monkeypatch.setattr(ebad.run, "warm_up", lambda kinds: events.append("warm_up") or 0.0)
+    monkeypatch.setattr(ebad.evaluate, "score_frames", score_frames)
+    with pytest.raises(_Stop):
+        demo.run(demo.Args(out=str(tmp_path / "o"), size="tiny"))
+    assert events == [("start", ["grey"]), "scene", "wait", "stop", "warm_up", "score"]
+    assert "s from the start (the losses process failed: compiled below)" in capsys.readouterr().out
+
+
+_DEMO = """
+import json, sys, numba.core.dispatcher as D
+compiled = []
+orig = D.Dispatcher.compile
+def compile(self, sig):  # numba: a signature neither loaded from the cache nor compiled yet is compiled here
+    n = sum(self._cache_misses.values())
+    out = orig(self, sig)
+    if sum(self._cache_misses.values()) > n:
+        compiled.append(self.py_func.__qualname__)
+    return out
+D.Dispatcher.compile = compile
+from ebad.cli import main
+assert main(sys.argv[1:]) == 0
+print(json.dumps(compiled))
+"""
+
+
+def _demo(out: Path, cache: Path) -> tuple[str, list[str], dict]:  # -> its output, what it compiled, results.json
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(cache))
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT), env.get("PYTHONPATH")) if p)
+    args = ["demo", "--out", str(out), "--size", "tiny", "--iters", "5", "--seconds", "1000", "--no-progress"]
+    r = subprocess.run([sys.executable, "-c", _DEMO, *args], env=env, capture_output=True, text=True, timeout=900)
+    assert r.returncode == 0, r.stderr[-3000:]
+    lines = r.stdout.strip().splitlines()
+    return r.stdout, json.loads(lines[-1]), json.loads((out / "results.json").read_text())
+
+
+@pytest.mark.slow
+def test_a_cold_demo_compiles_in_its_children_and_scores_as_a_warm_one(tmp_path):
+    # a cold cache: the two children compile every kernel of a training step while the demo builds its scene; the
+    # demo's own process compiles only its scene simulator's kernel, and loads the rest from the cache as every later
+    # run does, so its numbers (a step budget) are those of the next run, on the warm cache
+    cache = tmp_path / "numba"
+    text, compiled, cold = _demo(tmp_path / "cold", cache)
+    assert "compiling numba's kernels in two processes" in text, text
+    assert set(compiled) <= {"_crossings_numba"}, compiled
+    text, compiled, warm = _demo(tmp_path / "warm", cache)
+    assert "compiling numba's kernels in two processes" not in text and compiled == [], (text, compiled)
+    for res in (cold, warm):  # the training's wall time is the one number a step budget leaves to the clock
+        for method in ("3dgs", "ebad"):
+            res[method].pop("seconds")
+    assert cold == warm
