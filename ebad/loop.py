@@ -98,9 +98,15 @@ DIVERGED_LOSS_FACTOR = 2.0
 DIVERGED_LOSS_WINDOW = 20  # the last steps averaged (at most a quarter of the run)
 
 
+def _end_window(history: Sequence[StepStats]) -> int:
+    """The steps at a run's end that its divergence checks average: ``DIVERGED_LOSS_WINDOW``, at most a quarter
+    of the run (0: too short to judge)."""
+    return min(DIVERGED_LOSS_WINDOW, len(history) // 4)
+
+
 def loss_rose(history: Sequence[StepStats]) -> str | None:
     """A warning when the loss of the last steps is ``DIVERGED_LOSS_FACTOR`` x the first step's, else None."""
-    w = min(DIVERGED_LOSS_WINDOW, len(history) // 4)
+    w = _end_window(history)
     if w < 1:
         return None
     first, last = history[0].loss, float(np.mean([h.loss for h in history[-w:]]))
@@ -120,7 +126,7 @@ def psnr_collapsed(history: Sequence[StepStats]) -> str | None:
     best mean over any window of as many steps, else None: a run that learnt the scene and then lost it
     (the loss can end below its first step's, so ``loss_rose`` stays silent: an SfM start with 26 points
     on a tiny colour capture rose to 20.8 dB, fell to 4 at step 700 and ended there, with exit 0)."""
-    w = min(DIVERGED_LOSS_WINDOW, len(history) // 4)
+    w = _end_window(history)
     if w < 1:
         return None
     ps = np.clip(np.nan_to_num(np.array([h.train_psnr for h in history], float), nan=0.0), 0.0, 100.0)
