@@ -1,7 +1,7 @@
 """The paper's scale (issue 31): how ebad's cost grows with the views, the events and the pixels.
 
     python -m benchmarks.scaling [--size davis] [--views 10,20,40] [--test-views 8] [--presets ebad,bad]
-                                 [--poses noisy,sfm] [--seconds 900] [--marks 8] [--refine-iters 200]
+                                 [--poses noisy,sfm] [--seconds 900[,3600]] [--marks 8] [--refine-iters 200]
                                  [--events 50e6] [--name scaling]
     python -m benchmarks.scaling --size tiny --views 4 --seconds 20        # a check that it runs
     python -m benchmarks.scaling --views "" --events 50e6 --name scaling_events50m   # the events alone
@@ -9,7 +9,9 @@
 For each number of training views, a realistic capture (``scenes.make_scene("boxes", size,
 sensor="realistic")``, ``--test-views`` held-out views) is simulated once and written to disk; every
 (preset, poses) pair then runs in its own subprocess, which loads the capture (``scenes.load``) and
-reconstructs it under a wall-time budget of ``--seconds`` of training: ``noisy`` trains from the
+reconstructs it under a wall-time budget of ``--seconds`` of training (several budgets, comma-separated: one
+run each, the schedule following each run's own clock as a user's ``--train.max_seconds`` does; the capture
+is simulated once for all): ``noisy`` trains from the
 capture's noisy given poses, ``sfm`` finds them with pycolmap (``trajectory.pose_source colmap``).
 Per run:
 
@@ -227,12 +229,14 @@ def plot(results: dict, path: Path) -> None:
     sizes = list(results["runs"])
     fig, axes = plt.subplots(1, max(len(sizes), 1), figsize=(5 * max(len(sizes), 1), 3.8), squeeze=False)
     for ax, views in zip(axes[0], sizes):
+        several = len({r.get("seconds") for r in results["runs"][views]}) > 1  # budgets: say which curve is which
         for r in results["runs"][views]:
             if "points" not in r:
                 continue
             xs = [p["wall_seconds"] for p in r["points"]]
             ys = [p["test_psnr_refined"] for p in r["points"]]
-            ax.plot(xs, ys, marker="o", label=f"{r['preset']} ({r['poses']})")
+            budget = f", {r['seconds']:.0f} s budget" if several else ""
+            ax.plot(xs, ys, marker="o", label=f"{r['preset']} ({r['poses']}{budget})")
         ax.set(xlabel="wall seconds (everything before the first step included)", ylabel="test PSNR dB (refined)")
         ax.set_title(f"{views} training views")
         ax.grid(alpha=0.3)
@@ -249,7 +253,7 @@ def main(argv=None) -> int:
     ap.add_argument("--test-views", type=int, default=8, help="held-out test views per capture")
     ap.add_argument("--presets", default="ebad,bad")
     ap.add_argument("--poses", default="noisy,sfm", help="noisy (the capture's noisy poses) and/or sfm (pycolmap)")
-    ap.add_argument("--seconds", type=float, default=900.0, help="training budget per run")
+    ap.add_argument("--seconds", default="900", help="training budget per run; several, comma-separated: a run each")
     ap.add_argument("--marks", type=int, default=8, help="snapshots per run")
     ap.add_argument("--refine-iters", type=int, default=200)
     ap.add_argument("--seed", type=int, default=0)
@@ -267,6 +271,12 @@ def main(argv=None) -> int:
         return 0
     views = [int(v) for v in a.views.split(",") if v]
     presets = [p for p in a.presets.split(",") if p]
+    try:
+        budgets = [float(x) for x in a.seconds.split(",") if x]
+    except ValueError:
+        ap.error(f"--seconds: {a.seconds!r} is not a comma-separated list of seconds")
+    if not budgets or any(b <= 0 for b in budgets):
+        ap.error(f"--seconds: {a.seconds!r}: every budget must be > 0")
     poses = [p for p in a.poses.split(",") if p]
     for p in poses:
         if p not in POSES:
@@ -289,28 +299,29 @@ def main(argv=None) -> int:
         rows = []
         for preset in presets:
             for pose in poses:
-                spec = {
-                    "capture": str(cap_dir / "capture"),
-                    "views": n,
-                    "preset": preset,
-                    "poses": pose,
-                    "seconds": a.seconds,
-                    "marks": a.marks,
-                    "refine_iters": a.refine_iters,
-                }
-                r = _subprocess(["--child", json.dumps(spec)])
-                rows.append({**spec, **r})
-                print(
-                    f"{n:3d} views {preset:>6} {pose:>5}: "
-                    + (
-                        f"before the first step {r['before_first_step_seconds']:.1f} s, "
-                        f"{r['steps_per_second']:.2f} steps/s, peak RSS {r['peak_rss_mb']:.0f} MB, "
-                        f"PSNR {r['final_psnr_refined']} after {r['wall_seconds']:.0f} s"
-                        if "error" not in r
-                        else f"failed: {r['error']}"
-                    ),
-                    flush=True,
-                )
+                for budget in budgets:
+                    spec = {
+                        "capture": str(cap_dir / "capture"),
+                        "views": n,
+                        "preset": preset,
+                        "poses": pose,
+                        "seconds": budget,
+                        "marks": a.marks,
+                        "refine_iters": a.refine_iters,
+                    }
+                    r = _subprocess(["--child", json.dumps(spec)])
+                    rows.append({**spec, **r})
+                    print(
+                        f"{n:3d} views {preset:>6} {pose:>5} {budget:.0f} s: "
+                        + (
+                            f"before the first step {r['before_first_step_seconds']:.1f} s, "
+                            f"{r['steps_per_second']:.2f} steps/s, peak RSS {r['peak_rss_mb']:.0f} MB, "
+                            f"PSNR {r['final_psnr_refined']} after {r['wall_seconds']:.0f} s"
+                            if "error" not in r
+                            else f"failed: {r['error']}"
+                        ),
+                        flush=True,
+                    )
         results["runs"][n] = rows
     if a.events > 0:
         path = work / "events.npz"

@@ -64,3 +64,14 @@ def test_first_step_takes_the_loop_start_from_the_loops_own_clock():
     assert abs((fs.at - fs.train_start) - 2.5) < 1e-9
     fs.on_step(None, SimpleNamespace(time=99.0))  # later steps change nothing
     assert abs((fs.at - fs.train_start) - 2.5) < 1e-9
+
+
+def test_budgets_that_are_not_seconds_are_refused_before_anything_is_simulated(capsys):
+    """``--seconds 850,3600`` is a run per budget; a budget that is not a positive number is one line."""
+    import pytest
+
+    for bad in ("abc", "850,x", "0", "900,-1", ","):
+        with pytest.raises(SystemExit) as e:
+            scaling.main(["--seconds", bad, "--views", "4", "--events", "0"])
+        assert e.value.code == 2
+        assert "--seconds" in capsys.readouterr().err
