@@ -69,8 +69,9 @@ def wall_budget(seconds: float | None, quick: bool = False) -> float | None:
 
 def make_config(name: str, iters: int, seconds: float | None, seed: int):
     """A preset, ``3dgs-po``, or a preset with options (``_common.config_spec``: ``ebad+trajectory.kind=cubic``)."""
-    base, plus, options = name.partition("+")
-    cfg = config_spec({"3dgs-po": "3dgs", "ebad-luma": "ebad"}.get(base, base) + plus + options)
+    base = _base(name)
+    options = name[len(base) :]  # "" or "+section.field=value..."
+    cfg = config_spec({"3dgs-po": "3dgs", "ebad-luma": "ebad"}.get(base, base) + options)
     cfg.name = name
     if base == "3dgs":
         cfg.trajectory.anchor_mid = "yes"  # poses held as given (the baseline without pose freedom)

@@ -43,11 +43,12 @@ import argparse
 import json
 import math
 import os
-import resource
 import subprocess
 import sys
 import time
 from pathlib import Path
+
+from ._common import peak_rss_mb
 
 FULL_SIZES = [(128, 96), (346, 260)]
 FULL_NS = [2_000, 20_000, 100_000]
@@ -147,7 +148,7 @@ def measure_one(cfg: dict) -> dict:
         for k, v in fwd_bwd()["timings"].items():  # the stages of this forward+backward (ms)
             phases.setdefault(k, []).append(v)
         tfb.append(time.perf_counter() - t)
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    peak = peak_rss_mb()  # this process's own VmHWM (ru_maxrss would carry the parent's peak over exec)
     med = lambda xs: 1e3 * sorted(xs)[len(xs) // 2]  # noqa: E731
     return {
         **cfg,

@@ -337,11 +337,12 @@ class TrainConfig:
     """wall-time budget; the loop stops when it is spent. The schedule then follows max(steps / iters, seconds /
     max_seconds), so a run with a budget depends on the machine's speed and load and is not repeatable; a run
     budgeted by iters alone is bit-identical for one seed (any PYTHONHASHSEED or NUMBA_NUM_THREADS) as long as
-    numba's compiled kernels are the same: a first run on a cold numba cache compiles them in its own process and
-    differs in the last bits from later runs, which load them from the cache (numba compiles a parallel loop's
-    body twice, alone and inside its kernel: the compiling process runs the first copy, the cache keeps the
-    second, and the tile compositing kernels' fast-math reassociation rounds the two differently; see
-    tests/splat_cpu/test_cold_cache.py)"""
+    numba's compiled kernels are the same. ``ebad reconstruct`` on a cold numba cache compiles them in child
+    processes and loads them, as later runs do; ``ebad.run.reconstruct`` called alone compiles them in its own
+    process and differs in the last bits from later runs (numba compiles a parallel loop's body twice, alone and
+    inside its kernel: the compiling process runs the first copy, the cache keeps the second, and the tile
+    compositing kernels' fast-math reassociation rounds the two differently; see tests/splat_cpu/test_cold_cache.py
+    and the README)"""
     plateau_patience: int = 0
     """stop after this many loss windows without improvement (0: never)"""
     plateau_every: int = 50

@@ -5,8 +5,9 @@ other: numba compiles under one lock per process and holds the GIL for most of i
 does not help. ``Precompile`` starts two children that each run ``ebad.run.warm_up`` on half of
 the kernels, one with the losses and poses on their torch reference (it compiles the rasteriser),
 one with the rasteriser on its torch reference (it compiles SSIM, L_ev and the trajectories'
-poses); each saves what it compiled in the cache. Meanwhile the caller builds its capture; its
-own ``warm_up`` then loads the kernels from the cache: the machine code every later run loads,
+poses); each saves what it compiled in the cache. Meanwhile the caller works on (``ebad demo`` builds
+its scene, ``ebad reconstruct`` prepares the capture: ``reconstruct(..., ready=pre.wait)``); it then
+loads the kernels from the cache: the machine code every later run loads,
 not the in-process copies a cold compile runs, which round differently in the last bits
 (tests/splat_cpu/test_cold_cache.py).
 

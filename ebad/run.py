@@ -203,6 +203,7 @@ def reconstruct(
     gt_views: Sequence[TestView] | None = None,
     on_step: Callable[[int, StepStats], None] | None = None,
     callbacks: Sequence[Callback] = (),
+    ready: Callable[[], None] | None = None,
 ) -> Run:
     """Recover Gaussians and per-exposure trajectories from ``capture``.
 
@@ -217,6 +218,9 @@ def reconstruct(
         gt_views: test views with images to report PSNR on (default: the capture's).
         on_step: optional callback(step, stats) after every step.
         callbacks: more ``Callback`` objects, called after the built-in ones (they see the state).
+        ready: called once after preparing and initialising, before the first render (the initial
+            scoring or the first step): ``ebad reconstruct`` waits there for the processes compiling
+            the kernels into numba's cache (``ebad.precompile``), so that it loads them as later runs do.
 
     It first calls ``ebad.threads.configure()``; torch is loaded by then, so a program that wants
     OpenMP's threads to sleep (and numba on its faster "omp" layer) calls it before importing torch.
@@ -240,6 +244,8 @@ def reconstruct(
         say(show, "initialising the Gaussians and the trajectories")
         state = TrainState.create(data, cfg)
         say(show, f"initialised {state.num_gaussians} Gaussians in {time.perf_counter() - t_init:.1f} s")
+    if ready is not None:
+        ready()
     strategy = make_strategy(cfg.strategy, data.scale, max_gaussians(cfg, data), state.generator)
     strategy.check_sanity(state.params, state.optimizers)
     if resumed_from is None:

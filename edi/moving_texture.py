@@ -5,7 +5,8 @@ at every step of a fine time grid it compares log(I + LOG_EPS) with each pixel's
 reference level and fires one event per crossed contrast step (c_pos up, c_neg down).
 The blurry frame is the mean of the sharp images over the exposure (the same grid), so
 the EDI model holds up to the quantisation of the events. Used by the tests and the
-benchmark; small and fast (numpy only).
+benchmark; small and fast (numpy, and one numba loop over the time grid: ``_fire``, checked
+against its numpy twin ``_fire_reference``).
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import cast
 
+import numba
 import numpy as np
 
 from .cfa import check_pattern, demosaic, mosaic
@@ -143,12 +145,7 @@ def moving_texture(
     ref = np.log(seen(tex.render(0.0)) + LOG_EPS)
     images = np.concatenate([tex.render_many(chunk * 1e-6) for chunk in np.array_split(steps, len(steps) // 256 + 1)])
     lgs = np.log(seen(images) + LOG_EPS)  # [T, H, W]
-    n_ups, n_dns = np.zeros(lgs.shape, np.int64), np.zeros(lgs.shape, np.int64)
-    for j in range(len(steps)):  # each pixel's reference level follows its own events
-        d = lgs[j] - ref
-        n_ups[j] = n_up = np.floor(np.maximum(d, 0) / c_pos_px)
-        n_dns[j] = n_dn = np.floor(np.maximum(-d, 0) / c_neg_px)
-        ref = ref + n_up * c_pos_px - n_dn * c_neg_px
+    n_ups, n_dns = _fire(lgs, ref, c_pos_px, c_neg_px)
     ts, xs, ys, ps = [], [], [], []
     for n, pol in ((n_ups, 1), (n_dns, -1)):  # one step's up events, then its down events, each in (y, x) order
         jj, yy, xx = np.nonzero(n)
@@ -174,3 +171,50 @@ def moving_texture(
     if cfa is not None:  # what the camera software gives: the blurry mosaic, demosaiced
         fr = np.clip(demosaic(mosaic(fr, cfa), cfa), 0.0, 1.0)
     return SyntheticSequence(fr, exposures, ev, (c_pos, c_neg), (vx, vy), tex, cfa)
+
+
+def _fire_reference(
+    lgs: np.ndarray, ref: np.ndarray, c_pos_px: np.ndarray, c_neg_px: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """[T, H, W] x2 (int64): the up and down events of each pixel at each step of ``lgs`` [T, H, W]
+    (log intensity), from the reference levels ``ref`` [H, W] at the grid's start: every crossed
+    threshold fires, and the reference follows the pixel's own events. numpy, one step at a time."""
+    n_ups, n_dns = np.zeros(lgs.shape, np.int64), np.zeros(lgs.shape, np.int64)
+    for j in range(len(lgs)):
+        d = lgs[j] - ref
+        n_ups[j] = n_up = np.floor(np.maximum(d, 0) / c_pos_px)
+        n_dns[j] = n_dn = np.floor(np.maximum(-d, 0) / c_neg_px)
+        ref = ref + n_up * c_pos_px - n_dn * c_neg_px
+    return n_ups, n_dns
+
+
+def _fire(
+    lgs: np.ndarray, ref: np.ndarray, c_pos_px: np.ndarray, c_neg_px: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """``_fire_reference``, bit for bit, in one compiled pass (a pixel at a time along the grid)."""
+    T, H, W = lgs.shape
+    shape = (H * W,)
+    up, dn = _fire_numba(
+        np.ascontiguousarray(lgs, np.float64).reshape(T, H * W),
+        np.ascontiguousarray(ref, np.float64).reshape(shape),
+        np.ascontiguousarray(c_pos_px, np.float64).reshape(shape),
+        np.ascontiguousarray(c_neg_px, np.float64).reshape(shape),
+    )
+    return up.reshape(T, H, W), dn.reshape(T, H, W)
+
+
+@numba.njit(cache=True, nogil=True)
+def _fire_numba(lgs, ref, cp, cn):  # pragma: no cover - jit
+    T, P = lgs.shape
+    up = np.zeros((T, P), np.int32)  # counts of one step: small
+    dn = np.zeros((T, P), np.int32)
+    r = ref.copy()
+    for j in range(T):  # along the grid, all pixels of a step in memory order
+        for p in range(P):
+            d = lgs[j, p] - r[p]
+            n_up = np.floor(max(d, 0.0) / cp[p])  # the same operations, in the same order, as the reference
+            n_dn = np.floor(max(-d, 0.0) / cn[p])
+            up[j, p] = np.int32(n_up)
+            dn[j, p] = np.int32(n_dn)
+            r[p] = r[p] + n_up * cp[p] - n_dn * cn[p]
+    return up, dn

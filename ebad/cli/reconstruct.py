@@ -160,7 +160,8 @@ def run(args: Args) -> int:
 
     from ..config import save_config
     from ..errors import UserError
-    from ..run import reconstruct
+    from ..precompile import Precompile
+    from ..run import capture_kind, reconstruct
     from ..runfolder import RunLock, check_out_dir, write_run
     from ..state import capture_fingerprint, read_checkpoint
 
@@ -187,7 +188,8 @@ def run(args: Args) -> int:
     from scenes.convert import hold_out, parse_names
 
     capture = hold_out(scenes.load(args.capture), args.test_every, parse_names(args.test_frames), args.pose_trust)
-    with RunLock(out, say=lambda m: print(m, file=sys.stderr)):
+    # on a cold cache numba compiles in two child processes while this one prepares the capture
+    with Precompile([capture_kind(capture)]) as pre, RunLock(out, say=lambda m: print(m, file=sys.stderr)):
         if args.resume and ckpt.exists():  # refuse another capture before anything of the run is touched
             read_checkpoint(ckpt, capture_fingerprint(capture))
         for key, (old, new) in sorted(applied.items()):
@@ -198,7 +200,12 @@ def run(args: Args) -> int:
         live = _live_view(args, capture)
         try:
             run_ = reconstruct(
-                capture, cfg, out_dir=out, resume=args.resume, callbacks=_loggers(args, cfg, capture, out) + live
+                capture,
+                cfg,
+                out_dir=out,
+                resume=args.resume,
+                callbacks=_loggers(args, cfg, capture, out) + live,
+                ready=lambda: _compiled(pre, cfg.train.progress),
             )
         finally:
             for viewer in live:
@@ -233,6 +240,18 @@ def run(args: Args) -> int:
             file=sys.stderr,
         )
     return 0
+
+
+def _compiled(pre, show: bool) -> None:
+    """Wait for ``pre``'s processes (a first run on a cold cache): the run then loads the kernels from numba's
+    cache, the machine code every later run loads, and so gives their bits (README, "One --train.seed")."""
+    if pre.started:
+        from ..progress import say
+
+        say(show, "waiting for the processes compiling numba's kernels (a first run only)")
+        seconds = pre.wait()
+        failed = f"; the {' and '.join(pre.failed)} process failed: this one compiles" if pre.failed else ""
+        say(show, f"kernels compiled {seconds:.0f} s from the start{failed}")
 
 
 def _loggers(args: Args, cfg: Config, capture, out: Path) -> list:

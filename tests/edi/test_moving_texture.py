@@ -65,3 +65,25 @@ def test_moving_texture_matches_the_generator_written_plainly():
     np.testing.assert_array_equal(got, want_ev)
     np.testing.assert_allclose(s.frames, want_frames, rtol=0, atol=1e-12)
     np.testing.assert_allclose(s.sharp(0.0037), _image(s.texture, 0.0037), rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize(
+    "kw",
+    [
+        {"num_frames": 2, "seed": 0, "c": 0.2},
+        {"num_frames": 3, "seed": 4, "c": (0.15, 0.3), "sigma_c": 0.03, "lead": 0.02},
+        {"num_frames": 1, "seed": 2, "c": 0.1, "channels": 3, "cfa": "GRBG", "sigma_c": 0.05},
+    ],
+)
+def test_the_compiled_threshold_loop_gives_the_numpy_loop_s_events_bit_for_bit(kw, monkeypatch):
+    # the events every estimator test pins its figures on: the compiled loop (_fire) must not move one of them
+    import importlib
+
+    mt = importlib.import_module("edi.moving_texture")  # the module (edi.moving_texture is also the function)
+    fast = moving_texture(**kw)
+    monkeypatch.setattr(mt, "_fire", mt._fire_reference)
+    slow = moving_texture(**kw)
+    assert len(fast.events) > 1000
+    for name in ("t", "x", "y", "p"):
+        np.testing.assert_array_equal(getattr(fast.events, name), getattr(slow.events, name))
+    np.testing.assert_array_equal(fast.frames, slow.frames)
