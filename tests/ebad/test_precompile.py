@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import os
 import subprocess
 import sys
@@ -135,44 +134,5 @@ def test_the_demo_compiles_while_it_builds_its_scene_and_scores_after_loading_th
     assert "s from the start (the losses process failed: compiled below)" in capsys.readouterr().out
 
 
-_DEMO = """
-import json, sys, numba.core.dispatcher as D
-compiled = []
-OURS = {"splat_cpu", "edi", "scenes", "ebad"}
-orig = D.Dispatcher.compile
-def compile(self, sig):  # numba: a signature neither loaded from the cache nor compiled yet is compiled here
-    n = sum(self._cache_misses.values())
-    out = orig(self, sig)
-    if sum(self._cache_misses.values()) > n and self.py_func.__module__.split(".")[0] in OURS:
-        compiled.append(self.py_func.__qualname__)  # ours: numba's own overloads compile inside whatever calls them
-    return out
-D.Dispatcher.compile = compile
-from ebad.cli import main
-assert main(sys.argv[1:]) == 0
-print(json.dumps(compiled))
-"""
-
-
-def _demo(out: Path, cache: Path) -> tuple[str, list[str], dict]:  # -> its output, what it compiled, results.json
-    env = dict(os.environ, NUMBA_CACHE_DIR=str(cache))
-    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT), env.get("PYTHONPATH")) if p)
-    args = ["demo", "--out", str(out), "--size", "tiny", "--iters", "5", "--seconds", "1000", "--no-progress"]
-    r = subprocess.run([sys.executable, "-c", _DEMO, *args], env=env, capture_output=True, text=True, timeout=900)
-    assert r.returncode == 0, r.stderr[-3000:]
-    lines = r.stdout.strip().splitlines()
-    return r.stdout, json.loads(lines[-1]), json.loads((out / "results.json").read_text())
-
-
-@pytest.mark.slow
-def test_a_cold_demo_compiles_in_its_children_and_loads_their_kernels(tmp_path):
-    # a cold cache: the two children compile every kernel of a training step while the demo builds its scene; the
-    # demo's own process compiles only its scene simulator's kernel and loads the rest from the cache, as every
-    # later run does (its numbers are not compared with the next run's: the demo's --seconds budget makes the
-    # schedule follow the clock, so two demos differ in the last bits whatever compiled their kernels)
-    cache = tmp_path / "numba"
-    text, compiled, cold = _demo(tmp_path / "cold", cache)
-    assert "compiling numba's kernels in two processes" in text, text
-    assert set(compiled) <= {"_crossings_numba"}, compiled
-    text, compiled, warm = _demo(tmp_path / "warm", cache)
-    assert "compiling numba's kernels in two processes" not in text and compiled == [], (text, compiled)
-    assert cold.keys() == warm.keys() and cold["ebad"]["steps"] == warm["ebad"]["steps"] == 5
+# A cold first run end to end (the children compile, the caller loads, its bits are the later runs'):
+# tests/ebad/cli/test_first_run_bits.py, through `ebad reconstruct`, which uses this Precompile as the demo does.
