@@ -191,7 +191,8 @@ def _fire_reference(
 def _fire(
     lgs: np.ndarray, ref: np.ndarray, c_pos_px: np.ndarray, c_neg_px: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """``_fire_reference``, bit for bit, in one compiled pass (a pixel at a time along the grid)."""
+    """``_fire_reference``'s counts, bit for bit (as int32: a step's counts are small), in one compiled pass
+    over the grid (every pixel of a step, then the next step)."""
     T, H, W = lgs.shape
     shape = (H * W,)
     up, dn = _fire_numba(
