@@ -126,7 +126,7 @@ def demosaic_ceiling(scene) -> dict[str, dict[str, float]] | None:
 
 
 def run_one(scene, name: str, iters: int, seconds: float | None, seed: int, refine_iters: int) -> dict:
-    from ebad.evaluate import evaluate, sharp_capture
+    from ebad.evaluate import evaluate, run_truth, sharp_capture
     from ebad.run import reconstruct
 
     cfg = make_config(name, iters, seconds, seed)
@@ -158,6 +158,8 @@ def run_one(scene, name: str, iters: int, seconds: float | None, seed: int, refi
         "prepare_seconds": m.prepare_seconds,
         "gaussians": m.gaussians,
         "pose_source": m.prepare.pose_source,
+        "train_frames": m.prepare.train_frames,  # SfM's unregistered frames are left out
+        "unregistered": m.prepare.unregistered_frames,
         "anchored": m.anchored_mid_poses,
         "c": m.prepare.c,
         "test_psnr": ev["test"].psnr if "test" in ev else None,
@@ -169,7 +171,7 @@ def run_one(scene, name: str, iters: int, seconds: float | None, seed: int, refi
         "novel_colour": colour_split(np.stack([renders[v.name] for v in views]), np.stack([v.image for v in views]))
         if views and views[0].image.shape[-1] == renders[views[0].name].shape[-1]
         else None,
-        "deblur_colour": colour_split(run.deblurred_frames(), scene.gt_frames),
+        "deblur_colour": colour_split(run.deblurred_frames(), run_truth(run, scene.gt_frames, scene.capture)),
     }
 
 

@@ -99,6 +99,9 @@ class PrepareReport:
     structured_events_per_pixel: list[float] | None = None
     sharp_frames: int | None = None  # training frames given V = 1 (sharp)
     sharp_reason: str | None = None  # why those frames were treated as sharp
+    # training frames SfM did not register: left out of training (a pose interpolated in time between
+    # registered neighbours is not trusted to start a trajectory from)
+    unregistered_frames: list[str] | None = None
 
 
 #: the contrast scales s of ``EdiTables.logmean``: with a learnt response and a c estimated from the frames,
@@ -619,8 +622,19 @@ def prepare(capture: Capture, cfg: Config) -> TrainingData:
     idx = _train_indices(capture)
     t0 = time.perf_counter()
     say(show, f"poses of {len(idx)} training frames (trajectory.pose_source {cfg.trajectory.pose_source})")
+    wanted = idx
     c2w, points, point_colors, pose_src, idx, registered = _poses(capture, cfg, idx)
     say(show, f"poses: {pose_src}, {len(idx)} frames ({time.perf_counter() - t0:.1f} s)")
+    kept = set(idx)
+    unregistered = [capture.frame_names()[i] for i in wanted if i not in kept] or None
+    if unregistered:
+        log.warning(
+            "SfM did not register %d of %d training frames; they are left out of training (and of the "
+            "deblurred frames): %s",
+            len(unregistered),
+            len(wanted),
+            ", ".join(unregistered),
+        )
     if len(idx) < MIN_TRAIN_FRAMES:
         raise UserError(
             f"the capture has {len(idx)} training frame(s) with a pose; a 3D scene needs at least "
@@ -687,6 +701,7 @@ def prepare(capture: Capture, cfg: Config) -> TrainingData:
         structured_events_per_pixel=structured,
         sharp_frames=int((V == 1).sum()),
         sharp_reason=sharp_why,
+        unregistered_frames=unregistered,
     )
 
     latents: Tensor | None = None

@@ -14,7 +14,8 @@ The protocol (``evaluate``), as in BAD-Gaussians / EBAD-NeRF:
 3. **Metrics.** PSNR over all pixels and channels of images clamped to [0, 1] (data range 1);
    SSIM with kornia's Gaussian window of 11 pixels, sigma 1.5, reflect padding, data range 1.
    The deblurred training frames (each rendered at its recovered mid-exposure pose) are scored
-   against the sharp ground truth where it is given.
+   against the sharp ground truth where it is given, frame by name (``run_truth``: a frame SfM did
+   not register is not in the run and not scored).
 """
 
 from __future__ import annotations
@@ -42,6 +43,7 @@ __all__ = [
     "refine_pose",
     "evaluate",
     "eval_poses",
+    "run_truth",
     "sharp_capture",
     "score_frames",
     "score_views",
@@ -126,6 +128,21 @@ def eval_poses(run: Run, capture: Capture) -> tuple[dict[str, np.ndarray], dict[
     return poses, how
 
 
+def run_truth(run: Run, gt_frames: np.ndarray, capture: Capture | None = None) -> np.ndarray:
+    """The rows of ``gt_frames`` that belong to the run's frames, in ``run.names``' order. ``gt_frames``
+    holds one sharp frame per run frame, or one per capture frame (``capture.frame_names()``' order,
+    ``capture`` given): then the run's are picked by name (a run leaves out the test frames and the
+    frames SfM did not register)."""
+    truth = np.asarray(gt_frames)
+    if capture is not None and len(truth) == capture.num_frames and len(truth) != len(run.names):
+        pos = {n: i for i, n in enumerate(capture.frame_names())}
+        missing = [n for n in run.names if n not in pos]
+        if missing:
+            raise UserError(f"the run's frames {', '.join(missing[:3])} are not frames of the capture")
+        truth = truth[[pos[n] for n in run.names]]
+    return truth
+
+
 def evaluate(
     run: Run,
     capture: Capture | None = None,
@@ -162,10 +179,10 @@ def evaluate(
                 for v, img in zip(views, images):
                     renders_to(v.name, img)
     if gt_frames is not None:
-        db = run.deblurred_frames()
-        if db.shape != gt_frames.shape:
-            raise UserError(f"ground-truth frames {gt_frames.shape} do not match the run's frames {db.shape}")
-        out["deblurred"] = score_frames(db, gt_frames)
+        db, truth = run.deblurred_frames(), run_truth(run, gt_frames, capture)
+        if db.shape != truth.shape:
+            raise UserError(f"ground-truth frames {truth.shape} do not match the run's frames {db.shape}")
+        out["deblurred"] = score_frames(db, truth)
     return out
 
 
