@@ -177,8 +177,9 @@ class TrajectoryConfig:
     exact (pose_trust), no for approximate poses and after SfM, which then optimise every frame's whole trajectory (a
     sharp frame's pose too)"""
     pose_source: PoseSource = "auto"
-    """auto: capture poses when present and not marked pose_trust none, else pycolmap SfM; static: a camera on a tripod
-    (every frame at the identity pose)"""
+    """auto: capture poses when present and not marked pose_trust none, else static when the frames do not change
+    beyond their noise (ebad.data.STILL_CHANGED), else pycolmap SfM; colmap: SfM regardless; static: a camera on a
+    tripod (every frame at the identity pose)"""
 
     def check(self) -> None:
         _finite(self, "trajectory")

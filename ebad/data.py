@@ -46,6 +46,8 @@ __all__ = [
     "SPREAD_DEPTH_RANGE",
     "STATIC_SPREAD",
     "STATIC_DEPTH_RANGE",
+    "STILL_CHANGED",
+    "changed_fraction",
     "structured_events_per_pixel",
     "sharp_views",
     "SUPPORT_US",
@@ -69,6 +71,13 @@ SPREAD_DEPTH_RANGE = (0.5, 2.0)  # the camera-spread scene scale (forward-facing
 # front of the camera, and the scene scale is 1 (the geometric mean of that range).
 STATIC_SPREAD = 0.1
 STATIC_DEPTH_RANGE = (0.5, 2.0)
+# A capture without poses (pose_source auto) whose frames all look like its first is a camera that did not move,
+# posed as --trajectory.pose_source static without running SfM (which cannot register it and would spend a minute
+# or more finding so): at most this fraction of the pixels of any training frame differs from the first frame's
+# beyond their noise (``changed_fraction``). Measured: the static street recording 0.021 (its moving cars);
+# moving cameras 0.53-0.75 (synthetic scenes, grey and RGB, seeds 0-2), 0.39-0.46 (their raw Bayer mosaics),
+# 0.92 (slider_depth's slider).
+STILL_CHANGED = 0.1
 
 
 PoseSourceUsed = Literal["capture", "colmap", "static"]  # where a run's mid-exposure poses came from
@@ -498,6 +507,25 @@ def sharp_views(
     return V, None if structured is None else [round(float(v), 4) for v in structured], why
 
 
+def changed_fraction(frames: np.ndarray, mosaic: bool = False) -> float:  # [F, H, W, D]
+    """The largest fraction, over the frames, of a frame's pixels that differ from the first frame's by
+    more than 3 standard deviations of the two frames' noise plus 0.01 (channel means; 2 x 2 block means
+    of raw Bayer mosaics, ``mosaic``, whose filter pattern is no noise). A frame's noise
+    is estimated robustly from its 2 x 2 second differences (their median absolute value / 0.6745 / 2:
+    the difference of four pixels of noise sigma has deviation 2 sigma), so texture inflates it a
+    little and never lowers it. 0 for a single frame."""
+    f = np.asarray(frames, dtype=np.float32).mean(axis=-1)
+    if mosaic:
+        F, H, W = f.shape
+        f = f[:, : H // 2 * 2, : W // 2 * 2].reshape(F, H // 2, 2, W // 2, 2).mean(axis=(2, 4))
+    if len(f) < 2:
+        return 0.0
+    d2 = f[:, 1:, 1:] - f[:, :-1, 1:] - f[:, 1:, :-1] + f[:, :-1, :-1]
+    sigma = np.median(np.abs(d2), axis=(1, 2)) / 0.6745 / 2
+    tau = 3 * np.sqrt(sigma[0] ** 2 + sigma[1:] ** 2) + 0.01
+    return float(max((np.abs(f[k] - f[0]) > tau[k - 1]).mean() for k in range(1, len(f))))
+
+
 def _poses(capture: Capture, cfg: Config, idx: list[int]):
     """Mid-exposure poses of the training frames, SfM points and test-view poses when SfM ran."""
     src = cfg.trajectory.pose_source
@@ -506,6 +534,19 @@ def _poses(capture: Capture, cfg: Config, idx: list[int]):
         return np.asarray(capture.c2w, dtype=np.float64)[idx], None, None, "capture", idx, {}
     if src == "capture":
         raise UserError("--trajectory.pose_source is 'capture' but the capture has no poses (c2w)")
+    if src == "auto":
+        changed = changed_fraction(
+            np.asarray(capture.frames)[idx], mosaic=capture.cfa is not None and np.shape(capture.frames)[-1] == 1
+        )
+        if changed <= STILL_CHANGED:
+            log.warning(
+                "the camera did not move: at most %.1f%% of the pixels of any frame differ from the first frame "
+                "beyond their noise (a moving camera changes more than %.0f%%); every frame starts at one pose, as "
+                "with --trajectory.pose_source static (--trajectory.pose_source colmap runs SfM anyway)",
+                100 * changed,
+                100 * STILL_CHANGED,
+            )
+            src = "static"
     if src == "static":
         return np.repeat(np.eye(4)[None], len(idx), axis=0), None, None, "static", idx, {}
     from scenes.colmap import ColmapConfig, SfMError, estimate_poses

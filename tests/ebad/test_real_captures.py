@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import logging
 from pathlib import Path
 
 import pytest
@@ -18,29 +19,15 @@ pytestmark = pytest.mark.skipif(
 
 
 @pytest.mark.slow
-def test_aedat4_capture_reconstructs_end_to_end_on_a_static_camera(tmp_path, capsys):
-    """The street recording has a static camera: SfM cannot register it, and the error says
-    what to do; with static poses the run completes and writes its run folder."""
+def test_aedat4_capture_reconstructs_end_to_end_on_a_static_camera(tmp_path, caplog):
+    """The street recording has a static camera: its frames change only where the cars pass (2.1%
+    of the pixels at most), so the run poses it as a tripod without trying SfM, says so, and
+    completes its run folder."""
     out = tmp_path / "run"
-    rc = main(["reconstruct", str(AEDAT), "--out", str(out), "--train.iters", "5", "--no-progress"])
-    assert rc == 2
-    assert "pose_source static" in capsys.readouterr().err
-    assert not (out / "point_cloud.ply").exists()
-
-    rc = main(
-        [
-            "reconstruct",
-            str(AEDAT),
-            "--out",
-            str(out),
-            "--train.iters",
-            "5",
-            "--no-progress",
-            "--trajectory.pose_source",
-            "static",
-        ]
-    )
+    with caplog.at_level(logging.WARNING, logger="ebad.data"):
+        rc = main(["reconstruct", str(AEDAT), "--out", str(out), "--train.iters", "5", "--no-progress"])
     assert rc == 0
+    assert "the camera did not move: at most 2.1% of the pixels" in caplog.text
     metrics = json.loads((out / "metrics.json").read_text())
     prep = metrics["prepare"]
     assert prep["pose_source"] == "static" and metrics["steps"] == 5

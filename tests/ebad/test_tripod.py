@@ -14,7 +14,7 @@ import scenes
 from ebad import reconstruct
 from ebad.cli import main
 from ebad.config import preset
-from ebad.data import STATIC_DEPTH_RANGE, prepare
+from ebad.data import STATIC_DEPTH_RANGE, STILL_CHANGED, changed_fraction, prepare
 from ebad.errors import UserError
 from ebad.gaussians import render
 from ebad.loop import EMPTY_ALPHA
@@ -103,3 +103,46 @@ def test_the_cli_exits_non_zero_on_empty_renders(tripod, tmp_path, capsys):
     assert rc != 0
     err = capsys.readouterr().err
     assert "every render of the first 2 steps is empty" in err and len(err.strip().splitlines()) == 1
+
+
+def test_a_tripod_capture_without_poses_is_posed_static_without_sfm(tripod, monkeypatch, caplog):
+    """pose_source auto on frames that all look alike: no SfM (it cannot register a camera that did
+    not move, and takes a minute to find so), every frame at one pose, said once; colmap still runs it."""
+    import scenes.colmap
+    from scenes.colmap import SfMError
+
+    calls = []
+
+    def sfm(capture, cfg=None):
+        calls.append(capture.num_frames)
+        raise SfMError("SfM registered no frames")
+
+    monkeypatch.setattr(scenes.colmap, "estimate_poses", sfm)
+    unposed = dataclasses.replace(tripod, c2w=None, pose_trust=None)
+    with caplog.at_level(logging.WARNING, logger="ebad.data"):
+        data = prepare(unposed, _cfg("auto"))
+    assert calls == [] and data.report.pose_source == "static"
+    assert np.array_equal(data.c2w.numpy(), np.repeat(np.eye(4, dtype=np.float32)[None], unposed.num_frames, 0))
+    assert "the camera did not move: at most 0.0% of the pixels" in caplog.text
+    assert "--trajectory.pose_source colmap runs SfM anyway" in caplog.text
+    with pytest.raises(SfMError, match="use --trajectory.pose_source static"):
+        prepare(unposed, _cfg("colmap"))
+    assert calls == [unposed.num_frames]
+
+
+def test_changed_fraction_tells_a_still_camera_from_a_moving_one():
+    """Pinned on captures it was measured on: the frames of a moving camera change 0.60 of their
+    pixels (boxes, tiny, seed 0) and 0.46 of a raw mosaic's 2 x 2 blocks; a smooth image under fresh
+    noise of sigma 0.02 in each frame changes where |N(0, 0.0283)| > 3 x 0.0283 + 0.01, with
+    probability 0.080% a pixel (the largest of five frames' fractions: about 0.1%)."""
+    moving = scenes.make_scene("boxes", size="tiny", seed=0, poses="none").capture
+    assert changed_fraction(moving.frames) == pytest.approx(0.602, abs=0.003)
+    raw = scenes.make_scene("boxes", size="tiny", seed=0, poses="none", rgb=True, cfa="RGGB", raw_frames=True)
+    assert raw.capture.frames.shape[-1] == 1
+    assert changed_fraction(raw.capture.frames, mosaic=True) == pytest.approx(0.461, abs=0.003)
+    rng = np.random.default_rng(0)
+    ramp = np.linspace(0.2, 0.8, 200, dtype=np.float32)[None, :, None, None] * np.ones((1, 1, 200, 1), np.float32)
+    still = ramp + rng.normal(0, 0.02, size=(6, 200, 200, 1)).astype(np.float32)  # 40,000 pixels a frame
+    assert changed_fraction(still) == pytest.approx(0.001, abs=0.0003)
+    assert changed_fraction(moving.frames[:1]) == 0.0
+    assert STILL_CHANGED == 0.1
