@@ -534,7 +534,7 @@ def _poses(capture: Capture, cfg: Config, idx: list[int]):
         return np.asarray(capture.c2w, dtype=np.float64)[idx], None, None, "capture", idx, {}
     if src == "capture":
         raise UserError("--trajectory.pose_source is 'capture' but the capture has no poses (c2w)")
-    if src == "auto":
+    if src == "auto" and len(idx) >= MIN_TRAIN_FRAMES:  # (one frame: nothing to compare, SfM says what it needs)
         changed = changed_fraction(
             np.asarray(capture.frames)[idx], mosaic=capture.cfa is not None and np.shape(capture.frames)[-1] == 1
         )

@@ -71,6 +71,13 @@ class Precompile:
     def started(self) -> bool:
         return bool(self.procs)
 
+    @property
+    def failure(self) -> str:
+        """What failed, for a caller's line: "the losses process failed" ('' when no child failed)."""
+        if not self.failed:
+            return ""
+        return f"the {' and '.join(self.failed)} process{'es' if len(self.failed) > 1 else ''} failed"
+
     def wait(self) -> float:
         for part, proc in zip(_PARTS[: len(self.procs)], self.procs, strict=True):
             if proc.wait() != 0:

@@ -129,7 +129,7 @@ def run(args: Args) -> int:
         if pre.started:
             print("  compiling numba's kernels in two processes (a first run only) ...", end=" ", flush=True)
             seconds = pre.wait()
-            failed = f" (the {' and '.join(pre.failed)} process failed: compiled below)" if pre.failed else ""
+            failed = f" ({pre.failure}: compiled below)" if pre.failed else ""
             print(f"{seconds:.0f} s from the start{failed}", flush=True)
     print("  loading numba's kernels, outside both methods' time ...", end=" ", flush=True)
     print(f"{warm_up(kinds):.0f} s", flush=True)  # compiles what no child did (when none failed: loads them all)

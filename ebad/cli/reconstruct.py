@@ -250,7 +250,7 @@ def _compiled(pre, show: bool) -> None:
 
         say(show, "waiting for the processes compiling numba's kernels (a first run only)")
         seconds = pre.wait()
-        failed = f"; the {' and '.join(pre.failed)} process failed: this one compiles" if pre.failed else ""
+        failed = f"; {pre.failure}: this one compiles" if pre.failed else ""
         say(show, f"kernels compiled {seconds:.0f} s from the start{failed}")
 
 

@@ -100,6 +100,7 @@ def test_the_demo_compiles_while_it_builds_its_scene_and_scores_after_loading_th
     class Recorder:
         started = True
         failed = ["losses"]  # its kernels are left to the demo's warm_up, and the demo says so
+        failure = precompile.Precompile.failure  # the real wording
 
         def __init__(self, kinds):
             events.append(("start", list(kinds)))
@@ -136,3 +137,13 @@ def test_the_demo_compiles_while_it_builds_its_scene_and_scores_after_loading_th
 
 # A cold first run end to end (the children compile, the caller loads, its bits are the later runs'):
 # tests/ebad/cli/test_first_run_bits.py, through `ebad reconstruct`, which uses this Precompile as the demo does.
+
+
+def test_the_failure_line_names_the_children_that_failed():
+    pre = object.__new__(precompile.Precompile)  # no child started: only the wording is under test
+    pre.failed = []
+    assert pre.failure == ""
+    pre.failed = ["losses"]
+    assert pre.failure == "the losses process failed"
+    pre.failed = ["raster", "losses"]
+    assert pre.failure == "the raster and losses processes failed"
