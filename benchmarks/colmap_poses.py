@@ -2,7 +2,7 @@
 and the slider_depth frames against their ground-truth poses.
 
     python -m benchmarks.colmap_poses [--sizes tiny,small] [--seeds 0,1,2] [--sensors realistic,ideal]
-                                      [--frames 12] [--test-views 3]
+                                      [--frames 12] [--test-views 3] [--colours grey,cfa,raw]
                                       [--slider-steps 2,4 | --no-slider] [--out benchmarks/results/colmap_poses.json]
 
 Synthetic rows: ``scenes.make_scene(..., poses="none")`` (the capture carries no pose at all,
@@ -11,6 +11,9 @@ neither for its frames nor for its test views) and ``scenes.colmap.estimate_pose
 - the blurry frames as recorded ("blurry"),
 - EDI-deblurred frames with one contrast threshold estimated from the capture ("edi c", the default),
 - EDI-deblurred frames with c_pos, c_neg estimated from the capture ("edi c+-"),
+- on colour DAVIS captures (``--colours cfa``: RGGB, demosaiced RGB frames; ``raw``: the raw mosaics), the
+  capture with its filter not stated ("edi luma": events taken as the luminance, raw mosaics as grey
+  images), against "edi c" that deblurs per pixel of the mosaic and demosaics raw frames for SIFT,
 
 with the test images registered by the same SfM. Nothing of the truth (c, response, poses)
 reaches ``estimate_poses``: the truth is used afterwards only, to score. The estimate is
@@ -35,10 +38,14 @@ INPUTS = {
     "blurry": dict(deblur=False),
     "edi c": dict(deblur=True, c_polarity=False),
     "edi c+-": dict(deblur=True, c_polarity=True),
+    "edi luma": dict(deblur=True, c_polarity=False),  # the capture's cfa removed (colour captures only)
 }
+COLOURS = {"grey": {}, "cfa": dict(rgb=True, cfa="RGGB"), "raw": dict(rgb=True, cfa="RGGB", raw_frames=True)}
 
 
-def synthetic_row(sc, size: str, seed: int, sensor: str, inp: str, threads: int) -> dict:
+def synthetic_row(sc, size: str, seed: int, sensor: str, inp: str, threads: int, colour: str = "grey") -> dict:
+    import dataclasses
+
     from scenes.colmap import (
         ColmapConfig,
         SfMError,
@@ -51,7 +58,10 @@ def synthetic_row(sc, size: str, seed: int, sensor: str, inp: str, threads: int)
     )
 
     cap, name = sc.capture, sc.name
+    if inp == "edi luma":
+        cap = dataclasses.replace(cap, cfa=None)
     row = {
+        "colour": colour,
         "scene": name,
         "size": size,
         "seed": seed,
@@ -137,6 +147,7 @@ def main(argv=None) -> int:
     ap.add_argument("--seeds", default="0,1,2")
     ap.add_argument("--sensors", default="realistic,ideal")
     ap.add_argument("--inputs", default=",".join(INPUTS), help=f"comma separated, of {list(INPUTS)}")
+    ap.add_argument("--colours", default="grey", help=f"comma separated, of {list(COLOURS)}")
     ap.add_argument("--frames", default="12", help="training frames per capture, comma separated (issue 31: 30,40)")
     ap.add_argument("--test-views", type=int, default=3, help="held-out views per capture, registered with them")
     ap.add_argument("--threads", type=int, default=1, help="COLMAP threads (1: deterministic)")
@@ -150,13 +161,22 @@ def main(argv=None) -> int:
     rows = []
     for size in split(args.sizes):
         for sensor in split(args.sensors):
-            for name in split(args.scenes):
+            for name, colour in itertools.product(split(args.scenes), split(args.colours)):
                 for seed, n in itertools.product((int(s) for s in split(args.seeds)), map(int, split(args.frames))):
                     sc = scenes.make_scene(
-                        name, size, seed=seed, sensor=sensor, poses="none", n_frames=n, n_test=args.test_views
+                        name,
+                        size,
+                        seed=seed,
+                        sensor=sensor,
+                        poses="none",
+                        n_frames=n,
+                        n_test=args.test_views,
+                        **COLOURS[colour],
                     )
                     for inp in split(args.inputs):
-                        r = synthetic_row(sc, size, seed, sensor, inp, args.threads)
+                        if inp == "edi luma" and colour == "grey":
+                            continue  # no filter to leave out: "edi c"
+                        r = synthetic_row(sc, size, seed, sensor, inp, args.threads, colour)
                         rows.append(r)
                         print(
                             json.dumps({k: (round(v, 4) if isinstance(v, float) else v) for k, v in r.items()}),
@@ -167,25 +187,28 @@ def main(argv=None) -> int:
         "registered together); mean ± std over scenes and seeds"
     )
     print(
-        f"{'size':>6} {'frames':>6} {'sensor':>9} {'input':>8} {'runs':>4} {'failed':>6} {'reg %':>6} "
+        f"{'size':>6} {'frames':>6} {'sensor':>9} {'colour':>6} {'input':>8} {'runs':>4} {'failed':>6} {'reg %':>6} "
         f"{'ATE %':>14} {'rot deg':>14} "
         f"{'test pos %':>14} {'test rot deg':>14} {'time s':>7}"
     )
     summary = []
     for size, n in itertools.product(split(args.sizes), map(int, split(args.frames))):
-        for sensor in split(args.sensors):
+        for sensor, colour in itertools.product(split(args.sensors), split(args.colours)):
             for inp in split(args.inputs):
                 sel = [
                     r
                     for r in rows
-                    if r["size"] == size and r["frames"] == n and r["sensor"] == sensor and r["input"] == inp
+                    if (r["size"], r["frames"], r["sensor"], r["colour"], r["input"]) == (size, n, sensor, colour, inp)
                 ]
+                if not sel:
+                    continue
                 ok = [r for r in sel if "error" not in r]
                 tst = [r for r in ok if "test_pos_pct" in r]
                 s = {
                     "size": size,
                     "frames": n,
                     "sensor": sensor,
+                    "colour": colour,
                     "input": inp,
                     "runs": len(sel),
                     "registered_pct": [
@@ -200,7 +223,7 @@ def main(argv=None) -> int:
                 }
                 summary.append(s)
                 print(
-                    f"{size:>6} {n:>6} {sensor:>9} {inp:>8} {len(sel):>4} {s['failed']:>6} "
+                    f"{size:>6} {n:>6} {sensor:>9} {colour:>6} {inp:>8} {len(sel):>4} {s['failed']:>6} "
                     f"{np.mean(s['registered_pct']) if ok else float('nan'):>6.1f} {_mean_std(s['ate_pct']):>14} "
                     f"{_mean_std(s['rot_deg']):>14} {_mean_std(s['test_pos_pct']):>14} "
                     f"{_mean_std(s['test_rot_deg']):>14} {np.mean(s['time_s']) if ok else float('nan'):>7.1f}"

@@ -121,18 +121,20 @@ def _c_text(c: float | tuple[float, float] | None) -> str:
 
 def _sfm_frames(capture: Capture, deblur: bool, report: dict, polarity: bool = False) -> np.ndarray:
     """[F, H, W, D] frames for SfM: EDI latents at mid-exposure where possible, else raw. The
-    contrast threshold is estimated from the capture (one c, or (c_pos, c_neg) with ``polarity``)."""
+    contrast threshold is estimated from the capture (one c, or (c_pos, c_neg) with ``polarity``).
+    A colour DAVIS capture (``capture.cfa``) is deblurred as the filter says (each pixel's events
+    on its own channel), and its raw mosaics are demosaiced for SIFT (3 channels out)."""
     frames = capture.frames.astype(np.float64)
     report["deblurred"] = 0
     if not deblur:
         report["deblur_note"] = "deblurring disabled"
-        return frames
+        return _for_features(frames, capture.cfa)
     c: float | tuple[float, float] | None = None
     if capture.num_frames >= 2 and len(capture.events):
         # one c for the whole capture from the consistency between frames: cheaper and far
         # more reliable than a single-frame estimate per frame
         try:
-            est = estimate_c(capture.frames, capture.exposures, capture.events, pair=polarity)
+            est = estimate_c(capture.frames, capture.exposures, capture.events, pair=polarity, cfa=capture.cfa)
             c = (float(est.pos), float(est.neg)) if polarity else float(est.mean)
             report["c_estimated"] = c
         except ValueError as exc:  # no pixel fired between frames: fall back to per frame
@@ -142,10 +144,21 @@ def _sfm_frames(capture: Capture, deblur: bool, report: dict, polarity: bool = F
         t0, t1 = capture.exposures[i]
         if t1 <= t0 or len(capture.events.slice_time(t0, t1)) == 0:
             continue
-        out[i] = np.asarray(edi_deblur(capture.frames[i], (t0, t1), capture.events, None, c), dtype=np.float64)
+        lat = edi_deblur(capture.frames[i], (t0, t1), capture.events, None, c, cfa=capture.cfa)
+        out[i] = np.asarray(lat, dtype=np.float64)
         report["deblurred"] += 1
     report["deblur_note"] = f"EDI at mid-exposure, c = {_c_text(c)}"
-    return out
+    return _for_features(out, capture.cfa)
+
+
+def _for_features(frames: np.ndarray, cfa: str | None) -> np.ndarray:  # [F, H, W, D] -> [F, H, W, D or 3]
+    """Raw Bayer mosaics (one channel with a ``cfa``) demosaiced bilinearly: the filter's pattern would
+    be texture to SIFT. Other frames as they are."""
+    if cfa is None or frames.shape[-1] != 1:
+        return frames
+    from edi.cfa import demosaic
+
+    return np.asarray(demosaic(frames[..., 0], cfa), dtype=np.float64)
 
 
 def _write_png(path: Path, img: np.ndarray, scale: int) -> None:
@@ -371,7 +384,7 @@ def estimate_poses(
         )
     t_mid = capture.exposures[idx].mean(axis=1)
     c2w = _interp_missing(c2w, registered, t_mid)
-    points, colors = _sparse_points(rec, capture.channels)
+    points, colors = _sparse_points(rec, 3 if capture.cfa is not None else capture.channels)
     test_unreg = [tv.name for tv in tests if tv.name not in test_c2w]
     report.update(
         {

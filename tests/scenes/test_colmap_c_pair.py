@@ -26,9 +26,9 @@ def test_the_estimated_c_reaches_edi_deblur(capture, monkeypatch, polarity):
     seen: list = []
     real = colmap.edi_deblur
 
-    def spy(frame, exposure, events, times, c):
-        seen.append(c)
-        return real(frame, exposure, events, times, c)
+    def spy(frame, exposure, events, times, c, cfa=None):
+        seen.append((c, cfa))
+        return real(frame, exposure, events, times, c, cfa=cfa)
 
     def stop(*args):  # the SfM itself is not under test: stop at the first image written
         raise _Stop
@@ -41,7 +41,7 @@ def test_the_estimated_c_reaches_edi_deblur(capture, monkeypatch, polarity):
     want = (float(est.pos), float(est.neg)) if polarity else float(est.mean)
     if polarity:
         assert want[0] != pytest.approx(want[1], rel=0.02)  # the realistic sensor's thresholds differ
-    assert len(seen) == capture.num_frames and all(c == want for c in seen)
+    assert len(seen) == capture.num_frames and all(c == (want, None) for c in seen)  # a grey capture: no filter
 
 
 def test_messages_format_c():
