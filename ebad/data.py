@@ -670,8 +670,8 @@ def prepare(capture: Capture, cfg: Config) -> TrainingData:
     unregistered = [capture.frame_names()[i] for i in wanted if i not in kept] or None
     if unregistered:
         log.warning(
-            "SfM did not register %d of %d training frames; they are left out of training (and of the "
-            "deblurred frames): %s",
+            "SfM did not register %d of %d training frames; they are left out of training and of the deblurred "
+            "frames (rather than started from poses interpolated in time): %s",
             len(unregistered),
             len(wanted),
             ", ".join(unregistered),

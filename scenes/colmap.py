@@ -99,7 +99,7 @@ class PoseEstimate:
 
     c2w: np.ndarray  # [F, 4, 4]; unregistered frames interpolated in time from registered ones
     points: np.ndarray  # [P, 3] sparse points (world)
-    colors: np.ndarray  # [P, D] linear [0, 1] (D as the capture; 3 for colour)
+    colors: np.ndarray  # [P, D] linear [0, 1] (D as the capture; 3 for colour, a raw mosaic's too)
     registered: np.ndarray  # [F] bool, always present: which rows of c2w SfM registered
     report: dict = field(default_factory=dict)
     test_c2w: dict[str, np.ndarray] = field(default_factory=dict)  # test view name -> [4, 4], registered ones
