@@ -516,8 +516,7 @@ def changed_fraction(frames: np.ndarray, mosaic: bool = False) -> float:  # [F, 
     little and never lowers it. 0 for a single frame."""
     f = np.asarray(frames, dtype=np.float32).mean(axis=-1)
     if mosaic:
-        F, H, W = f.shape
-        f = f[:, : H // 2 * 2, : W // 2 * 2].reshape(F, H // 2, 2, W // 2, 2).mean(axis=(2, 4))
+        f = _pool(torch.from_numpy(f), 2).numpy()
     if len(f) < 2:
         return 0.0
     d2 = f[:, 1:, 1:] - f[:, :-1, 1:] - f[:, 1:, :-1] + f[:, :-1, :-1]
@@ -535,9 +534,7 @@ def _poses(capture: Capture, cfg: Config, idx: list[int]):
     if src == "capture":
         raise UserError("--trajectory.pose_source is 'capture' but the capture has no poses (c2w)")
     if src == "auto" and len(idx) >= MIN_TRAIN_FRAMES:  # (one frame: nothing to compare, SfM says what it needs)
-        changed = changed_fraction(
-            np.asarray(capture.frames)[idx], mosaic=capture.cfa is not None and np.shape(capture.frames)[-1] == 1
-        )
+        changed = changed_fraction(np.asarray(capture.frames)[idx], mosaic=capture.raw_mosaic)
         if changed <= STILL_CHANGED:
             log.warning(
                 "the camera did not move: at most %.1f%% of the pixels of any frame differ from the first frame "
@@ -663,11 +660,11 @@ def prepare(capture: Capture, cfg: Config) -> TrainingData:
     idx = _train_indices(capture)
     t0 = time.perf_counter()
     say(show, f"poses of {len(idx)} training frames (trajectory.pose_source {cfg.trajectory.pose_source})")
-    wanted = idx
+    wanted, all_names = idx, capture.frame_names()
     c2w, points, point_colors, pose_src, idx, registered = _poses(capture, cfg, idx)
     say(show, f"poses: {pose_src}, {len(idx)} frames ({time.perf_counter() - t0:.1f} s)")
     kept = set(idx)
-    unregistered = [capture.frame_names()[i] for i in wanted if i not in kept] or None
+    unregistered = [all_names[i] for i in wanted if i not in kept] or None
     if unregistered:
         log.warning(
             "SfM did not register %d of %d training frames; they are left out of training and of the deblurred "
@@ -688,7 +685,6 @@ def prepare(capture: Capture, cfg: Config) -> TrainingData:
     lc, tc = cfg.loss, cfg.trajectory
     wants_events = lc.w_event > 0 or lc.w_edi > 0 or lc.target == "edi"
     use_events = wants_events and has_events
-    all_names = capture.frame_names()
     names = [all_names[i] for i in idx]
     no_events: list[str] | None = None
     if has_events:
