@@ -21,7 +21,7 @@ The protocol (``evaluate``), as in BAD-Gaussians / EBAD-NeRF:
 from __future__ import annotations
 
 import copy
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -31,16 +31,18 @@ from .data import align_poses
 from .errors import UserError
 from .gaussians import render
 from .lie import compose_pose, so3_exp
-from .losses import l1_ssim
+from .losses import l1_ssim_each
 from .progress import Ticker
 from .run import Run
 from .scoring import ViewScores, in_image_domain, score_frames, score_views, view_pose, with_poses
+from .threads import torch_single_threaded
 
 if TYPE_CHECKING:
     from scenes import Capture, SynthScene, TestView
 
 __all__ = [
     "refine_pose",
+    "refine_poses",
     "evaluate",
     "eval_poses",
     "run_truth",
@@ -79,30 +81,72 @@ def refine_pose(
 
     Returns the best pose seen and the steps taken (see the module docstring for the rule). A raw
     Bayer mosaic ``image`` (one channel, ``cfa`` given) is compared with the render's mosaic."""
-    base = torch.as_tensor(np.asarray(c2w), dtype=torch.float32)
-    target = torch.as_tensor(np.asarray(image), dtype=torch.float32)
-    xi = torch.zeros(6, requires_grad=True)
-    opt = torch.optim.Adam([xi], lr=lr)
+    return refine_poses(run, [c2w], [image], iters, lr, tol, window, cfa)[0]
+
+
+def refine_poses(
+    run: Run,
+    c2ws: Sequence[np.ndarray],
+    images: Sequence[np.ndarray],
+    iters: int = 300,
+    lr: float = REFINE_LR,
+    tol: float = REFINE_TOL,
+    window: int = REFINE_WINDOW,
+    cfa: str | None = None,
+    done: Callable[[int], None] | None = None,
+) -> list[tuple[np.ndarray, int]]:
+    """``refine_pose`` for each test camera ``c2ws[i]`` [4, 4] and its image ``images[i]``, each view
+    as it would be alone (its own correction, Adam state, stopping rule and best pose), the views
+    still refining rendered in one rasteriser call a step and their losses in one kernel call,
+    torch on one thread. ``done(k)`` is called after every step with the k views stopped so far
+    (``progress.Ticker``)."""
+    bases = [torch.as_tensor(np.asarray(c), dtype=torch.float32) for c in c2ws]
+    targets = [torch.as_tensor(np.asarray(im), dtype=torch.float32) for im in images]
+    xis = [torch.zeros(6, requires_grad=True) for _ in bases]
     scale = float(run.trajectories.scale)
     params = {k: v.detach() for k, v in run.params.items()}
     K = torch.as_tensor(run.K, dtype=torch.float32)
-    best, best_loss, losses = base.clone(), float("inf"), []
-    step = 0
-    for step in range(1, iters + 1):  # noqa: B007  (the steps taken are returned)
-        pose = base @ compose_pose(so3_exp(xi[:3]), scale * xi[3:])
-        img, _, _ = render(params, pose[None], K, run.width, run.height, run.config.model.background)
-        pred = in_image_domain(run.response(img[0]), target.shape[-1], cfa)
-        loss = l1_ssim(pred, target)  # in the camera's domain, like the image
-        value = float(loss.detach())
-        losses.append(value)
-        if value < best_loss:
-            best_loss, best = value, pose.detach().clone()
-        if len(losses) > window and losses[-window - 1] - min(losses[-window:]) < tol * losses[-window - 1]:
-            break
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-    return best.numpy().astype(np.float64), step
+    best = [b.clone() for b in bases]
+    best_loss = [float("inf")] * len(bases)
+    losses: list[list[float]] = [[] for _ in bases]
+    steps = [0] * len(bases)
+    active = list(range(len(bases)))
+    n_done = 0
+    with torch_single_threaded():
+        opt = torch.optim.Adam(xis, lr=lr)  # per-parameter state: a view without a gradient is not moved
+        for step in range(1, iters + 1):
+            if not active:
+                break
+            poses = [bases[v] @ compose_pose(so3_exp(xis[v][:3]), scale * xis[v][3:]) for v in active]
+            img, _, _ = render(params, torch.stack(poses), K, run.width, run.height, run.config.model.background)
+            pairs = [
+                (in_image_domain(run.response(img[j]), targets[v].shape[-1], cfa), targets[v])
+                for j, v in enumerate(active)
+            ]
+            loss = l1_ssim_each(pairs)  # in the camera's domain, like the image
+            going = []
+            for j, v in enumerate(active):
+                value = float(loss[j].detach())
+                losses[v].append(value)
+                steps[v] = step
+                if value < best_loss[v]:
+                    best_loss[v], best[v] = value, poses[j].detach().clone()
+                h = losses[v]
+                if len(h) > window and h[-window - 1] - min(h[-window:]) < tol * h[-window - 1]:
+                    n_done += 1
+                    continue
+                going.append(j)
+            if done is not None:
+                done(n_done)
+            opt.zero_grad()
+            if going:
+                torch.stack([loss[j] for j in going]).sum().backward()
+                opt.step()
+            active = [active[j] for j in going]
+    if done is not None:
+        for k in range(n_done + 1, len(bases) + 1):
+            done(k)  # the views that spent their steps stop too
+    return [(b.numpy().astype(np.float64), n) for b, n in zip(best, steps)]
 
 
 def eval_poses(run: Run, capture: Capture) -> tuple[dict[str, np.ndarray], dict[str, str]]:
@@ -168,10 +212,9 @@ def evaluate(
             out["test"] = score_views(images, views, cfa)
             if refine:
                 tick = Ticker(show, f"refining test poses (up to {refine_iters} steps a view)", len(views))
-                refined = []
-                for k, v in enumerate(views, 1):
-                    refined.append(refine_pose(run, view_pose(v), _image(v), refine_iters, cfa=cfa))
-                    tick(k)
+                refined = refine_poses(
+                    run, [view_pose(v) for v in views], [_image(v) for v in views], refine_iters, cfa=cfa, done=tick
+                )
                 out["refine_steps"] = {v.name: steps for v, (_, steps) in zip(views, refined)}
                 images = run.render(np.stack([pose for pose, _ in refined]))
                 out["test_refined"] = score_views(images, views, cfa)

@@ -15,7 +15,6 @@ import signal
 import threading
 import time
 from collections.abc import Sequence
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -34,6 +33,7 @@ from .response import Response
 from .schedule import Phase, Schedule
 from .state import StepStats, TrainState
 from .strategy import RenderInfo, Strategy
+from .threads import torch_single_threaded
 from .trajectory import virtual_instants
 from .virtual_views import path_lengths_px, random_window, views_from_blur, window_counts
 
@@ -438,21 +438,6 @@ class _Interrupts:
         return False
 
 
-@contextmanager
-def _torch_single_threaded():
-    """torch single-threaded for the duration, its thread count restored after. A step's torch
-    operations are small: on one thread they neither spin between parallel regions (when
-    OpenMP's threads do not sleep, ``ebad.threads``) nor wait for sleeping threads to wake, and
-    the parallel work is numba's (rasteriser, SSIM), whose threads are its own; measured faster
-    than two threads (docs/results.md)."""
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(n)
-
-
 def coarse_data(data: TrainingData, cfg: Config) -> TrainingData | None:
     """The coarse phase's problem (``train.coarse_scale``), or None when there is none: no coarse
     phase configured, or frames too small for it (``data.MIN_DOWNSCALED_SIDE``)."""
@@ -502,7 +487,7 @@ def train(
     )
     views_pending = schedule.views_at is not None
     diverged = False
-    with _Interrupts() as interrupts, _torch_single_threaded():
+    with _Interrupts() as interrupts, torch_single_threaded():
         try:
             while state.step < cfg.train.iters:
                 f = state.next_frame()

@@ -22,15 +22,16 @@ def say(show: bool, msg: str) -> None:
 
 
 class Ticker:
-    """``say`` for a loop of ``total`` items: its first and last item, and one in between at most every
-    ``every`` seconds, with the seconds so far."""
+    """``say`` for a loop of ``total`` items: its first and last item (once each), and one in between at
+    most every ``every`` seconds, with the seconds so far. It may be called again with the same count."""
 
     def __init__(self, show: bool, what: str, total: int, every: float = 5.0):
         self.show, self.what, self.total, self.every = show, what, total, every
         self.t0 = self.last = time.perf_counter()
+        self.shown = -1  # the count last said
 
     def __call__(self, done: int) -> None:
         now = time.perf_counter()
-        if done in (1, self.total) or now - self.last >= self.every:
-            self.last = now
+        if (done in (1, self.total) and done != self.shown) or now - self.last >= self.every:
+            self.last, self.shown = now, done
             say(self.show, f"{self.what}: {done}/{self.total} ({now - self.t0:.1f} s)")

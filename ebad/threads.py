@@ -12,18 +12,20 @@ command line's ``main`` and ``ebad.reconstruct`` call ``configure()`` before any
    when they spin, e.g. when torch was loaded first without the policy. A layer the user chose
    is kept; once numba has launched its threads, nothing changes.
 
-torch's own thread count is the loop's business (``ebad.loop.train`` runs torch on one thread
-and restores the count after).
+torch's own thread count is the caller's business: ``torch_single_threaded`` runs torch on one
+thread and restores the count after (``ebad.loop.train``, ``ebad.evaluate``'s pose refinement).
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 from splat_cpu import _omp
 from splat_cpu._omp import NumbaLayer
 
-__all__ = ["ThreadSetup", "configure"]
+__all__ = ["ThreadSetup", "configure", "torch_single_threaded"]
 
 
 @dataclass(frozen=True)
@@ -41,3 +43,20 @@ def configure() -> ThreadSetup:
     return ThreadSetup(
         policy_set=policy_set, threads_sleep=_omp.openmp_threads_sleep(), numba_layer=_omp.choose_threading_layer()
     )
+
+
+@contextmanager
+def torch_single_threaded() -> Iterator[None]:
+    """torch single-threaded for the duration, its thread count restored after. A step's torch
+    operations are small: on one thread they neither spin between parallel regions (when
+    OpenMP's threads do not sleep) nor wait for sleeping threads to wake, and the parallel work is
+    numba's (rasteriser, SSIM), whose threads are its own; measured faster than two threads
+    (docs/results.md)."""
+    import torch
+
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(n)

@@ -11,8 +11,10 @@ import torch
 
 import scenes
 from ebad.cli import main
-from ebad.evaluate import eval_poses, refine_pose
+from ebad.evaluate import REFINE_LR, REFINE_TOL, REFINE_WINDOW, eval_poses, refine_pose, refine_poses
+from ebad.gaussians import render
 from ebad.lie import compose_pose, so3_exp
+from ebad.losses import l1_ssim
 from ebad.runfolder import load_run
 from scenes.colmap import apply_similarity
 
@@ -35,6 +37,49 @@ def test_refinement_recovers_a_perturbed_pose(tiny_run):
     err1 = np.abs(refined[:3, 3] - c2w[:3, 3]).max() + np.abs(refined[:3, :3] - c2w[:3, :3]).max()
     assert err1 < 0.3 * err0, (err0, err1, steps)
     assert 1 <= steps <= 300
+
+
+def _refine_alone(run, c2w, image, iters):
+    """The refinement of one view, written out on its own: the rule of ebad.evaluate's docstring."""
+    base = torch.as_tensor(c2w, dtype=torch.float32)
+    target = torch.as_tensor(image, dtype=torch.float32)
+    xi = torch.zeros(6, requires_grad=True)
+    opt = torch.optim.Adam([xi], lr=REFINE_LR)
+    params = {k: v.detach() for k, v in run.params.items()}
+    K = torch.as_tensor(run.K, dtype=torch.float32)
+    best, best_loss, losses = base.clone(), float("inf"), []
+    for step in range(1, iters + 1):  # noqa: B007  (the steps taken are returned)
+        pose = base @ compose_pose(so3_exp(xi[:3]), float(run.trajectories.scale) * xi[3:])
+        img = render(params, pose[None], K, run.width, run.height, run.config.model.background)[0][0]
+        loss = l1_ssim(run.response(img), target)
+        losses.append(float(loss.detach()))
+        if losses[-1] < best_loss:
+            best_loss, best = losses[-1], pose.detach().clone()
+        w = REFINE_WINDOW
+        if len(losses) > w and losses[-w - 1] - min(losses[-w:]) < REFINE_TOL * losses[-w - 1]:
+            break
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    return best.numpy(), step
+
+
+def test_views_refined_together_end_as_each_would_alone(tiny_run):
+    """Three views refined in one batch (one render of the views still going, one loss call)
+    give each view's pose and step count of its refinement alone, though they stop at different
+    steps (a view that stopped is neither rendered nor moved again)."""
+    run = load_run(tiny_run.run)
+    mids = run.trajectories.mid_poses().double().numpy()
+    targets = [run.render(mids[k]) for k in (1, 2, 3)]
+    starts = [_perturb(mids[1], 1.5, 0.0), _perturb(mids[2], 0.3, 0.01), _perturb(mids[3], -2.5, 0.03)]
+    reports = []
+    together = refine_poses(run, starts, targets, iters=120, done=reports.append)
+    alone = [_refine_alone(run, s, t, 120) for s, t in zip(starts, targets)]
+    assert len({n for _, n in alone}) == 3, [n for _, n in alone]  # the views stop at different steps
+    for (pose, n), (pose_ref, n_ref) in zip(together, alone):
+        assert n == n_ref
+        assert np.allclose(pose, pose_ref, rtol=0, atol=1e-6), np.abs(pose - pose_ref).max()
+    assert reports[-1] == 3 and reports == sorted(reports)
 
 
 def test_test_poses_in_another_frame_are_aligned_by_sim3(tiny_run):
