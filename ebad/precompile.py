@@ -3,13 +3,13 @@
 On a cold cache a reconstruction's kernels take about 90 CPU-seconds to compile, one after the
 other: numba compiles under one lock per process and holds the GIL for most of it, so a thread
 does not help. ``Precompile`` starts two children that each run ``ebad.run.warm_up`` on half of
-the kernels, one with the losses and poses on their torch reference (it compiles the rasteriser),
-one with the rasteriser on its torch reference (it compiles SSIM, L_ev and the trajectories'
-poses); each saves what it compiled in the cache. Meanwhile the caller works on (``ebad demo`` builds
-its scene, ``ebad reconstruct`` prepares the capture: ``reconstruct(..., ready=pre.wait)``); it then
-loads the kernels from the cache: the machine code every later run loads,
-not the in-process copies a cold compile runs, which round differently in the last bits
-(tests/splat_cpu/test_cold_cache.py).
+the kernels, one with the losses and poses on their torch reference and EDI on its numpy one (it
+compiles the rasteriser), one with the rasteriser on its torch reference (it compiles SSIM, L_ev,
+the trajectories' poses and EDI); each saves what it compiled in the cache. Meanwhile the caller
+works on (``ebad demo`` builds its scene, ``ebad reconstruct`` prepares the capture:
+``reconstruct(..., ready=pre.wait)``); it then loads the kernels from the cache: the machine code
+every later run loads, not the in-process copies a cold compile runs, which round differently in
+the last bits (tests/splat_cpu/test_cold_cache.py).
 
 Nothing here is needed for correctness: a child that fails or is missing leaves its kernels to the
 caller's ``warm_up``, which compiles them as before. On a warm cache no child starts.
@@ -124,6 +124,10 @@ def _child(part: str, kinds: Sequence[str]) -> None:
 
     if part == "losses":
         splat_cpu._fast_path = lambda: None  # the rasteriser's torch reference: the other child compiles it
+    else:  # EDI's numpy reference (a tiny capture's latents): the losses child compiles its kernel
+        import edi.model
+
+        edi.model._IMPLS["fast"] = edi.model._IMPLS["reference"]
     with torch_reference() if part == "raster" else contextlib.nullcontext():
         warm_up(kinds)  # type: ignore[arg-type]  # checked by warm_up
 

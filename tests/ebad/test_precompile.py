@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -147,3 +148,30 @@ def test_the_failure_line_names_the_children_that_failed():
     assert pre.failure == "the losses process failed"
     pre.failed = ["raster", "losses"]
     assert pre.failure == "the raster and losses processes failed"
+
+
+_CHILD = """
+import json, sys, numba.core.dispatcher as D
+called = []
+orig = D.Dispatcher.compile
+def compile(self, sig):  # every kernel run for a new signature comes here, loaded from the cache or compiled
+    called.append(self.py_func.__module__ + "." + self.py_func.__qualname__)
+    return orig(self, sig)
+D.Dispatcher.compile = compile
+from ebad.precompile import _child
+_child(sys.argv[1], ["grey"])
+print(json.dumps(called))
+"""
+
+
+@pytest.mark.slow
+def test_the_rasteriser_child_leaves_edi_to_the_losses_child():
+    # both children build and prepare a tiny capture; EDI's kernel is the losses child's (the rasteriser's child
+    # runs EDI's numpy reference), so it is not compiled twice on a cold cache
+    env = dict(os.environ, EBAD_PRECOMPILE_PARENT=str(os.getpid()), NUMBA_NUM_THREADS="1")
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT), env.get("PYTHONPATH")) if p)
+    r = subprocess.run([sys.executable, "-c", _CHILD, "raster"], env=env, capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-3000:]
+    called = json.loads(r.stdout.strip().splitlines()[-1])
+    assert "splat_cpu._numba_kernels.backward_tiles" in called, called
+    assert not [k for k in called if k.startswith("edi.")], called
