@@ -40,3 +40,21 @@ def test_name_writes_the_json_under_that_name(monkeypatch: pytest.MonkeyPatch, t
     monkeypatch.setattr(bench, "_run_sub", lambda cfg, timeout, policy: {"skipped": "took more than 1 s"})
     assert bench.main(["--target", "--no-reference", "--name", "rasterize_r7_run1"]) == 0
     assert [p.name for p in tmp_path.iterdir()] == ["rasterize_r7_run1.json"]
+
+
+def test_a_baseline_root_imports_that_checkouts_splat_cpu(tmp_path) -> None:
+    """benchmarks._common imports this checkout's splat_cpu (ebad.threads): --baseline must still time the root's."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    (tmp_path / "splat_cpu").mkdir()
+    (tmp_path / "splat_cpu" / "__init__.py").write_text("")
+    repo = Path(bench.__file__).resolve().parents[1]
+    code = (
+        "import sys; from benchmarks import rasterize as b; assert 'splat_cpu' in sys.modules; "
+        f"print(b.import_splat_cpu({str(tmp_path)!r}).__file__)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], cwd=repo, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert Path(out.stdout.strip()) == tmp_path / "splat_cpu" / "__init__.py"
