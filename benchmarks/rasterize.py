@@ -40,6 +40,7 @@ medians of repeated runs after one warm-up call.
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 import math
 import os
@@ -87,13 +88,34 @@ def _rss_mb() -> float:
         return int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
 
 
+def import_splat_cpu(root: str | None):  # -> the splat_cpu module, from `root` when given
+    """This checkout's splat_cpu, or with `root` that checkout's (the "before" of a before/after pair).
+
+    `_common` (through ebad.threads) has imported this checkout's splat_cpu already: its modules are
+    dropped first, or the import would return them and the baseline would time this checkout. The
+    threading set-up `_common` made (OMP_WAIT_POLICY noted, numba's layer chosen, in `_omp`'s state)
+    is handed to the root's `_omp`, so that both paths run on the same layer (left alone, the root's
+    would choose again once torch is loaded, from the starting environment: workqueue, not omp)."""
+    if root:
+        setup = sys.modules.get("splat_cpu._omp")
+        for name in [m for m in sys.modules if m == "splat_cpu" or m.startswith("splat_cpu.")]:
+            del sys.modules[name]
+        sys.path.insert(0, root)
+        omp = importlib.import_module("splat_cpu._omp") if setup is not None else None
+        for state in ("_noted", "_chosen"):
+            if omp is not None and hasattr(omp, state) and hasattr(setup, state):
+                getattr(omp, state)[:] = getattr(setup, state)
+    import splat_cpu
+
+    if root and not Path(splat_cpu.__file__).resolve().is_relative_to(Path(root).resolve()):
+        raise RuntimeError(f"--baseline {root}: imported {splat_cpu.__file__} instead")
+    return splat_cpu
+
+
 def measure_one(cfg: dict) -> dict:
     """Run in a subprocess: time one configuration with one path (and the unit between repetitions)."""
-    if cfg.get("root"):  # time another checkout's splat_cpu (the "before" of a before/after pair)
-        sys.path.insert(0, cfg["root"])
+    splat_cpu = import_splat_cpu(cfg.get("root"))
     import torch
-
-    import splat_cpu
 
     fn = splat_cpu.rasterize if cfg["path"] == "fast" else splat_cpu.rasterize_reference
     scene = make_scene(cfg["n"], cfg["width"], cfg["height"], cfg["d"], cfg["c"])

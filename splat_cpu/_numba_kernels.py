@@ -7,8 +7,9 @@ Binning (gsplat-style tile culling) keeps a tile only when the Gaussian's alpha 
 ellipse (o exp(-sigma) >= ALPHA_MIN, the opacity-aware extent) reaches its pixels, and per
 half tile only the rows it reaches there. Each tile keeps flat per-pixel buffers, the left
 half's 16 rows of 8 pixels then the right half's (`_pixel`), and walks its Gaussians in depth
-order; a Gaussian's rows in a half are one contiguous slice of those buffers, processed as one
-loop without branches (selects only) that LLVM vectorises, with a polynomial exp (`exp_neg`).
+order; a Gaussian's rows in a half are one contiguous slice of those buffers, processed by two
+loops without branches (selects only) that LLVM vectorises: the polynomial exp (`exp_neg`) into a
+per-pixel buffer, then the compositing that reads it.
 The forward keeps, per pixel, the final transmittance and the list position of the last
 contributing Gaussian; the backward walks the list back from there, recovering T by division
 by (1 - alpha), and writes one gradient row per (tile, Gaussian) entry, summed per Gaussian
@@ -423,15 +424,21 @@ def forward_tiles(
                 # LLVM vectorises the loop (a range(i0, i1) loop stays scalar)
                 tr, ac, la, wb = trans[i0:i1], acc[i0:i1], last[i0:i1], wbuf[i0:i1]
                 ox, oy = pix_x[i0:i1], pix_y[i0:i1]
-                n_stop = zero
+                # alpha first, in a loop of its own (0 where sigma < 0: below ALPHA_MIN), then the compositing:
+                # two short loops keep fewer values live than one, and the exp's long chain of dependent
+                # instructions overlaps across pixels instead of stalling the compositing's
                 for j in range(i1 - i0):
                     dx = mx - ox[j]
                     dy = my - oy[j]
                     sigma = (ha * dx + cb * dy) * dx + hc * dy * dy  # 0.5 (a dx^2 + c dy^2) + b dx dy
                     alpha = min(a_max, op * exp_neg(min(max(sigma, zero), s_clamp)))
+                    wb[j] = _select(sigma >= zero, alpha, zero)
+                n_stop = zero
+                for j in range(i1 - i0):
+                    alpha = wb[j]
                     tc = tr[j]
                     nt = tc * (one - alpha)
-                    ok = (sigma >= zero) & (alpha >= a_min) & (tc > zero)
+                    ok = (alpha >= a_min) & (tc > zero)
                     stop = ok & (nt <= t_min)
                     con = ok & (nt > t_min)
                     w = alpha * tc if con else zero
@@ -519,6 +526,7 @@ def backward_tiles(  # noqa: C901  (one fused numba pass over each tile, for spe
         out_col[start + kmax + 1 : end] = 0.0
         wbuf = np.zeros(npx, fdt)
         cdot = np.zeros(npx, fdt)
+        vbuf = np.zeros(npx, fdt)  # exp(-sigma) per pixel of the current entry, -1 where sigma < 0
         for kk in range(kmax, -1, -1):
             k = start + kk
             g = gid[k]
@@ -552,6 +560,13 @@ def backward_tiles(  # noqa: C901  (one fused numba pass over each tile, for spe
                 # slices from 0: see forward_tiles
                 tr, rs, la, wb, v0, cd = trans[i0:i1], rest[i0:i1], last[i0:i1], wbuf[i0:i1], vc[i0:i1], cdot[i0:i1]
                 ox, oy = pix_x[i0:i1], pix_y[i0:i1]
+                vb = vbuf[i0:i1]
+                for j in range(i1 - i0):  # the exp in a loop of its own, as in forward_tiles
+                    dx = mx - ox[j]
+                    dy = my - oy[j]
+                    sigma = (ha * dx + cb * dy) * dx + hc * dy * dy
+                    # -1 where sigma < 0: alpha = -op < ALPHA_MIN, as the forward skipped it
+                    vb[j] = _select(sigma >= zero, exp_neg(min(max(sigma, zero), s_clamp)), -one)
                 if d > 1:  # c . v_C per pixel (inline below when d == 1)
                     for j in range(i1 - i0):
                         cd[j] = c0 * v0[j]
@@ -563,11 +578,10 @@ def backward_tiles(  # noqa: C901  (one fused numba pass over each tile, for spe
                 for j in range(i1 - i0):
                     dx = mx - ox[j]
                     dy = my - oy[j]
-                    sigma = (ha * dx + cb * dy) * dx + hc * dy * dy
-                    vis = exp_neg(min(max(sigma, zero), s_clamp))
+                    vis = vb[j]
                     raw = op * vis
                     alpha = min(a_max, raw)
-                    ok = (sigma >= zero) & (alpha >= a_min) & (k32 <= la[j])
+                    ok = (alpha >= a_min) & (k32 <= la[j])
                     ra = one / (one - alpha)
                     tb = tr[j] * ra  # T before this Gaussian
                     w = alpha * tb

@@ -40,3 +40,27 @@ def test_name_writes_the_json_under_that_name(monkeypatch: pytest.MonkeyPatch, t
     monkeypatch.setattr(bench, "_run_sub", lambda cfg, timeout, policy: {"skipped": "took more than 1 s"})
     assert bench.main(["--target", "--no-reference", "--name", "rasterize_r7_run1"]) == 0
     assert [p.name for p in tmp_path.iterdir()] == ["rasterize_r7_run1.json"]
+
+
+def test_a_baseline_root_imports_that_checkouts_splat_cpu_under_the_same_threading(tmp_path) -> None:
+    """benchmarks._common imports this checkout's splat_cpu (ebad.threads) and sets its threads up: --baseline
+    must still time the root's splat_cpu, and hand it that set-up (the state of `_omp`)."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    (tmp_path / "splat_cpu").mkdir()
+    (tmp_path / "splat_cpu" / "__init__.py").write_text("")
+    (tmp_path / "splat_cpu" / "_omp.py").write_text("_noted: list = []\n_chosen: list = []\n")
+    repo = Path(bench.__file__).resolve().parents[1]
+    code = (
+        "import sys; from benchmarks import rasterize as b; setup = sys.modules['splat_cpu._omp']; "
+        "state = (setup._noted[:], setup._chosen[:]); assert state[1], state; "
+        f"print(b.import_splat_cpu({str(tmp_path)!r}).__file__); omp = sys.modules['splat_cpu._omp']; "
+        "print(omp.__file__, (omp._noted, omp._chosen) == state)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], cwd=repo, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    init, omp, same_state = out.stdout.split()
+    assert Path(init) == tmp_path / "splat_cpu" / "__init__.py"
+    assert Path(omp) == tmp_path / "splat_cpu" / "_omp.py" and same_state == "True"

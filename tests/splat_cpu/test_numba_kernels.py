@@ -143,3 +143,48 @@ def test_float32_compositing_matches_the_reference_on_a_larger_image(seed):
 
 def test_sigma_clamp_is_beyond_alpha_min():
     assert math.exp(-K._SIGMA_CLAMP) < ALPHA_MIN
+
+
+@pytest.mark.parametrize("dtype,tol", [(np.float32, 1e-4), (np.float64, 1e-10)])
+def test_kernels_skip_pixels_where_an_indefinite_conic_gives_negative_sigma(dtype, tol):
+    """An indefinite conic (b^2 > a c) has sigma < 0 on part of the tile, where o exp(-sigma) would pass
+    ALPHA_MIN: forward_tiles and backward_tiles must skip those pixels as the reference does (sigma >= 0)."""
+    from splat_cpu._torch_impl import composite_dense
+
+    size = TILE  # one tile
+    m2 = np.array([[7.3, 8.1], [8.6, 6.9], [5.2, 9.4]])  # front to back
+    co = np.array([[0.05, 0.01, 0.04], [0.02, 0.06, 0.03], [0.03, -0.005, 0.02]])  # the second is indefinite
+    op = np.array([0.6, 0.5, 0.9])
+    col = np.array([[0.9], [0.4], [0.2]])
+    bg = np.array([0.3])
+    order, n_valid = np.arange(3)[None], np.array([3])
+    pix_box = np.tile(np.array([0, size - 1, 0, size - 1]), (1, 3, 1))
+    args = [a.astype(dtype) for a in (m2[None], co[None], op, col[None], bg)]
+    tile_start, gid, rows = K.bin_tiles(order, n_valid, pix_box, args[0], args[1], args[2], size, size, 1, 1)
+    img = np.empty((1, size, size, 1), dtype)
+    t_final = np.empty((1, size, size), dtype)
+    last = np.empty((1, size, size), np.int32)
+    tiles = (rows, tile_start, gid, size, size, 1, 1)
+    K.forward_tiles(*args, *tiles, img, t_final, last)
+    rng = np.random.default_rng(0)
+    v_img, v_alpha = rng.standard_normal((1, size, size, 1)), rng.standard_normal((1, size, size))
+    geo = np.empty((gid.shape[0], 6), dtype)
+    out_col = np.empty((gid.shape[0], 1), dtype)
+    K.backward_tiles(*args, *tiles, t_final, last, v_img.astype(dtype), v_alpha.astype(dtype), geo, out_col)
+    ys, xs = np.meshgrid(np.arange(size), np.arange(size), indexing="ij")
+    pix = torch.tensor(np.stack([xs.ravel(), ys.ravel()], -1) + 0.5)
+    ins = [torch.tensor(a.astype(dtype).astype(np.float64), requires_grad=True) for a in (m2, co, op, col)]
+    ref, t_ref = composite_dense(pix, *ins)
+    ref = ref + t_ref[:, None] * torch.tensor(bg)
+    dx, dy = m2[1, 0] - pix[:, 0], m2[1, 1] - pix[:, 1]
+    sigma = 0.5 * (co[1, 0] * dx * dx + co[1, 2] * dy * dy) + co[1, 1] * dx * dy
+    assert bool((sigma < 0).any()) and bool((sigma > 0).any())  # the conic really is indefinite on this tile
+    loss = (ref * torch.tensor(v_img.reshape(-1, 1))).sum() + ((1 - t_ref) * torch.tensor(v_alpha.reshape(-1))).sum()
+    grads = torch.autograd.grad(loss, ins)
+    assert np.abs(img.reshape(-1, 1) - ref.detach().numpy()).max() < tol
+    assert np.abs(t_final.reshape(-1) - t_ref.detach().numpy()).max() < tol
+    got = np.zeros((3, 6))
+    got[gid] = geo  # one tile: one entry per Gaussian
+    want = torch.cat([grads[0], grads[1], grads[2][:, None]], 1).numpy()
+    assert np.abs(got - want).max() < tol * max(1.0, np.abs(want).max()), np.abs(got - want).max()
+    assert np.abs(out_col[np.argsort(gid)] - grads[3].numpy()).max() < tol * max(1.0, np.abs(grads[3].numpy()).max())
