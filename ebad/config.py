@@ -52,7 +52,6 @@ EdiPrior = Literal["edi", "medi"]
 EdiInstants = Literal["mid", "views"]
 CfaEvents = Literal["filter", "luminance"]
 CfaFrames = Literal["rgb", "mosaic"]
-FrameSampling = Literal["uniform", "loss"]
 
 
 def _require(ok: bool, option: str, problem: str) -> None:
@@ -373,10 +372,6 @@ class TrainConfig:
     """
     coarse_until: float = 0.3
     """fraction of the run (steps over iters, or time over max_seconds when further) at the coarse resolution"""
-    frame_sampling: FrameSampling = "uniform"
-    """the frame each step trains on. uniform: every frame once per pass, in a fresh random order each pass. loss:
-    the first pass as uniform's; then each step draws a frame, half the time uniformly, half in proportion to the
-    frame's last loss (the frames with the most left to learn are visited more)"""
     eval_every: int = 100
     """steps between test-view PSNR evaluations (when test images exist; 0: never)"""
     checkpoint_every: int = 200
@@ -406,11 +401,6 @@ class TrainConfig:
         _require(self.pose_warmup >= 0, "train.pose_warmup", f"must be >= 0, got {self.pose_warmup}")
         _require(
             self.coarse_scale >= 1, "train.coarse_scale", f"must be >= 1 (1: no coarse phase), got {self.coarse_scale}"
-        )
-        _require(
-            self.frame_sampling in typing.get_args(FrameSampling),
-            "train.frame_sampling",
-            f"must be one of {', '.join(typing.get_args(FrameSampling))}, got {self.frame_sampling!r}",
         )
         _require(0 <= self.coarse_until <= 1, "train.coarse_until", f"must be in [0, 1], got {self.coarse_until}")
         _require(self.eval_every >= 0, "train.eval_every", f"must be >= 0 (0: never), got {self.eval_every}")

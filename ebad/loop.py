@@ -490,7 +490,7 @@ def train(
     with _Interrupts() as interrupts, torch_single_threaded():
         try:
             while state.step < cfg.train.iters:
-                f = state.next_frame(data.names if cfg.train.frame_sampling == "loss" else None)
+                f = state.next_frame()
                 elapsed = time.perf_counter() - started
                 phase = schedule.at(state.step, elapsed)
                 if views_pending and phase.views_due:

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import dataclasses
 import errno
-from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -258,31 +257,11 @@ class TrainState:
         """The mean of the accumulated knots (None before any)."""
         return None if self.knots_sum is None else self.knots_sum / self.knots_count
 
-    def next_frame(self, by_loss: Sequence[str] | None = None) -> int:
-        """The next training frame: a fresh random permutation of the frames every pass. With ``by_loss``
-        (the frames' names; ``train.frame_sampling`` "loss") and a loss in the history for every frame:
-        a draw, half uniform and half in proportion to each frame's last loss."""
-        if by_loss is not None and not self.order:
-            last = self.last_losses(by_loss)
-            if last is not None and np.isfinite(last).all() and last.sum() > 0:
-                return int(self.order_rng.choice(len(last), p=0.5 / len(last) + 0.5 * last / last.sum()))
+    def next_frame(self) -> int:
+        """The next training frame: a fresh random permutation of the frames every pass."""
         if not self.order:
             self.order = [int(i) for i in self.order_rng.permutation(self.trajectories.num_frames)]
         return self.order.pop()
-
-    def last_losses(self, names: Sequence[str]) -> np.ndarray | None:
-        """Each frame's loss at its last step in the history [F], None while a frame has none."""
-        index = {n: i for i, n in enumerate(names)}
-        last = np.full(len(names), np.nan)
-        missing = len(names)
-        for h in reversed(self.history):
-            i = index.get(h.frame)
-            if i is not None and np.isnan(last[i]):
-                last[i] = h.loss
-                missing -= 1
-                if not missing:
-                    return last
-        return None
 
     def save(self, path: str | Path, fingerprint: dict[str, Any] | None = None) -> None:
         """Write the state to ``path`` atomically (a file unique to this process, renamed into place)."""

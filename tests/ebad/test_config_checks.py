@@ -72,7 +72,6 @@ RULES: dict[str, tuple[tuple, tuple]] = {
     "train.pose_warmup": ((-1,), (0,)),
     "train.coarse_scale": ((0,), (1,)),
     "train.coarse_until": ((-0.01, 1.01), (0.0, 1.0)),
-    "train.frame_sampling": (("weighted",), ("uniform", "loss")),
     "train.eval_every": ((-1,), (0,)),
     "train.checkpoint_every": ((-1,), (0,)),
 }

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import copy
 
-import numpy as np
 import pytest
 import torch
 
@@ -169,63 +168,3 @@ def test_a_checkpoint_of_an_older_version_with_the_global_rng_state_still_loads(
     rng = torch.get_rng_state()
     loaded = TrainState.load(path, data, cfg)
     assert loaded.step == 2 and torch.equal(torch.get_rng_state(), rng)  # loading leaves the global RNG alone
-
-
-def _sampler(losses: dict[str, float], n_frames: int, seed: int = 0) -> TrainState:
-    """A TrainState with only what next_frame reads: a history of one step per (frame, loss)."""
-    from types import SimpleNamespace
-
-    from ebad.state import StepStats
-
-    state = object.__new__(TrainState)
-    state.order, state.order_rng = [], np.random.default_rng(seed)
-    state.trajectories = SimpleNamespace(num_frames=n_frames)
-    state.history = [StepStats(k, f, loss, loss, 0.0, 0, 0.0) for k, (f, loss) in enumerate(losses.items(), 1)]
-    return state
-
-
-def test_frames_are_drawn_half_uniformly_and_half_by_their_last_loss():
-    names = ["a", "b", "c", "d"]
-    state = _sampler({"a": 9.0, "b": 0.0, "c": 0.0, "d": 3.0}, 4)
-    state.history.append(state.history[0].__class__(5, "a", 1.0, 1.0, 0.0, 0, 0.0))  # a's last loss is 1
-    draws = np.bincount([state.next_frame(names) for _ in range(40000)], minlength=4) / 40000
-    # by hand: 1/8 each, plus half of (1, 0, 0, 3) / 4
-    assert np.allclose(draws, [0.125 + 0.125, 0.125, 0.125, 0.125 + 0.375], atol=0.01), draws
-    assert state.order == []  # no pass under way
-
-
-def test_frame_sampling_by_loss_starts_with_a_pass_over_every_frame():
-    names = ["a", "b", "c"]
-    state = _sampler({"a": 5.0, "b": 1.0}, 3)  # c has no loss yet: a uniform pass, every frame once
-    assert sorted(state.next_frame(names) for _ in range(3)) == [0, 1, 2]
-    uniform = _sampler({"a": 5.0, "b": 1.0, "c": 1.0}, 3)  # without by_loss: passes whatever the losses
-    assert sorted(uniform.next_frame() for _ in range(3)) == [0, 1, 2]
-
-
-def test_a_run_samples_frames_by_loss_and_resumes(tiny, tmp_path):
-    cfg, data, state, strategy = _setup(tiny.capture)
-    cfg.train.frame_sampling = "loss"
-    for _ in range(12):  # the loop's part: the step's stats go to the history
-        state.history.append(train_step(data, state, strategy, state.next_frame(data.names), cfg))
-    frames = [h.frame for h in state.history]
-    assert sorted(frames[:4]) == sorted(data.names)  # the first pass
-    state.save(tmp_path / "s.pt")
-    again = TrainState.load(tmp_path / "s.pt", data, cfg)
-    assert [again.next_frame(data.names) for _ in range(20)] == [state.next_frame(data.names) for _ in range(20)]
-
-
-def test_the_loop_passes_the_frames_names_when_sampling_by_loss(tiny, monkeypatch):
-    from ebad.run import reconstruct
-
-    seen = []
-    original = TrainState.next_frame
-
-    def next_frame(self, by_loss=None):
-        seen.append(by_loss)
-        return original(self, by_loss)
-
-    monkeypatch.setattr(TrainState, "next_frame", next_frame)
-    cfg = preset("3dgs")
-    cfg.train.iters, cfg.train.progress, cfg.train.eval_every, cfg.train.frame_sampling = 3, False, 0, "loss"
-    reconstruct(tiny.capture, cfg)
-    assert seen == [list(tiny.capture.frame_names())] * 3
