@@ -17,8 +17,8 @@ Per run:
 
 * every phase before the first step timed separately, from the lines ``ebad.progress`` and
   ``scenes.colmap`` log (loading, poses/SfM with features, matching and mapping, c estimation,
-  sharpness, latents, initialisation, the initial scoring), the first step (numba's kernels loaded
-  or compiled) and the steps/s after it;
+  sharpness, latents, initialisation, the initial scoring), the first step (numba's kernels loaded:
+  the parent compiles them into the cache first, ``ebad.run.warm_up``) and the steps/s after it;
 * test PSNR (poses refined against the images, ``ebad.evaluate``) of snapshots at ``--marks``
   instants against wall time (the prepare time included);
 * the subprocess's peak RSS (its own ``VmHWM``: ``ru_maxrss`` would report the parent's peak, which
@@ -284,7 +284,11 @@ def main(argv=None) -> int:
     if any(v < 2 for v in views) or a.test_views < 1:
         ap.error("--views: every capture needs >= 2 training views, and --test-views >= 1")
     import scenes
+    from ebad.run import warm_up
 
+    # numba's kernels compiled (or loaded) into the cache here, outside every child's budget: a child on a stale
+    # cache compiled its rasteriser in its first steps (8.3 s of a 300-s budget, docs/results.md)
+    print(f"numba's kernels ready in {warm_up(['grey']):.0f} s (outside every budget)", flush=True)
     work = Path(a.workdir) if a.workdir else Path(tempfile.mkdtemp(prefix="ebad-scaling-"))
     results: dict = {"args": vars(a), "runs": {}, "simulate_seconds": {}, "simulate_peak_rss_mb": {}}
     for n in views:
