@@ -108,13 +108,12 @@ def refine_poses(
     K = torch.as_tensor(run.K, dtype=torch.float32)
     best = [b.clone() for b in bases]
     best_loss = [float("inf")] * len(bases)
-    losses: list[list[float]] = [[] for _ in bases]
-    steps = [0] * len(bases)
+    losses: list[list[float]] = [[] for _ in bases]  # a view's steps: the length of its list
     active = list(range(len(bases)))
     n_done = 0
     with torch_single_threaded():
         opt = torch.optim.Adam(xis, lr=lr)  # per-parameter state: a view without a gradient is not moved
-        for step in range(1, iters + 1):
+        for _step in range(iters):
             if not active:
                 break
             poses = [bases[v] @ compose_pose(so3_exp(xis[v][:3]), scale * xis[v][3:]) for v in active]
@@ -128,7 +127,6 @@ def refine_poses(
             for j, v in enumerate(active):
                 value = float(loss[j].detach())
                 losses[v].append(value)
-                steps[v] = step
                 if value < best_loss[v]:
                     best_loss[v], best[v] = value, poses[j].detach().clone()
                 h = losses[v]
@@ -146,7 +144,7 @@ def refine_poses(
     if done is not None:
         for k in range(n_done + 1, len(bases) + 1):
             done(k)  # the views that spent their steps stop too
-    return [(b.numpy().astype(np.float64), n) for b, n in zip(best, steps)]
+    return [(b.numpy().astype(np.float64), len(h)) for b, h in zip(best, losses)]
 
 
 def eval_poses(run: Run, capture: Capture) -> tuple[dict[str, np.ndarray], dict[str, str]]:
