@@ -20,7 +20,7 @@ from .config import Config
 from .data import TrainingData
 from .progress import Ticker, say
 from .scoring import ViewScores, evaluate_views, render_images, scorable_views, with_poses
-from .state import StepStats, TrainState
+from .state import NO_STEP_LIMIT, StepStats, TrainState
 
 if TYPE_CHECKING:
     from scenes import TestView
@@ -81,7 +81,7 @@ class Evaluator:
 class ProgressBar:
     """A tqdm bar with the losses, N and the latest (test, else train) PSNR. Under a time budget
     (``train.max_seconds``) the bar counts training seconds against it, and the steps are shown
-    beside (``step``: done / ``train.iters``); else it counts steps."""
+    beside (``step``: done / ``train.iters``, or done alone without a step limit); else it counts steps."""
 
     def __init__(self, cfg: Config, initial: int, elapsed: float = 0.0):
         from tqdm import tqdm
@@ -115,7 +115,7 @@ class ProgressBar:
             self.bar.set_postfix(post, refresh=False)
             self.bar.update(1)
         else:
-            post["step"] = f"{state.step}/{self.iters}"
+            post["step"] = str(state.step) if self.iters >= NO_STEP_LIMIT else f"{state.step}/{self.iters}"
             self.bar.set_postfix(post, refresh=False)
             self.bar.update(min(float(state.elapsed), float(self.seconds)) - self.bar.n)
 

@@ -332,8 +332,9 @@ class StrategyConfig:
 class TrainConfig:
     """The optimisation loop."""
 
-    iters: int = 600
-    """optimisation steps (one frame per step)"""
+    iters: int = 0
+    """optimisation steps (one frame per step); 0: automatic, 60 a training frame and at least 600 (600 up to 10
+    frames), or no step limit when max_seconds is given (the clock is the budget; ebad.state.step_budget)"""
     max_seconds: float | None = None
     """wall-time budget; the loop stops when it is spent. The schedule then follows max(steps / iters, seconds /
     max_seconds), so a run with a budget depends on the machine's speed and load and is not repeatable; a run
@@ -383,7 +384,7 @@ class TrainConfig:
 
     def check(self) -> None:
         _finite(self, "train")
-        _require(self.iters >= 1, "train.iters", f"must be >= 1, got {self.iters}")
+        _require(self.iters >= 0, "train.iters", f"must be >= 0 (0: automatic), got {self.iters}")
         _require(
             self.max_seconds is None or self.max_seconds > 0,
             "train.max_seconds",

@@ -28,7 +28,7 @@ from .loop import StopReason, train
 from .progress import say
 from .response import Response
 from .scoring import ViewScores, render_images
-from .state import StepStats, TrainState, capture_fingerprint, max_gaussians
+from .state import NO_STEP_LIMIT, StepStats, TrainState, capture_fingerprint, max_gaussians, with_step_budget
 from .strategy import make_strategy
 from .threads import configure as configure_threads
 from .trajectory import ExposureTrajectories
@@ -233,6 +233,10 @@ def reconstruct(
     data = prepare(capture, cfg)
     prep_s = time.perf_counter() - t_prep
     say(show, f"prepared in {prep_s:.1f} s")
+    if cfg.train.iters == 0:  # automatic: 60 steps a frame, or the time budget alone
+        cfg = with_step_budget(cfg, data.num_frames)
+        budget = "no step limit" if cfg.train.iters == NO_STEP_LIMIT else f"{cfg.train.iters} steps"
+        say(show, f"budget (train.iters 0, automatic): {budget}")
     fingerprint = capture_fingerprint(capture)
     ckpt = Path(out_dir) / "checkpoints" / "last.pt" if out_dir is not None else None
     resumed_from = None

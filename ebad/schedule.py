@@ -73,6 +73,8 @@ class Schedule:
         (frames large enough, ``ebad.loop.coarse_data``); ``choose_views``: some frame is blurry;
         ``averaging``: the knots are optimised."""
         tc, tj = cfg.train, cfg.trajectory
+        if tc.iters < 1:  # an internal error: the caller skipped ebad.state.with_step_budget
+            raise ValueError(f"train.iters {tc.iters} (automatic) must be resolved first (ebad.state.with_step_budget)")
         return cls(
             iters=tc.iters,
             max_seconds=tc.max_seconds,

@@ -10,6 +10,7 @@ run would have taken (tested: save, load, one step equals one step without the r
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import errno
 from dataclasses import dataclass, field
@@ -47,11 +48,16 @@ __all__ = [
     "init_gaussians",
     "make_optimizers",
     "max_gaussians",
+    "step_budget",
+    "with_step_budget",
     "capture_fingerprint",
     "read_checkpoint",
     "fingerprint_diff",
     "AUTO_CAP_PER_PIXEL",
     "AUTO_CAP_RANGE",
+    "AUTO_STEPS_PER_FRAME",
+    "AUTO_MIN_STEPS",
+    "NO_STEP_LIMIT",
     "CHECKPOINT_FORMAT",
 ]
 
@@ -59,6 +65,12 @@ __all__ = [
 # (the small scenes need room to grow; at DAVIS size 2 x 346 x 260 = 180k would be too slow).
 AUTO_CAP_PER_PIXEL = 2
 AUTO_CAP_RANGE = (4000, 60000)
+# TrainConfig.iters = 0: each training frame gets as many steps as a frame of a 10-frame capture got under the fixed
+# default of 600 that every 10-frame run had (so 600 up to 10 frames); a 30-frame capture gets 1800, not 20 a frame.
+# With train.max_seconds the clock is the budget: NO_STEP_LIMIT steps.
+AUTO_STEPS_PER_FRAME = 60
+AUTO_MIN_STEPS = 600
+NO_STEP_LIMIT = 1 << 40
 CHECKPOINT_FORMAT = "ebad-checkpoint/1"
 
 
@@ -98,6 +110,23 @@ def max_gaussians(cfg: Config, data: TrainingData) -> int:
         return int(cfg.model.max_gaussians)
     lo, hi = AUTO_CAP_RANGE
     return int(min(hi, max(lo, AUTO_CAP_PER_PIXEL * data.width * data.height)))
+
+
+def step_budget(cfg: Config, frames: int) -> int:
+    """The configured ``train.iters``, or when it is 0, ``AUTO_STEPS_PER_FRAME`` steps a training frame and at least
+    ``AUTO_MIN_STEPS``; with ``train.max_seconds`` given, ``NO_STEP_LIMIT`` (the time budget decides)."""
+    if cfg.train.iters > 0:
+        return int(cfg.train.iters)
+    if cfg.train.max_seconds is not None:
+        return NO_STEP_LIMIT
+    return max(AUTO_MIN_STEPS, AUTO_STEPS_PER_FRAME * frames)
+
+
+def with_step_budget(cfg: Config, frames: int) -> Config:
+    """A copy of ``cfg`` whose ``train.iters`` is ``step_budget``'s (``cfg`` itself is left as given)."""
+    out = copy.deepcopy(cfg)
+    out.train.iters = step_budget(cfg, frames)
+    return out
 
 
 def init_gaussians(data: TrainingData, cfg: Config) -> dict[str, nn.Parameter]:

@@ -41,7 +41,7 @@ def test_config_errors_name_the_key():
         ("model", "background", 5.0, "--model.background: must be in [0, 1]"),
         ("model", "max_gaussians", -3, "--model.max_gaussians: must be >= 0"),
         ("model", "init_depth", (2.0, 1.0), "--model.init_depth: must be two depths"),
-        ("train", "iters", 0, "--train.iters: must be >= 1"),
+        ("train", "iters", -1, "--train.iters: must be >= 0"),
         ("trajectory", "num_views", 0, "--trajectory.num_views: must be >= 1"),
         ("strategy", "split_shrink", 1.0, "--strategy.split_shrink: must be > 1"),
     ],
@@ -73,5 +73,5 @@ def test_config_diff_lists_changed_fields():
     assert C.config_diff(a, b) == {}
     b.train.iters = 7
     b.loss.w_event = 0.5
-    assert C.config_diff(a, b) == {"train.iters": (600, 7), "loss.w_event": (0.1, 0.5)}
+    assert C.config_diff(a, b) == {"train.iters": (0, 7), "loss.w_event": (0.1, 0.5)}
     assert "train.iters" in C.RESUMABLE_FIELDS and "loss.w_event" not in C.RESUMABLE_FIELDS

@@ -57,7 +57,7 @@ RULES: dict[str, tuple[tuple, tuple]] = {
     "strategy.reset_every": ((-1,), (0,)),
     "strategy.reset_opacity": ((0.0, 1.0), (1e-6, 0.999)),
     "strategy.reset_until": ((-0.01, 1.01), (0.0, 1.0)),
-    "train.iters": ((0,), (1,)),
+    "train.iters": ((-1,), (0, 1)),
     "train.max_seconds": ((0.0, -1.0), (1e-3, None)),
     "train.plateau_patience": ((-1,), (0,)),
     "train.plateau_every": ((0,), (1,)),
@@ -174,7 +174,7 @@ def test_pose_warmup_holds_the_trajectories_for_exactly_that_many_steps(warmup):
 
     sc = scenes.make_scene("boxes", size="tiny", seed=0, n_frames=3, n_test=1)
     cfg = C.preset("ebad")
-    cfg.train.pose_warmup, cfg.train.progress = warmup, False
+    cfg.train.pose_warmup, cfg.train.progress, cfg.train.iters = warmup, False, 600
     data = prepare(sc.capture, cfg)
     state = TrainState.create(data, cfg)
     strategy = make_strategy(cfg.strategy, data.scale, max_gaussians(cfg, data), state.generator)

@@ -7,6 +7,7 @@ from types import SimpleNamespace
 
 from ebad.callbacks import ProgressBar, Ticker, say
 from ebad.config import preset
+from ebad.state import NO_STEP_LIMIT
 
 
 def _stats(**kw):
@@ -23,6 +24,15 @@ def test_the_bar_counts_seconds_against_max_seconds():
     assert bar.bar.n == 3.25 and "step=7/100000" in bar.bar.postfix
     bar.on_step(SimpleNamespace(step=8, elapsed=31.0), _stats())  # type: ignore[arg-type]
     assert bar.bar.n == 30.0  # the step that crossed the budget fills the bar, no more
+    bar.on_end(None, "time")  # type: ignore[arg-type]
+
+
+def test_under_a_time_budget_alone_the_bar_shows_the_step_without_a_limit():
+    cfg = preset("ebad")
+    cfg.train.iters, cfg.train.max_seconds = NO_STEP_LIMIT, 30.0  # train.iters 0 with max_seconds, resolved
+    bar = ProgressBar(cfg, 0)
+    bar.on_step(SimpleNamespace(step=7, elapsed=3.25), _stats())  # type: ignore[arg-type]
+    assert "step=7," in bar.bar.postfix + "," and "/" not in bar.bar.postfix.split("step=")[1]
     bar.on_end(None, "time")  # type: ignore[arg-type]
 
 

@@ -12,7 +12,7 @@ from ebad.config import preset
 from ebad.data import prepare
 from ebad.errors import UserError
 from ebad.loop import train_step
-from ebad.state import TrainState, capture_fingerprint, max_gaussians
+from ebad.state import TrainState, capture_fingerprint, max_gaussians, with_step_budget
 from ebad.strategy import make_strategy
 
 
@@ -27,6 +27,7 @@ def _setup(capture, name="ebad"):
     cfg.strategy.refine_start = 1
     cfg.strategy.refine_every = 2  # densification fires inside the test's few steps
     data = prepare(capture, cfg)
+    cfg = with_step_budget(cfg, data.num_frames)  # as reconstruct does: train.iters 0 -> 600 steps here
     state = TrainState.create(data, cfg)
     strategy = make_strategy(cfg.strategy, data.scale, max_gaussians(cfg, data), state.generator)
     state.strategy_state = strategy.initialize_state(state.num_gaussians)
