@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import time
 
-import numba
 import numpy as np
 import torch
 from torch import Tensor
@@ -32,8 +31,6 @@ from . import _numba_project as P
 from . import _numba_sh as S
 from ._omp import choose_threading_layer
 from .constants import TILE
-
-_CHUNK = 2  # tiles per scheduling chunk: tiles cost very different amounts, small chunks balance them
 
 
 class _Plan:
@@ -178,11 +175,14 @@ class _Composite(torch.autograd.Function):
         img = np.empty((c_n, p.height, p.width, d), dtype=arrs[0].dtype)
         t_final = np.empty((c_n, p.height, p.width), dtype=arrs[0].dtype)
         last = np.empty((c_n, p.height, p.width), dtype=np.int32)
-        with numba.parallel_chunksize(_CHUNK):
-            K.forward_tiles(
-                *arrs, p.rows, p.tile_start, p.gid, p.width, p.height, p.tiles_x, p.tiles_y, img, t_final, last
-            )
-        ctx.plan, ctx.arrs, ctx.t_final, ctx.last = plan, arrs, t_final, last
+        # numba splits a prange statically, one contiguous run per thread: the tiles go in an order that any
+        # such split balances (`K.balanced_order`), by the forward's cost and then by the backward's
+        order = K.balanced_order(K.forward_cost(p.tile_start, p.rows))
+        cost = np.empty(p.tile_start.shape[0] - 1, dtype=np.int64)
+        K.forward_tiles(
+            *arrs, p.rows, p.tile_start, p.gid, p.width, p.height, p.tiles_x, p.tiles_y, order, img, t_final, last, cost
+        )
+        ctx.plan, ctx.arrs, ctx.t_final, ctx.last, ctx.cost = plan, arrs, t_final, last, cost
         ctx.dtype, ctx.timings, ctx.shared = means2d.dtype, timings, colors.ndim == 2
         alphas = torch.from_numpy((1.0 - t_final)[..., None])
         return torch.from_numpy(img), alphas
@@ -201,23 +201,23 @@ class _Composite(torch.autograd.Function):
         n_isect = p.gid.shape[0]
         geo = np.empty((n_isect, 6), dtype=means2d.dtype)  # every row written by backward_tiles
         col = np.empty((n_isect, d), dtype=means2d.dtype)
-        with numba.parallel_chunksize(_CHUNK):
-            K.backward_tiles(
-                *arrs,
-                p.rows,
-                p.tile_start,
-                p.gid,
-                p.width,
-                p.height,
-                p.tiles_x,
-                p.tiles_y,
-                ctx.t_final,
-                ctx.last,
-                v_img_np,
-                v_al_np,
-                geo,
-                col,
-            )
+        K.backward_tiles(
+            *arrs,
+            p.rows,
+            p.tile_start,
+            p.gid,
+            p.width,
+            p.height,
+            p.tiles_x,
+            p.tiles_y,
+            K.balanced_order(ctx.cost),
+            ctx.t_final,
+            ctx.last,
+            v_img_np,
+            v_al_np,
+            geo,
+            col,
+        )
         v_m = np.zeros((c_n, n, 2))
         v_c = np.zeros((c_n, n, 3))
         v_o = np.zeros((c_n, n))

@@ -360,6 +360,85 @@ def _pixel_offsets(fdt):  # -> x [TILE * TILE], y [TILE * TILE]: column and row 
     return ((i // _HALF_PX) * HALF + (i & (HALF - 1))).astype(fdt), ((i >> _HALF_SHIFT) & (TILE - 1)).astype(fdt)
 
 
+_SPAN_COST = 2  # a compositing loop's set-up and sums, in row vectors: a tile's cost is its rows plus this per span
+
+
+@njit(cache=True)
+def forward_cost(tile_start, rows):  # -> [C * n_tiles] int64: each tile's cost in `forward_tiles`, at most
+    """The rows of every half-tile span of the tile's entries, plus _SPAN_COST per non-empty span: the forward's work
+    on the tile when no pixel is spent before its last entry (an upper bound; the order's weights, not a time)."""
+    n_all = tile_start.shape[0] - 1
+    cost = np.zeros(n_all, np.int64)
+    for t in range(n_all):
+        c = 0
+        for k in range(tile_start[t], tile_start[t + 1]):
+            for h in range(2):
+                n = np.int64(rows[k, 2 * h + 1]) - np.int64(rows[k, 2 * h]) + 1
+                c += n + _SPAN_COST if n > 0 else 0
+        cost[t] = c
+    return cost
+
+
+@njit(cache=True)
+def balanced_order(cost):  # [n] -> [n] int64: the tiles in an order whose every prefix carries its share of the cost
+    """A permutation of the tiles where the cost of the first i is within one tile's cost of i / n of the total.
+
+    numba splits a `prange` statically: each thread runs one contiguous run of it (its threading layers' parallel_for,
+    with or without `parallel_chunksize`). In image order the first half of the tiles held 52-53% of the target
+    scene's compositing, so one thread idled while the other finished; in this order any contiguous split is
+    balanced. Greedy: the costliest tile left while the prefix is behind its share, the cheapest while ahead."""
+    n = cost.shape[0]
+    by_cost = np.argsort(-cost, kind="mergesort")  # costliest first, ties in tile order
+    out = np.empty(n, np.int64)
+    total = np.float64(cost.sum())
+    lo, hi = 0, n - 1
+    done = 0.0
+    for i in range(n):
+        share = total * (i + 1) / n
+        big, small = cost[by_cost[lo]], cost[by_cost[hi]]
+        if abs(done + big - share) <= abs(done + small - share):
+            out[i] = by_cost[lo]
+            lo += 1
+            done += big
+        else:
+            out[i] = by_cost[hi]
+            hi -= 1
+            done += small
+    return out
+
+
+@njit(cache=True, inline="always")
+def _live_rows(rows, k, h, row_kmax, kk):  # -> (ya, yb): the rows of half h the backward walks for entry k
+    """Entry k's rows in half h (its position kk in the tile's list) less those at either end whose pixels all
+    stopped before it (row_kmax[h, y]: the last position any pixel of half row y uses); ya > yb when none."""
+    ya, yb = np.int64(rows[k, 2 * h]), np.int64(rows[k, 2 * h + 1])
+    while ya <= yb and row_kmax[h, ya] < kk:
+        ya += 1
+    while yb >= ya and row_kmax[h, yb] < kk:
+        yb -= 1
+    return ya, yb
+
+
+@njit(cache=True, inline="always")
+def _row_kmax(last):  # [TILE * TILE] int32 (a tile's buffer) -> [2, TILE] int64
+    """Per half row of the tile, the last list position any of its pixels uses (-1: none)."""
+    row_kmax = np.full((2, TILE), -1, np.int64)
+    for i in range(TILE * TILE):
+        h, ly = i // _HALF_PX, (i >> _HALF_SHIFT) & (TILE - 1)
+        row_kmax[h, ly] = max(row_kmax[h, ly], np.int64(last[i]))
+    return row_kmax
+
+
+@njit(cache=True, inline="always")
+def _backward_cost(rows, start, row_kmax):  # -> the rows backward_tiles walks in the tile, plus _SPAN_COST per span
+    cost = 0
+    for kk in range(row_kmax.max() + 1):
+        for h in range(2):
+            ya, yb = _live_rows(rows, start + kk, h, row_kmax, kk)
+            cost += yb - ya + 1 + _SPAN_COST if ya <= yb else 0
+    return cost
+
+
 @njit(cache=True, parallel=True, fastmath=_FASTMATH, error_model="numpy")
 def forward_tiles(
     means2d,  # [C, N, 2]
@@ -374,13 +453,14 @@ def forward_tiles(
     height,
     tiles_x,
     tiles_y,
+    order,  # [n] int64: the tiles to composite, in this order (`balanced_order`; all C * n_tiles of them)
     out_img,  # [C, H, W, D] written
     out_t,  # [C, H, W] written: final transmittance
     out_last,  # [C, H, W] int32 written: position in the tile's list of the last contributing Gaussian, -1 if none
+    out_cost,  # [C * n_tiles] int64 written: the rows (plus _SPAN_COST per span) backward_tiles walks per tile
 ):
     """Composite every tile front to back, in the float type of the inputs (all of one dtype)."""
     n_tiles = tiles_x * tiles_y
-    n_all = tile_start.shape[0] - 1
     d = colors.shape[2]
     npx = TILE * TILE
     fdt = means2d.dtype
@@ -388,7 +468,8 @@ def forward_tiles(
     zero, one, half = f(0.0), f(1.0), f(0.5)
     a_max, a_min, t_min, s_clamp = f(ALPHA_MAX), f(ALPHA_MIN), f(T_MIN), f(_SIGMA_CLAMP)
     pix_x, pix_y = _pixel_offsets(fdt)
-    for t in prange(n_all):
+    for o in prange(order.shape[0]):
+        t = order[o]
         cam, px0, py0, pw, ph = _tile_origin(t, tiles_x, n_tiles, width, height)
         ccam = min(cam, colors.shape[0] - 1)  # the camera's colours (0 when shared)
         start, end = tile_start[t], tile_start[t + 1]
@@ -462,6 +543,7 @@ def forward_tiles(
                     out_img[cam, y, x, ch] = acc[ch * npx + i] + tf * f(background[ch])
                 out_t[cam, y, x] = tf
                 out_last[cam, y, x] = last[i]
+        out_cost[t] = _backward_cost(rows, start, _row_kmax(last))
 
 
 @njit(cache=True, parallel=True, fastmath=_FASTMATH, error_model="numpy")
@@ -478,6 +560,7 @@ def backward_tiles(  # noqa: C901  (one fused numba pass over each tile, for spe
     height,
     tiles_x,
     tiles_y,
+    order,  # [n] int64: the tiles, in this order (`balanced_order` of forward_tiles' out_cost; all C * n_tiles)
     t_final,  # [C, H, W] from forward_tiles
     last_idx,  # [C, H, W] int32 from forward_tiles
     v_img,  # [C, H, W, D] cotangent of the images
@@ -487,7 +570,6 @@ def backward_tiles(  # noqa: C901  (one fused numba pass over each tile, for spe
 ):
     """Walk each tile's list back from its last contributing Gaussian; every entry's row is written."""
     n_tiles = tiles_x * tiles_y
-    n_all = tile_start.shape[0] - 1
     d = colors.shape[2]
     npx = TILE * TILE
     fdt = means2d.dtype
@@ -495,7 +577,8 @@ def backward_tiles(  # noqa: C901  (one fused numba pass over each tile, for spe
     zero, one, half = f(0.0), f(1.0), f(0.5)
     a_max, a_min, s_clamp = f(ALPHA_MAX), f(ALPHA_MIN), f(_SIGMA_CLAMP)
     pix_x, pix_y = _pixel_offsets(fdt)
-    for t in prange(n_all):
+    for o in prange(order.shape[0]):
+        t = order[o]
         start, end = tile_start[t], tile_start[t + 1]
         if end == start:
             continue
@@ -506,7 +589,6 @@ def backward_tiles(  # noqa: C901  (one fused numba pass over each tile, for spe
         rest = np.zeros(npx, fdt)
         vc = np.zeros(d * npx, fdt)
         last = np.full(npx, -1, np.int32)  # pixels outside the image never match
-        row_kmax = np.full((2, TILE), -1, np.int64)  # per half row, the last list position any of its pixels uses
         for ly in range(ph):
             for lx in range(pw):
                 y, x = py0 + ly, px0 + lx
@@ -519,8 +601,7 @@ def backward_tiles(  # noqa: C901  (one fused numba pass over each tile, for spe
                     bgdot += f(background[ch]) * f(v_img[cam, y, x, ch])
                 rest[i] = tf * bgdot - tf * f(v_alpha[cam, y, x])
                 last[i] = last_idx[cam, y, x]
-                h = lx >> _HALF_SHIFT
-                row_kmax[h, ly] = max(row_kmax[h, ly], np.int64(last[i]))
+        row_kmax = _row_kmax(last)
         kmax = row_kmax.max()
         out_geo[start + kmax + 1 : end] = 0.0  # behind every pixel's last contribution
         out_col[start + kmax + 1 : end] = 0.0
@@ -549,11 +630,7 @@ def backward_tiles(  # noqa: C901  (one fused numba pass over each tile, for spe
             for ch in range(d):
                 out_col[k, ch] = 0.0
             for h in range(2):
-                ya, yb = np.int64(rows[k, 2 * h]), np.int64(rows[k, 2 * h + 1])
-                while ya <= yb and row_kmax[h, ya] < kk:  # rows spent before k cost nothing
-                    ya += 1
-                while yb >= ya and row_kmax[h, yb] < kk:
-                    yb -= 1
+                ya, yb = _live_rows(rows, k, h, row_kmax, kk)  # rows spent before k cost nothing
                 if ya > yb:
                     continue
                 i0, i1 = h * _HALF_PX + ya * HALF, h * _HALF_PX + (yb + 1) * HALF
