@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import time
 
+import numba
 import numpy as np
 import torch
 from torch import Tensor
@@ -175,9 +176,9 @@ class _Composite(torch.autograd.Function):
         img = np.empty((c_n, p.height, p.width, d), dtype=arrs[0].dtype)
         t_final = np.empty((c_n, p.height, p.width), dtype=arrs[0].dtype)
         last = np.empty((c_n, p.height, p.width), dtype=np.int32)
-        # numba splits a prange statically, one contiguous run per thread: the tiles go in an order that any
-        # such split balances (`K.balanced_order`), by the forward's cost and then by the backward's
-        order = K.balanced_order(K.forward_cost(p.tile_start, p.rows))
+        # numba splits a prange statically, one contiguous run per thread: each thread gets a run of tiles of
+        # about equal cost (`K.balanced_runs`), by the forward's cost and then by the backward's
+        order = K.balanced_runs(K.forward_cost(p.tile_start, p.rows), numba.get_num_threads())
         cost = np.empty(p.tile_start.shape[0] - 1, dtype=np.int64)
         K.forward_tiles(
             *arrs, p.rows, p.tile_start, p.gid, p.width, p.height, p.tiles_x, p.tiles_y, order, img, t_final, last, cost
@@ -210,7 +211,7 @@ class _Composite(torch.autograd.Function):
             p.height,
             p.tiles_x,
             p.tiles_y,
-            K.balanced_order(ctx.cost),
+            K.balanced_runs(ctx.cost, numba.get_num_threads()),
             ctx.t_final,
             ctx.last,
             v_img_np,

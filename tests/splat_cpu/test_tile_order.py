@@ -1,5 +1,5 @@
-"""The order the compositing kernels take the tiles in (`balanced_order`): balanced prefixes, the costs it is given,
-and outputs that do not depend on it."""
+"""The order the compositing kernels take the tiles in (`balanced_runs`): runs of image order of equal cost, one per
+thread, the costs it is given, and outputs that do not depend on it."""
 
 from __future__ import annotations
 
@@ -15,25 +15,28 @@ from .test_numba_kernels import _bin
 
 
 @pytest.mark.parametrize("seed", range(3))
-def test_balanced_order_gives_every_prefix_its_share_of_the_cost(seed):
+@pytest.mark.parametrize("n_runs", [1, 2, 3, 4])
+def test_balanced_runs_cut_image_order_into_runs_of_equal_cost(seed, n_runs):
     gen = np.random.default_rng(seed)
     n = 374  # the target image's tiles
     cost = gen.integers(2000, 4300, n)
-    cost[: n // 2] += 400  # costlier at the top, as in image order: there a half split is not balanced
+    cost[: n // 2] += 400  # costlier at the top: there a cut at the middle is not balanced
     cost[gen.choice(n, 40, replace=False)] = 0  # empty tiles
-    order = K.balanced_order(cost)
-    np.testing.assert_array_equal(np.sort(order), np.arange(n))
-    prefix = np.cumsum(cost[order])
-    share = cost.sum() * np.arange(1, n + 1) / n
-    assert np.abs(prefix - share).max() <= cost.max()
-    for threads in (2, 3, 4):  # contiguous runs, as numba's static schedule hands them out: each has its share
-        for run in np.array_split(np.arange(n), threads):
-            assert abs(cost[order[run]].sum() - cost.sum() * run.size / n) <= 2 * cost.max()
-    assert cost[: n // 2].sum() - cost.sum() / 2 > 4 * cost.max()  # image order was not balanced
+    slots = K.balanced_runs(cost, n_runs)
+    longest = slots.shape[0] // n_runs
+    assert slots.shape[0] == n_runs * longest
+    np.testing.assert_array_equal(slots[slots >= 0], np.arange(n))  # every tile once, in image order
+    for r in range(n_runs):  # thread r's equal share of the slots (numba's static split) holds run r
+        run = slots[r * longest : (r + 1) * longest]
+        tiles = run[run >= 0]
+        assert np.all(run[tiles.size :] == -1)  # the run first, then padding
+        assert abs(cost[tiles].sum() - cost.sum() / n_runs) <= cost.max()
+    if n_runs == 2:
+        assert cost[: n // 2].sum() - cost.sum() / 2 > 4 * cost.max()  # the middle cut was not balanced
 
 
 def _composite(inputs, width, height, order_f=None, order_b=None):
-    """forward_tiles then backward_tiles (float32) in the orders given (balanced by default); every output."""
+    """forward_tiles then backward_tiles (float32) in the orders given (balanced runs by default); every output."""
     m2, co, op, _, tile_start, gid, rows = _bin(inputs, width, height)
     f32 = np.float32
     colors, n_cam = inputs[4].numpy()[None].astype(f32), m2.shape[0]
@@ -43,13 +46,13 @@ def _composite(inputs, width, height, order_f=None, order_b=None):
     img = np.empty((n_cam, height, width, colors.shape[-1]), f32)
     t_final, last = np.empty((n_cam, height, width), f32), np.empty((n_cam, height, width), np.int32)
     cost = np.full(n_all, -7, np.int64)
-    order_f = K.balanced_order(K.forward_cost(tile_start, rows)) if order_f is None else order_f
+    order_f = K.balanced_runs(K.forward_cost(tile_start, rows), 2) if order_f is None else order_f
     K.forward_tiles(*args, *tiles, order_f, img, t_final, last, cost)
     gen = np.random.default_rng(1)
     v_img = gen.standard_normal(img.shape).astype(f32)
     v_alpha = gen.standard_normal(t_final.shape).astype(f32)
     geo, col = np.full((gid.shape[0], 6), np.nan, f32), np.full((gid.shape[0], colors.shape[-1]), np.nan, f32)
-    order_b = K.balanced_order(cost) if order_b is None else order_b
+    order_b = K.balanced_runs(cost, 2) if order_b is None else order_b
     K.backward_tiles(*args, *tiles, order_b, t_final, last, v_img, v_alpha, geo, col)
     return (img, t_final, last, geo, col), cost, (tile_start, rows)
 
@@ -62,8 +65,9 @@ def test_kernels_give_the_same_bits_in_any_order_of_the_tiles(d):
     n_all = cost.shape[0]
     image_order = np.arange(n_all)
     shuffled = np.random.default_rng(0).permutation(n_all)
-    assert not np.array_equal(K.balanced_order(cost), image_order)  # the default order is another order
-    for order_f, order_b in ((image_order, image_order), (shuffled, shuffled[::-1].copy())):
+    padded = np.insert(shuffled, [0, 5, 5, n_all], -1)  # slots to skip
+    assert np.any(K.balanced_runs(cost, 2) < 0)  # the default has padding
+    for order_f, order_b in ((image_order, image_order), (shuffled, padded[::-1].copy())):
         got, got_cost, _ = _composite(inputs, width, height, order_f, order_b)
         for a, b in zip(got, balanced):
             np.testing.assert_array_equal(a, b)
