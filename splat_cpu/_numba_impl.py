@@ -33,6 +33,8 @@ from . import _numba_sh as S
 from ._omp import choose_threading_layer
 from .constants import TILE
 
+_CHUNK = 2  # tiles per scheduling chunk: tiles cost very different amounts, small chunks balance them
+
 
 class _Plan:
     """Per-call binning: which Gaussians touch which tile, front to back (no gradients)."""
@@ -176,14 +178,11 @@ class _Composite(torch.autograd.Function):
         img = np.empty((c_n, p.height, p.width, d), dtype=arrs[0].dtype)
         t_final = np.empty((c_n, p.height, p.width), dtype=arrs[0].dtype)
         last = np.empty((c_n, p.height, p.width), dtype=np.int32)
-        # numba splits a prange statically, one contiguous run per thread: each thread gets a run of tiles of
-        # about equal cost (`K.balanced_runs`), by the forward's cost and then by the backward's
-        order = K.balanced_runs(K.forward_cost(p.tile_start, p.rows), numba.get_num_threads())
-        cost = np.empty(p.tile_start.shape[0] - 1, dtype=np.int64)
-        K.forward_tiles(
-            *arrs, p.rows, p.tile_start, p.gid, p.width, p.height, p.tiles_x, p.tiles_y, order, img, t_final, last, cost
-        )
-        ctx.plan, ctx.arrs, ctx.t_final, ctx.last, ctx.cost = plan, arrs, t_final, last, cost
+        with numba.parallel_chunksize(_CHUNK):
+            K.forward_tiles(
+                *arrs, p.rows, p.tile_start, p.gid, p.width, p.height, p.tiles_x, p.tiles_y, img, t_final, last
+            )
+        ctx.plan, ctx.arrs, ctx.t_final, ctx.last = plan, arrs, t_final, last
         ctx.dtype, ctx.timings, ctx.shared = means2d.dtype, timings, colors.ndim == 2
         alphas = torch.from_numpy((1.0 - t_final)[..., None])
         return torch.from_numpy(img), alphas
@@ -202,23 +201,23 @@ class _Composite(torch.autograd.Function):
         n_isect = p.gid.shape[0]
         geo = np.empty((n_isect, 6), dtype=means2d.dtype)  # every row written by backward_tiles
         col = np.empty((n_isect, d), dtype=means2d.dtype)
-        K.backward_tiles(
-            *arrs,
-            p.rows,
-            p.tile_start,
-            p.gid,
-            p.width,
-            p.height,
-            p.tiles_x,
-            p.tiles_y,
-            K.balanced_runs(ctx.cost, numba.get_num_threads()),
-            ctx.t_final,
-            ctx.last,
-            v_img_np,
-            v_al_np,
-            geo,
-            col,
-        )
+        with numba.parallel_chunksize(_CHUNK):
+            K.backward_tiles(
+                *arrs,
+                p.rows,
+                p.tile_start,
+                p.gid,
+                p.width,
+                p.height,
+                p.tiles_x,
+                p.tiles_y,
+                ctx.t_final,
+                ctx.last,
+                v_img_np,
+                v_al_np,
+                geo,
+                col,
+            )
         v_m = np.zeros((c_n, n, 2))
         v_c = np.zeros((c_n, n, 3))
         v_o = np.zeros((c_n, n))

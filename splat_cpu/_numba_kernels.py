@@ -360,76 +360,11 @@ def _pixel_offsets(fdt):  # -> x [TILE * TILE], y [TILE * TILE]: column and row 
     return ((i // _HALF_PX) * HALF + (i & (HALF - 1))).astype(fdt), ((i >> _HALF_SHIFT) & (TILE - 1)).astype(fdt)
 
 
-_SPAN_COST = 2  # a compositing loop's set-up and sums, in row vectors: a tile's cost is its rows plus this per span
-
-
-@njit(cache=True)
-def forward_cost(tile_start, rows):  # -> [C * n_tiles] int64: each tile's cost in `forward_tiles`, at most
-    """The rows of every half-tile span of the tile's entries, plus _SPAN_COST per non-empty span: the forward's work
-    on the tile when no pixel is spent before its last entry (an upper bound; the order's weights, not a time)."""
-    n_all = tile_start.shape[0] - 1
-    cost = np.zeros(n_all, np.int64)
-    for t in range(n_all):
-        c = 0
-        for k in range(tile_start[t], tile_start[t + 1]):
-            for h in range(2):
-                n = np.int64(rows[k, 2 * h + 1]) - np.int64(rows[k, 2 * h]) + 1
-                c += n + _SPAN_COST if n > 0 else 0
-        cost[t] = c
-    return cost
-
-
-@njit(cache=True)
-def balanced_runs(cost, n_runs):  # [n], int -> [n_runs * L] int64: tiles in image order, -1 padding
-    """The tiles in image order cut into n_runs runs of about equal cost, run r at slots r L .. (r + 1) L - 1 (L the
-    longest run's length), the slots after a shorter run -1 (to skip).
-
-    numba splits a `prange` statically, each thread one contiguous run of equal length (its threading layers'
-    parallel_for, with or without `parallel_chunksize`). In image order the top half of the target scene's tiles
-    held 52-53% of the compositing's rows, and one thread idled while the other finished; over these slots thread r
-    of n_runs runs run r. Runs of image order keep neighbouring tiles, which share Gaussians, on one thread: a
-    cost-balanced permutation of single tiles balanced the threads as well but the work grew by 3.5%.
-    Each run ends at the tile where its prefix of the cost comes nearest to its share."""
-    n = cost.shape[0]
-    total = np.float64(cost.sum())
-    ends = np.empty(n_runs, np.int64)
-    e, done = 0, 0.0
-    for r in range(n_runs):
-        share = total * (r + 1) / n_runs
-        while e < n and abs(done + cost[e] - share) <= abs(done - share):
-            done += cost[e]
-            e += 1
-        ends[r] = e
-    ends[n_runs - 1] = n
-    longest, s = 0, 0
-    for r in range(n_runs):
-        longest = max(longest, ends[r] - s)
-        s = ends[r]
-    out = np.full(n_runs * longest, -1, np.int64)
-    s = 0
-    for r in range(n_runs):
-        out[r * longest : r * longest + ends[r] - s] = np.arange(s, ends[r])
-        s = ends[r]
-    return out
-
-
-@njit(cache=True, inline="always")
-def _live_rows(rows, k, h, row_kmax, kk):  # -> (ya, yb): the rows of half h the backward walks for entry k
-    """Entry k's rows in half h (its position kk in the tile's list) less those at either end whose pixels all
-    stopped before it (row_kmax[h, y]: the last position any pixel of half row y uses); ya > yb when none."""
-    ya, yb = np.int64(rows[k, 2 * h]), np.int64(rows[k, 2 * h + 1])
-    while ya <= yb and row_kmax[h, ya] < kk:
-        ya += 1
-    while yb >= ya and row_kmax[h, yb] < kk:
-        yb -= 1
-    return ya, yb
-
-
 # Each tile keeps its per-pixel values in one buffer, at fixed offsets, indexed by unsigned integers (_U): LLVM
 # then sees every access of a compositing loop at a constant distance from the others and vectorises the loop
 # without run-time overlap tests, and numba adds no negative-index fix-up. With one array per value and slices of
-# them, each half-tile span began with some 150 instructions of slicing and overlap tests (against about 70 per
-# vector of 8 pixels in the forward's two loops).
+# them, each half-tile span began with over a hundred instructions of slicing and overlap tests (the forward's two
+# loops take about 70 per vector of 8 pixels, and a span has 7 vectors on average in the target scene).
 _U = np.uint64
 _NPX = TILE * TILE
 # the offsets, globals so that they are constants in the compiled loops (a kernel's locals reach its prange body as
@@ -444,28 +379,8 @@ def _span(h, ya, yb):  # -> (i0, n) uint64: rows ya..yb of half h are buffer ind
     return _U(h * _HALF_PX + ya * HALF), _U((yb + 1 - ya) * HALF)
 
 
-@njit(cache=True, inline="always")
-def _row_kmax(last):  # [TILE * TILE] int32 (a tile's buffer) -> [2, TILE] int64
-    """Per half row of the tile, the last list position any of its pixels uses (-1: none)."""
-    row_kmax = np.full((2, TILE), -1, np.int64)
-    for i in range(TILE * TILE):
-        h, ly = i // _HALF_PX, (i >> _HALF_SHIFT) & (TILE - 1)
-        row_kmax[h, ly] = max(row_kmax[h, ly], np.int64(last[i]))
-    return row_kmax
-
-
-@njit(cache=True, inline="always")
-def _backward_cost(rows, start, row_kmax):  # -> the rows backward_tiles walks in the tile, plus _SPAN_COST per span
-    cost = 0
-    for kk in range(row_kmax.max() + 1):
-        for h in range(2):
-            ya, yb = _live_rows(rows, start + kk, h, row_kmax, kk)
-            cost += yb - ya + 1 + _SPAN_COST if ya <= yb else 0
-    return cost
-
-
 @njit(cache=True, parallel=True, fastmath=_FASTMATH, error_model="numpy")
-def forward_tiles(  # noqa: C901  (one fused numba pass over each tile, for speed)
+def forward_tiles(
     means2d,  # [C, N, 2]
     conics,  # [C, N, 3]
     opacities,  # [N]
@@ -478,14 +393,13 @@ def forward_tiles(  # noqa: C901  (one fused numba pass over each tile, for spee
     height,
     tiles_x,
     tiles_y,
-    order,  # [n] int64: the tiles to composite, in this order, -1 to skip (`balanced_runs`; each tile once)
     out_img,  # [C, H, W, D] written
     out_t,  # [C, H, W] written: final transmittance
     out_last,  # [C, H, W] int32 written: position in the tile's list of the last contributing Gaussian, -1 if none
-    out_cost,  # [C * n_tiles] int64 written: the rows (plus _SPAN_COST per span) backward_tiles walks per tile
 ):
     """Composite every tile front to back, in the float type of the inputs (all of one dtype)."""
     n_tiles = tiles_x * tiles_y
+    n_all = tile_start.shape[0] - 1
     d = colors.shape[2]
     npx = TILE * TILE
     fdt = means2d.dtype
@@ -493,10 +407,7 @@ def forward_tiles(  # noqa: C901  (one fused numba pass over each tile, for spee
     zero, one, half = f(0.0), f(1.0), f(0.5)
     a_max, a_min, t_min, s_clamp = f(ALPHA_MAX), f(ALPHA_MIN), f(T_MIN), f(_SIGMA_CLAMP)
     pix_x, pix_y = _pixel_offsets(fdt)
-    for o in prange(order.shape[0]):
-        t = order[o]
-        if t < 0:
-            continue
+    for t in prange(n_all):
         cam, px0, py0, pw, ph = _tile_origin(t, tiles_x, n_tiles, width, height)
         ccam = min(cam, colors.shape[0] - 1)  # the camera's colours (0 when shared)
         start, end = tile_start[t], tile_start[t + 1]
@@ -569,7 +480,6 @@ def forward_tiles(  # noqa: C901  (one fused numba pass over each tile, for spee
                     out_img[cam, y, x, ch] = buf[_FW_C + _U(ch * npx + i)] + tf * f(background[ch])
                 out_t[cam, y, x] = tf
                 out_last[cam, y, x] = last[i]
-        out_cost[t] = _backward_cost(rows, start, _row_kmax(last))
 
 
 @njit(cache=True, parallel=True, fastmath=_FASTMATH, error_model="numpy")
@@ -586,7 +496,6 @@ def backward_tiles(  # noqa: C901  (one fused numba pass over each tile, for spe
     height,
     tiles_x,
     tiles_y,
-    order,  # [n] int64: the tiles, in this order, -1 to skip (`balanced_runs` of forward_tiles' out_cost)
     t_final,  # [C, H, W] from forward_tiles
     last_idx,  # [C, H, W] int32 from forward_tiles
     v_img,  # [C, H, W, D] cotangent of the images
@@ -596,6 +505,7 @@ def backward_tiles(  # noqa: C901  (one fused numba pass over each tile, for spe
 ):
     """Walk each tile's list back from its last contributing Gaussian; every entry's row is written."""
     n_tiles = tiles_x * tiles_y
+    n_all = tile_start.shape[0] - 1
     d = colors.shape[2]
     npx = TILE * TILE
     fdt = means2d.dtype
@@ -603,10 +513,7 @@ def backward_tiles(  # noqa: C901  (one fused numba pass over each tile, for spe
     zero, one, half = f(0.0), f(1.0), f(0.5)
     a_max, a_min, s_clamp = f(ALPHA_MAX), f(ALPHA_MIN), f(_SIGMA_CLAMP)
     pix_x, pix_y = _pixel_offsets(fdt)
-    for o in prange(order.shape[0]):
-        t = order[o]
-        if t < 0:
-            continue
+    for t in prange(n_all):
         start, end = tile_start[t], tile_start[t + 1]
         if end == start:
             continue
@@ -619,6 +526,7 @@ def backward_tiles(  # noqa: C901  (one fused numba pass over each tile, for spe
         buf[:_BW_Y] = pix_x
         buf[_BW_Y:_BW_W] = pix_y
         last = np.full(npx, -1, np.int32)  # pixels outside the image never match
+        row_kmax = np.full((2, TILE), -1, np.int64)  # per half row, the last list position any of its pixels uses
         for ly in range(ph):
             for lx in range(pw):
                 y, x = py0 + ly, px0 + lx
@@ -631,7 +539,8 @@ def backward_tiles(  # noqa: C901  (one fused numba pass over each tile, for spe
                     bgdot += f(background[ch]) * f(v_img[cam, y, x, ch])
                 buf[_BW_R + _U(i)] = tf * bgdot - tf * f(v_alpha[cam, y, x])
                 last[i] = last_idx[cam, y, x]
-        row_kmax = _row_kmax(last)
+                h = lx >> _HALF_SHIFT
+                row_kmax[h, ly] = max(row_kmax[h, ly], np.int64(last[i]))
         kmax = row_kmax.max()
         out_geo[start + kmax + 1 : end] = 0.0  # behind every pixel's last contribution
         out_col[start + kmax + 1 : end] = 0.0
@@ -657,7 +566,11 @@ def backward_tiles(  # noqa: C901  (one fused numba pass over each tile, for spe
             for ch in range(d):
                 out_col[k, ch] = 0.0
             for h in range(2):
-                ya, yb = _live_rows(rows, k, h, row_kmax, kk)  # rows spent before k cost nothing
+                ya, yb = np.int64(rows[k, 2 * h]), np.int64(rows[k, 2 * h + 1])
+                while ya <= yb and row_kmax[h, ya] < kk:  # rows spent before k cost nothing
+                    ya += 1
+                while yb >= ya and row_kmax[h, yb] < kk:
+                    yb -= 1
                 if ya > yb:
                     continue
                 i0, n = _span(h, ya, yb)

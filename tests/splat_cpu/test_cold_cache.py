@@ -50,9 +50,7 @@ a, b = r.integers(0, 16, (gid.size, 2)), r.integers(0, 16, (gid.size, 2))
 lo, hi = np.minimum(a, b), np.maximum(a, b)
 rows = np.stack([lo[:, 0], hi[:, 0], lo[:, 1], hi[:, 1]], 1).astype(np.int8)  # random rows of each half tile
 img, t, last = np.zeros((1, h, w, 1), f32), np.zeros((1, h, w), f32), np.zeros((1, h, w), np.int32)
-order, cost = np.arange(n_t), np.empty(n_t, np.int64)
-tiles = (rows, tile_start, gid, w, h, tiles_x, tiles_y, order)
-K.forward_tiles(means2d, conics, opac, colors, bg, *tiles, img, t, last, cost)
+K.forward_tiles(means2d, conics, opac, colors, bg, rows, tile_start, gid, w, h, tiles_x, tiles_y, img, t, last)
 assert (last >= 0).any()
 print(hashlib.sha256(img.tobytes() + t.tobytes() + last.tobytes()).hexdigest())
 """
