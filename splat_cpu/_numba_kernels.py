@@ -360,6 +360,25 @@ def _pixel_offsets(fdt):  # -> x [TILE * TILE], y [TILE * TILE]: column and row 
     return ((i // _HALF_PX) * HALF + (i & (HALF - 1))).astype(fdt), ((i >> _HALF_SHIFT) & (TILE - 1)).astype(fdt)
 
 
+# Each tile keeps its per-pixel values in one buffer, at fixed offsets, indexed by unsigned integers (_U): LLVM
+# then sees every access of a compositing loop at a constant distance from the others and vectorises the loop
+# without run-time overlap tests, and numba adds no negative-index fix-up. With one array per value and slices of
+# them, each half-tile span began with over a hundred instructions of slicing and overlap tests (the forward's two
+# loops take about 70 per vector of 8 pixels, and a span has 7 vectors on average in the target scene).
+_U = np.uint64
+_NPX = TILE * TILE
+# the offsets, globals so that they are constants in the compiled loops (a kernel's locals reach its prange body as
+# arguments): forward_tiles' pixel x (at 0), pixel y, alpha then weight, T and the colour channels, backward_tiles'
+# pixel x (at 0), pixel y, weight, T, rest, c . v_C, exp(-sigma) and the channels of v_C
+_FW_Y, _FW_W, _FW_T, _FW_C = (_U(i * _NPX) for i in range(1, 5))
+_BW_Y, _BW_W, _BW_T, _BW_R, _BW_CD, _BW_V, _BW_C = (_U(i * _NPX) for i in range(1, 8))
+
+
+@njit(cache=True, inline="always")
+def _span(h, ya, yb):  # -> (i0, n) uint64: rows ya..yb of half h are buffer indices i0 .. i0 + n - 1
+    return _U(h * _HALF_PX + ya * HALF), _U((yb + 1 - ya) * HALF)
+
+
 @njit(cache=True, parallel=True, fastmath=_FASTMATH, error_model="numpy")
 def forward_tiles(
     means2d,  # [C, N, 2]
@@ -392,16 +411,17 @@ def forward_tiles(
         cam, px0, py0, pw, ph = _tile_origin(t, tiles_x, n_tiles, width, height)
         ccam = min(cam, colors.shape[0] - 1)  # the camera's colours (0 when shared)
         start, end = tile_start[t], tile_start[t + 1]
-        # flat per-tile state (pixel order of `_pixel`): one long vectorisable loop per Gaussian and half tile
-        # T per pixel, negated once the pixel is spent (and -1 outside the image): no separate mask
-        trans = np.full(npx, -one)
+        # one buffer (see _U): pixel x and y, alpha then weight of the current entry, T (negated once the pixel is
+        # spent, and -1 outside the image: no separate mask), and the d channels of colour
+        buf = np.zeros((4 + d) * npx, fdt)
+        buf[:_FW_Y] = pix_x
+        buf[_FW_Y:_FW_W] = pix_y
+        buf[_FW_T:_FW_C] = -one
         for ly in range(ph):
             for lx in range(pw):
-                trans[_pixel(lx, ly)] = one
-        acc = np.zeros(d * npx, fdt)
+                buf[_FW_T + _U(_pixel(lx, ly))] = one
         last = np.full(npx, -1, np.int32)
         n_active = pw * ph
-        wbuf = np.zeros(npx, fdt)
         for k in range(start, end):
             if n_active == 0:
                 break
@@ -418,48 +438,46 @@ def forward_tiles(
                 ya, yb = np.int64(rows[k, 2 * h]), np.int64(rows[k, 2 * h + 1])
                 if ya > yb:
                     continue
-                i0 = h * _HALF_PX + ya * HALF
-                i1 = h * _HALF_PX + (yb + 1) * HALF
-                # slices, so that the loop index starts at 0: numba then knows it is not negative and
-                # LLVM vectorises the loop (a range(i0, i1) loop stays scalar)
-                tr, ac, la, wb = trans[i0:i1], acc[i0:i1], last[i0:i1], wbuf[i0:i1]
-                ox, oy = pix_x[i0:i1], pix_y[i0:i1]
+                i0, n = _span(h, ya, yb)
                 # alpha first, in a loop of its own (0 where sigma < 0: below ALPHA_MIN), then the compositing:
                 # two short loops keep fewer values live than one, and the exp's long chain of dependent
                 # instructions overlaps across pixels instead of stalling the compositing's
-                for j in range(i1 - i0):
-                    dx = mx - ox[j]
-                    dy = my - oy[j]
+                for j in range(n):
+                    p = i0 + j
+                    dx = mx - buf[p]
+                    dy = my - buf[p + _FW_Y]
                     sigma = (ha * dx + cb * dy) * dx + hc * dy * dy  # 0.5 (a dx^2 + c dy^2) + b dx dy
                     alpha = min(a_max, op * exp_neg(min(max(sigma, zero), s_clamp)))
-                    wb[j] = _select(sigma >= zero, alpha, zero)
+                    buf[p + _FW_W] = _select(sigma >= zero, alpha, zero)
                 n_stop = zero
-                for j in range(i1 - i0):
-                    alpha = wb[j]
-                    tc = tr[j]
+                for j in range(n):
+                    p = i0 + j
+                    alpha = buf[p + _FW_W]
+                    tc = buf[p + _FW_T]
                     nt = tc * (one - alpha)
                     ok = (alpha >= a_min) & (tc > zero)
                     stop = ok & (nt <= t_min)
                     con = ok & (nt > t_min)
                     w = alpha * tc if con else zero
-                    wb[j] = w
-                    ac[j] += w * c0
-                    tr[j] = _select(con, nt, _select(stop, -tc, tc))
-                    la[j] = max(la[j], _select(con, kk, minus1))  # la[j] < kk: kk where con, else unchanged
+                    buf[p + _FW_W] = w
+                    buf[p + _FW_C] += w * c0
+                    buf[p + _FW_T] = _select(con, nt, _select(stop, -tc, tc))
+                    last[p] = max(last[p], _select(con, kk, minus1))  # last[p] < kk: kk where con, else unchanged
                     n_stop += one if stop else zero
                 n_active -= np.int64(n_stop)
                 for ch in range(1, d):
                     cv = f(colors[ccam, g, ch])
-                    ach = acc[ch * npx + i0 : ch * npx + i1]
-                    for j in range(i1 - i0):
-                        ach[j] += wb[j] * cv
+                    b_ch = _FW_C + _U(ch * npx)
+                    for j in range(n):
+                        p = i0 + j
+                        buf[p + b_ch] += buf[p + _FW_W] * cv
         for ly in range(ph):
             for lx in range(pw):
                 y, x = py0 + ly, px0 + lx
                 i = _pixel(lx, ly)
-                tf = abs(trans[i])
+                tf = abs(buf[_FW_T + _U(i)])
                 for ch in range(d):
-                    out_img[cam, y, x, ch] = acc[ch * npx + i] + tf * f(background[ch])
+                    out_img[cam, y, x, ch] = buf[_FW_C + _U(ch * npx + i)] + tf * f(background[ch])
                 out_t[cam, y, x] = tf
                 out_last[cam, y, x] = last[i]
 
@@ -501,10 +519,12 @@ def backward_tiles(  # noqa: C901  (one fused numba pass over each tile, for spe
             continue
         cam, px0, py0, pw, ph = _tile_origin(t, tiles_x, n_tiles, width, height)
         ccam = min(cam, colors.shape[0] - 1)  # the camera's colours (0 when shared)
-        trans = np.ones(npx, fdt)
-        # rest: sum over later Gaussians of (c . v_C) alpha T, plus T_N (bg . v_C) - T_N v_alpha
-        rest = np.zeros(npx, fdt)
-        vc = np.zeros(d * npx, fdt)
+        # one buffer (see _U): pixel x and y, weight of the current entry, T, rest, c . v_C, exp(-sigma) of the
+        # current entry (-1 where sigma < 0), and the d channels of v_C; rest: sum over later Gaussians of
+        # (c . v_C) alpha T, plus T_N (bg . v_C) - T_N v_alpha
+        buf = np.zeros((7 + d) * npx, fdt)
+        buf[:_BW_Y] = pix_x
+        buf[_BW_Y:_BW_W] = pix_y
         last = np.full(npx, -1, np.int32)  # pixels outside the image never match
         row_kmax = np.full((2, TILE), -1, np.int64)  # per half row, the last list position any of its pixels uses
         for ly in range(ph):
@@ -512,21 +532,18 @@ def backward_tiles(  # noqa: C901  (one fused numba pass over each tile, for spe
                 y, x = py0 + ly, px0 + lx
                 i = _pixel(lx, ly)
                 tf = f(t_final[cam, y, x])
-                trans[i] = tf
+                buf[_BW_T + _U(i)] = tf
                 bgdot = zero
                 for ch in range(d):
-                    vc[ch * npx + i] = f(v_img[cam, y, x, ch])
+                    buf[_BW_C + _U(ch * npx + i)] = f(v_img[cam, y, x, ch])
                     bgdot += f(background[ch]) * f(v_img[cam, y, x, ch])
-                rest[i] = tf * bgdot - tf * f(v_alpha[cam, y, x])
+                buf[_BW_R + _U(i)] = tf * bgdot - tf * f(v_alpha[cam, y, x])
                 last[i] = last_idx[cam, y, x]
                 h = lx >> _HALF_SHIFT
                 row_kmax[h, ly] = max(row_kmax[h, ly], np.int64(last[i]))
         kmax = row_kmax.max()
         out_geo[start + kmax + 1 : end] = 0.0  # behind every pixel's last contribution
         out_col[start + kmax + 1 : end] = 0.0
-        wbuf = np.zeros(npx, fdt)
-        cdot = np.zeros(npx, fdt)
-        vbuf = np.zeros(npx, fdt)  # exp(-sigma) per pixel of the current entry, -1 where sigma < 0
         for kk in range(kmax, -1, -1):
             k = start + kk
             g = gid[k]
@@ -556,42 +573,47 @@ def backward_tiles(  # noqa: C901  (one fused numba pass over each tile, for spe
                     yb -= 1
                 if ya > yb:
                     continue
-                i0, i1 = h * _HALF_PX + ya * HALF, h * _HALF_PX + (yb + 1) * HALF
-                # slices from 0: see forward_tiles
-                tr, rs, la, wb, v0, cd = trans[i0:i1], rest[i0:i1], last[i0:i1], wbuf[i0:i1], vc[i0:i1], cdot[i0:i1]
-                ox, oy = pix_x[i0:i1], pix_y[i0:i1]
-                vb = vbuf[i0:i1]
-                for j in range(i1 - i0):  # the exp in a loop of its own, as in forward_tiles
-                    dx = mx - ox[j]
-                    dy = my - oy[j]
+                i0, n = _span(h, ya, yb)
+                for j in range(n):  # the exp in a loop of its own, as in forward_tiles
+                    p = i0 + j
+                    dx = mx - buf[p]
+                    dy = my - buf[p + _BW_Y]
                     sigma = (ha * dx + cb * dy) * dx + hc * dy * dy
                     # -1 where sigma < 0: alpha = -op < ALPHA_MIN, as the forward skipped it
-                    vb[j] = _select(sigma >= zero, exp_neg(min(max(sigma, zero), s_clamp)), -one)
+                    buf[p + _BW_V] = _select(sigma >= zero, exp_neg(min(max(sigma, zero), s_clamp)), -one)
                 if d > 1:  # c . v_C per pixel (inline below when d == 1)
-                    for j in range(i1 - i0):
-                        cd[j] = c0 * v0[j]
+                    for j in range(n):
+                        p = i0 + j
+                        buf[p + _BW_CD] = c0 * buf[p + _BW_C]
                     for ch in range(1, d):
                         cv = f(colors[ccam, g, ch])
-                        vch = vc[ch * npx + i0 : ch * npx + i1]
-                        for j in range(i1 - i0):
-                            cd[j] += cv * vch[j]
-                for j in range(i1 - i0):
-                    dx = mx - ox[j]
-                    dy = my - oy[j]
-                    vis = vb[j]
+                        b_ch = _BW_C + _U(ch * npx)
+                        for j in range(n):
+                            p = i0 + j
+                            buf[p + _BW_CD] += cv * buf[p + b_ch]
+                for j in range(n):
+                    p = i0 + j
+                    dx = mx - buf[p]
+                    dy = my - buf[p + _BW_Y]
+                    vis = buf[p + _BW_V]
                     raw = op * vis
                     alpha = min(a_max, raw)
-                    ok = (alpha >= a_min) & (k32 <= la[j])
+                    ok = (alpha >= a_min) & (k32 <= last[p])
                     ra = one / (one - alpha)
-                    tb = tr[j] * ra  # T before this Gaussian
+                    tr = buf[p + _BW_T]
+                    tb = tr * ra  # T before this Gaussian
                     w = alpha * tb
-                    cdj = cd[j] if d > 1 else c0 * v0[j]
-                    v_al = cdj * tb - rs[j] * ra
-                    tr[j] = _select(ok, tb, tr[j])
-                    rs[j] = _select(ok, rs[j] + cdj * w, rs[j])
-                    wv = w if ok else zero
-                    wb[j] = wv
-                    g_c0 += wv * v0[j]
+                    v0 = buf[p + _BW_C]
+                    cdj = _select(d > 1, buf[p + _BW_CD], c0 * v0)
+                    rs = buf[p + _BW_R]
+                    v_al = cdj * tb - rs * ra
+                    wv = _select(ok, w, zero)
+                    # updates by arithmetic, not `_select(ok, new, old)`: LLVM turns the store of a select of the value
+                    # loaded from the same place into a masked store (vmaskmovps), slow on AMD Zen 1-3
+                    buf[p + _BW_T] = tr * _select(ok, ra, one)  # tb where ok, else tr (x * 1 is x exactly)
+                    buf[p + _BW_R] = rs + cdj * wv  # rs + cdj * w where ok, else rs
+                    buf[p + _BW_W] = wv
+                    g_c0 += wv * v0
                     gate = ok & (raw < a_max)  # the clamp at ALPHA_MAX passes no gradient
                     v_sig = -raw * v_al if gate else zero
                     g_o += vis * v_al if gate else zero
@@ -604,10 +626,11 @@ def backward_tiles(  # noqa: C901  (one fused numba pass over each tile, for spe
                     g_y += sy
                     n_hit += one if ok else zero
                 for ch in range(1, d):
-                    vch = vc[ch * npx + i0 : ch * npx + i1]
+                    b_ch = _BW_C + _U(ch * npx)
                     sc = zero
-                    for j in range(i1 - i0):
-                        sc += wb[j] * vch[j]
+                    for j in range(n):
+                        p = i0 + j
+                        sc += buf[p + _BW_W] * buf[p + b_ch]
                     out_col[k, ch] += sc
             out_col[k, 0] = g_c0
             if n_hit > zero:
