@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import time
 
-import numba
 import numpy as np
 import torch
 from torch import Tensor
@@ -33,7 +32,9 @@ from . import _numba_sh as S
 from ._omp import choose_threading_layer
 from .constants import TILE
 
-_CHUNK = 2  # tiles per scheduling chunk: tiles cost very different amounts, small chunks balance them
+# The compositing kernels' prange over tiles is split statically, one contiguous run of tiles per thread in image order:
+# numba.parallel_chunksize does not change that on the omp layer (a prange of 64 with chunks of 2, the first half
+# 200,000x costlier, ran its first 32 on thread 0), and balancing the runs by cost did not pay (docs/results.md).
 
 
 class _Plan:
@@ -178,10 +179,7 @@ class _Composite(torch.autograd.Function):
         img = np.empty((c_n, p.height, p.width, d), dtype=arrs[0].dtype)
         t_final = np.empty((c_n, p.height, p.width), dtype=arrs[0].dtype)
         last = np.empty((c_n, p.height, p.width), dtype=np.int32)
-        with numba.parallel_chunksize(_CHUNK):
-            K.forward_tiles(
-                *arrs, p.rows, p.tile_start, p.gid, p.width, p.height, p.tiles_x, p.tiles_y, img, t_final, last
-            )
+        K.forward_tiles(*arrs, p.rows, p.tile_start, p.gid, p.width, p.height, p.tiles_x, p.tiles_y, img, t_final, last)
         ctx.plan, ctx.arrs, ctx.t_final, ctx.last = plan, arrs, t_final, last
         ctx.dtype, ctx.timings, ctx.shared = means2d.dtype, timings, colors.ndim == 2
         alphas = torch.from_numpy((1.0 - t_final)[..., None])
@@ -201,23 +199,22 @@ class _Composite(torch.autograd.Function):
         n_isect = p.gid.shape[0]
         geo = np.empty((n_isect, 6), dtype=means2d.dtype)  # every row written by backward_tiles
         col = np.empty((n_isect, d), dtype=means2d.dtype)
-        with numba.parallel_chunksize(_CHUNK):
-            K.backward_tiles(
-                *arrs,
-                p.rows,
-                p.tile_start,
-                p.gid,
-                p.width,
-                p.height,
-                p.tiles_x,
-                p.tiles_y,
-                ctx.t_final,
-                ctx.last,
-                v_img_np,
-                v_al_np,
-                geo,
-                col,
-            )
+        K.backward_tiles(
+            *arrs,
+            p.rows,
+            p.tile_start,
+            p.gid,
+            p.width,
+            p.height,
+            p.tiles_x,
+            p.tiles_y,
+            ctx.t_final,
+            ctx.last,
+            v_img_np,
+            v_al_np,
+            geo,
+            col,
+        )
         v_m = np.zeros((c_n, n, 2))
         v_c = np.zeros((c_n, n, 3))
         v_o = np.zeros((c_n, n))
