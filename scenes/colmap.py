@@ -368,6 +368,7 @@ def estimate_poses(
     rec = max(recs.values(), key=lambda r: sum(1 for im in r.images.values() if im.has_pose and im.name in name_to_i))
     c2w, registered, test_c2w = _registered_poses(rec, name_to_i, dict(zip(test_names, tests)))
     n_reg = int(registered.sum())
+    log.info("SfM: registered %d of %d frames and %d of %d test views", n_reg, len(idx), len(test_c2w), len(tests))
     if n_reg < need:
         raise SfMError(
             f"SfM registered only {n_reg} of {len(idx)} frames (need {need}) in its largest model "
