@@ -213,6 +213,10 @@ def write_events(n: int, path: str, seed: int = 0) -> None:
     )
 
 
+def _db(psnr: float | None) -> str:
+    return "-" if psnr is None else f"{psnr:.2f} dB"
+
+
 def _subprocess(args: list[str]) -> dict:
     out = subprocess.run([sys.executable, "-m", "benchmarks.scaling", *args], capture_output=True, text=True)
     if out.returncode != 0:
@@ -320,7 +324,7 @@ def main(argv=None) -> int:
                         + (
                             f"before the first step {r['before_first_step_seconds']:.1f} s, "
                             f"{r['steps_per_second']:.2f} steps/s, peak RSS {r['peak_rss_mb']:.0f} MB, "
-                            f"PSNR {r['final_psnr_refined']} after {r['wall_seconds']:.0f} s"
+                            f"PSNR {_db(r['final_psnr_refined'])} after {r['wall_seconds']:.0f} s"
                             if "error" not in r
                             else f"failed: {r['error']}"
                         ),
