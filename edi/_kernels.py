@@ -266,3 +266,83 @@ def hidden_crossings_reference(t, x, y, p, width, height, t0_us, t1_us, frac):
     tc, cpx, cp = tc[keep], q[i][keep], pp[i][keep]
     o = np.lexsort((cpx, tc))
     return tc[o], cpx[o], cp[o]
+
+
+# --- the quantisation residual of the consistency relation ----------------------------------------
+#
+# ``edi.contrast._mean_residual``'s model: over the fraction u of the interval between a pixel's
+# previous event (t_prev) and its next (t_i), the residual of its log intensity is, in units of the
+# closing event's threshold and signed like it, u when both events have the same polarity (a ramp),
+# turn_a u^2 - turn_b u when they differ (it turned), and unknown (0) before the pixel's first event.
+# ``mean_residual`` is its mean over each exposure [A, B) (its value at A when B <= A), per polarity
+# of the closing event, in one pass over the stream: each interval is added to the exposures it
+# overlaps, found from the exposures sorted by start.
+
+
+@numba.njit(cache=True, nogil=True)
+def _mean_residual_numba(t, x, y, p, width, out, a_us, b_us, end, order, reach, turn_a, turn_b):  # pragma: no cover
+    F = order.shape[0]
+    npix = out.shape[2]
+    last_t = np.zeros(npix, np.float64)
+    last_p = np.zeros(npix, np.int8)  # 0: no event yet
+    started = 0  # exposures (in start order) with a <= the current event's time
+    for i in range(t.shape[0]):
+        ti = np.float64(t[i])
+        while started < F and a_us[order[started]] <= ti:
+            started += 1
+        px = np.int64(y[i]) * width + np.int64(x[i])
+        pi = p[i]
+        lp = last_p[px]
+        tp = last_t[px]
+        last_t[px] = ti
+        last_p[px] = pi
+        if lp == 0:
+            continue
+        ramp = (lp > 0) == (pi > 0)
+        row = 0 if pi > 0 else 1
+        length = ti - tp
+        span = max(length, 1.0)
+        j = started - 1
+        while j >= 0 and reach[j] > tp:
+            f = order[j]
+            j -= 1
+            if end[f] <= tp:
+                continue
+            if b_us[f] <= a_us[f]:  # an instant: the residual at a
+                u = min(max((a_us[f] - tp) / span, 0.0), 1.0)
+                out[f, row, px] = u if ramp else turn_a * u * u - turn_b * u
+                continue
+            u0 = (min(max(a_us[f], tp), ti) - tp) / span  # the part of the interval inside [a, b)
+            u1 = (min(max(b_us[f], tp), ti) - tp) / span
+            if ramp:
+                v = 0.5 * (u1 * u1 - u0 * u0)
+            else:
+                v = turn_a / 3.0 * (u1 * u1 * u1 - u0 * u0 * u0) - turn_b / 2.0 * (u1 * u1 - u0 * u0)
+            out[f, row, px] += v * length
+
+
+def mean_residual(
+    t: np.ndarray,  # [M] int us, sorted
+    x: np.ndarray,  # [M]
+    y: np.ndarray,  # [M]
+    p: np.ndarray,  # [M] in {-1, +1}
+    width: int,
+    height: int,
+    a_us: np.ndarray,  # [F] exposure starts, us
+    b_us: np.ndarray,  # [F] exposure ends, us (<= the start: an instant)
+    turn_a: float,
+    turn_b: float,
+) -> np.ndarray:
+    """[F, 2, H*W] float64: the mean residual over each exposure per polarity of the closing
+    event (row 0: +, row 1: -); see above."""
+    a = np.ascontiguousarray(a_us, dtype=np.float64)
+    b = np.ascontiguousarray(b_us, dtype=np.float64)
+    instant = b <= a
+    end = np.where(instant, a, b)  # the interval [t_prev, t_i) meets exposure f when a <= t_i and t_prev < end
+    order = np.argsort(a, kind="stable")
+    reach = np.maximum.accumulate(end[order])  # the latest end of the exposures order[0 .. j]
+    out = np.zeros((len(a), 2, int(width) * int(height)))
+    _mean_residual_numba(t, x, y, np.asarray(p, np.int8), int(width), out, a, b, end, order, reach, turn_a, turn_b)
+    span = ~instant
+    out[span] /= (b - a)[span, None, None]
+    return out

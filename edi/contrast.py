@@ -50,15 +50,17 @@ import logging
 import math
 import warnings
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Literal
 
+import numba
 import numpy as np
 import numpy.typing as npt
 from scipy import ndimage
 from scipy.optimize import minimize_scalar
 
-from ._kernels import hidden_crossings
+from ._kernels import hidden_crossings, mean_residual
 from .errors import InputError
 from .events import EventStream, events_in_window, seconds_to_us
 from .model import (
@@ -105,11 +107,6 @@ _NEIGHBOURS = np.array([[1.0, 1.0, 1.0], [1.0, 0.0, 1.0], [1.0, 1.0, 1.0]])
 _NEIGHBOURS_CFA = np.zeros((5, 5))
 _NEIGHBOURS_CFA[::2, ::2] = 1.0
 _NEIGHBOURS_CFA[2, 2] = 0.0
-#: consistency: key of the (pixel, time) sort of the events, pixel * _TIME_KEY + t (t < 2^40 us: 12.7 days)
-_TIME_KEY = np.int64(2**40)
-#: ``_mean_residual`` works on the sensor's rows in blocks of about this many events: its arrays take
-#: about 100 bytes an event (101 measured at 2M events), so 36M events at once took 3.6 GB (issue 31)
-RESIDUAL_BLOCK_EVENTS = 1_000_000
 #: consistency: the residual between two events of opposite polarity, in units of the closing
 #: event's threshold and signed like it: TURN_A u^2 - TURN_B u over the interval's fraction u
 #: (``_mean_residual``)
@@ -510,90 +507,14 @@ def _mean_residual(events: EventStream, exposures: np.ndarray) -> np.ndarray:
     Row 0 is the mean over the intervals that end with a + event, row 1 with a - event, so the
     residual is c_pos row 0 - c_neg row 1.
 
-    Pixels are independent: the sensor's rows go in blocks of about ``RESIDUAL_BLOCK_EVENTS``
-    events (``_block_residual``), so the working arrays (about 100 bytes an event) stay bounded
-    whatever the stream's length."""
+    One pass over the stream (``edi._kernels.mean_residual``): its memory is the output's."""
     H, W = events.height, events.width
-    F = len(exposures)
-    out = np.zeros((F, 2, H * W))
-    M = len(events)
-    if M == 0:
-        return out.reshape(F, 2, H, W)
-    rows = max(1, int(H * RESIDUAL_BLOCK_EVENTS // M))
-    for y0 in range(0, H, rows):
-        y1 = min(H, y0 + rows)
-        sel = np.flatnonzero((events.y >= y0) & (events.y < y1)) if rows < H else slice(None)
-        block = out[:, :, y0 * W : y1 * W]
-        _block_residual(events.t[sel], events.x[sel], events.y[sel] - y0, events.p[sel], W, exposures, block)
-    return out.reshape(F, 2, H, W)
-
-
-def _block_residual(
-    t_raw: np.ndarray, x: np.ndarray, y: np.ndarray, p: np.ndarray, W: int, exposures: np.ndarray, out: np.ndarray
-) -> None:
-    """``_mean_residual`` of the pixels of ``out`` [F, 2, P] (P = rows x ``W``, row-major) from their
-    events (``y`` counted from the block's first row), added into ``out``."""
-    M = len(t_raw)
-    if M == 0:
-        return
-    pix = y.astype(np.int64) * W + x
-    order = np.lexsort((t_raw, pix))
-    t = t_raw[order].astype(np.float64)
-    q = pix[order]
-    pos = p[order] > 0
-    t_prev = np.empty(M)
-    t_prev[0] = t[0]
-    t_prev[1:] = t[:-1]
-    ramp = np.zeros(M, bool)  # the interval ending at this event follows one of the same polarity, or
-    turn = np.zeros(M, bool)  # of the opposite polarity
-    ramp[1:] = (q[1:] == q[:-1]) & (pos[1:] == pos[:-1])
-    turn[1:] = (q[1:] == q[:-1]) & (pos[1:] != pos[:-1])
-    length = t - t_prev  # us, 0 between simultaneous events
-    span = np.maximum(length, 1.0)  # a divisor
-    whole = np.where(ramp, 0.5, np.where(turn, TURN_A / 3 - TURN_B / 2, 0.0)) * length
-    # prefix sums of the whole-interval integrals, per polarity of the closing event
-    prefix = np.zeros((2, M + 1))
-    prefix[0, 1:] = np.cumsum(np.where(pos, whole, 0.0))
-    prefix[1, 1:] = np.cumsum(np.where(~pos, whole, 0.0))
-    key = q * _TIME_KEY + t_raw[order]
-    base = np.arange(out.shape[-1], dtype=np.int64) * _TIME_KEY
-
-    def add(f: int, k: np.ndarray, ok: np.ndarray, lo: float, hi: float) -> None:
-        """the interval ending at event k (where ``ok``), the integral of its residual over [lo, hi]"""
-        kk = k[ok]
-        u0 = (np.clip(lo, t_prev[kk], t[kk]) - t_prev[kk]) / span[kk]  # the part of the interval inside
-        u1 = (np.clip(hi, t_prev[kk], t[kk]) - t_prev[kk]) / span[kk]
-        v = np.where(
-            ramp[kk],
-            0.5 * (u1 * u1 - u0 * u0),
-            np.where(turn[kk], TURN_A / 3 * (u1**3 - u0**3) - TURN_B / 2 * (u1 * u1 - u0 * u0), 0.0),
-        )
-        v = v * length[kk]
-        out[f, 0, ok] += np.where(pos[kk], v, 0.0)
-        out[f, 1, ok] += np.where(pos[kk], 0.0, v)
-
-    for f, (t_s, t_e) in enumerate(exposures):
-        A, B = seconds_to_us(float(t_s)), seconds_to_us(float(t_e))
-        a = np.searchsorted(key, base + A)  # the first event of each pixel at or after A
-        b = np.searchsorted(key, base + B)
-        own_a = a < M
-        own_a[own_a] = q[a[own_a]] == np.flatnonzero(own_a)
-        if B <= A:  # an instant: the residual there
-            kk = a[own_a]
-            u = np.clip((A - t_prev[kk]) / span[kk], 0.0, 1.0)
-            u = np.where(ramp[kk], u, np.where(turn[kk], TURN_A * u * u - TURN_B * u, 0.0))
-            out[f, 0, own_a] = np.where(pos[kk], u, 0.0)
-            out[f, 1, own_a] = np.where(pos[kk], 0.0, u)
-            continue
-        inner = b - a >= 2  # whole intervals end at a + 1 .. b - 1
-        hi_i = np.minimum(np.maximum(b, a + 1), M)
-        lo_i = np.minimum(a + 1, hi_i)
-        out[f, :, inner] += (prefix[:, hi_i] - prefix[:, lo_i]).T[inner]
-        add(f, a, own_a, A, B)  # the interval ending at the first event (it may start before A)
-        own_b = (b < M) & (b > a)
-        own_b[own_b] = q[b[own_b]] == np.flatnonzero(own_b)
-        add(f, b, own_b, A, B)  # the interval running past B
-        out[f] /= B - A
+    if len(events) == 0:
+        return np.zeros((len(exposures), 2, H, W))
+    a_us = np.array([seconds_to_us(float(t_s)) for t_s, _ in exposures], np.float64)
+    b_us = np.array([seconds_to_us(float(t_e)) for _, t_e in exposures], np.float64)
+    out = mean_residual(events.t, events.x, events.y, events.p, W, H, a_us, b_us, TURN_A, TURN_B)
+    return out.reshape(len(exposures), 2, H, W)
 
 
 def _consistency_pairs(
@@ -615,6 +536,7 @@ def _consistency_pairs(
     # [F, H, W] (numpy's stubs type all(axis=...) as a scalar or an array)
     valid: np.ndarray = (fr < SATURATION).all(axis=-1) & (fr > 0.0).all(axis=-1)  # type: ignore[assignment]
     resid = _mean_residual(events, ex)  # [F, 2, H, W]
+    tails: dict[tuple[int, int], np.ndarray] = {}  # (frame, polarity) -> _exposure_tails
     pairs = []
     for i in range(fr.shape[0] - 1):
         lo, hi = sorted((centres[i], centres[i + 1]))
@@ -628,10 +550,13 @@ def _consistency_pairs(
         between = events[k0:k1]
         z = []
         for pol in (1, -1):
+            for f in (first, second):
+                if (f, pol) not in tails:  # each frame is in two pairs
+                    tails[f, pol] = _exposure_tails(events, ex[f], pol)
             k = (
                 between.count_image(pol) * (1.0 if ex[second, 0] >= ex[first, 0] else -1.0)
-                + _exposure_tails(events, ex[second], pol)
-                - _exposure_tails(events, ex[first], pol)
+                + tails[second, pol]
+                - tails[first, pol]
             )
             z.append(sign * ndimage.correlate(k, neighbours, mode="constant"))
         ok = valid[i] & valid[i + 1]
@@ -663,10 +588,14 @@ def _consistency_update(
     residual sum (D - c_pos N+ + c_neg N-)^2 / sum D^2 over the pixels that fired (the energy).
     """
     centres = ex.mean(axis=1)
-    logs = {}
-    for j in sorted({j for p in pairs for j in (p[0], p[0] + 1)}):
+
+    def log_latent(j: int) -> np.ndarray:  # log(L + eps) at the frame's centre, exact (no clipping)
         r, _ = edi_log_ratio(events, (ex[j, 0], ex[j, 1]), centres[j : j + 1], c)
-        logs[j] = np.log(fr[j].mean(axis=-1) + LOG_EPS) + r[0]  # log(L + eps), exact (no clipping)
+        return np.log(fr[j].mean(axis=-1) + LOG_EPS) + r[0]
+
+    frames = sorted({j for p in pairs for j in (p[0], p[0] + 1)})
+    with ThreadPoolExecutor(max(1, min(len(frames), numba.get_num_threads()))) as pool:
+        logs = dict(zip(frames, pool.map(log_latent, frames)))  # the EDI passes release the GIL
     m = np.zeros((2, 3))  # rows z+ / z-: sum z D, sum z N+, sum z N-
     res2 = tot2 = 0.0
     for i, n_pos, n_neg, z_pos, z_neg, ok, fired in pairs:

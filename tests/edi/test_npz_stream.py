@@ -4,9 +4,6 @@ compact stream (``edi.io._NpzStream``), never a whole member at once."""
 from __future__ import annotations
 
 import io
-import os
-import subprocess
-import sys
 import zipfile
 from pathlib import Path
 
@@ -15,6 +12,7 @@ import pytest
 
 from edi.errors import CorruptFileError
 from edi.io import _npz_member, _NpzStream, read_events
+from tests.edi._helpers import run_python
 
 M = 3000  # a few blocks of a small CHUNK
 
@@ -153,16 +151,6 @@ def test_compressed_read_peak_memory_is_about_the_compact_stream(tmp_path):
     np.savez_compressed(tmp_path / "big.npz", t=t, x=xy[0], y=xy[1], p=rng.integers(0, 2, n), width=200, height=200)
     np.savez_compressed(tmp_path / "small.npz", t=t[:10], x=xy[0, :10], y=xy[1, :10], p=np.ones(10, int))
     del t, xy
-    root = Path(__file__).resolve().parents[2]
-    r = subprocess.run(
-        [sys.executable, "-c", _PEAK, str(tmp_path / "big.npz"), str(tmp_path / "small.npz")],
-        capture_output=True,
-        text=True,
-        timeout=300,
-        cwd=root,
-        env={**os.environ, "PYTHONPATH": str(root)},
-    )
-    assert r.returncode == 0, r.stderr[-2000:]
-    grew, stored, count = (int(v) for v in r.stdout.split())
+    grew, stored, count = (int(v) for v in run_python(_PEAK, str(tmp_path / "big.npz"), str(tmp_path / "small.npz")))
     assert count == n and stored == 9 * n
     assert grew < stored + 20 * 2**20, (grew / 2**20, stored / 2**20)
