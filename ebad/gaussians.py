@@ -303,21 +303,22 @@ def plane_sweep_points(
         dist = (centres - centres[f]).norm(dim=1)
         dist[f] = float("inf")
         nb = torch.argsort(dist)[: min(neighbours, F - 1)]
-        cost_maps = []
-        for d in depths:
-            pw = c2w_t[f, :3, :3] @ (rays * d) + c2w_t[f, :3, 3:]  # [3, HW]
-            cost = torch.zeros(1, 1, H, W)
-            for g in nb.tolist():
-                R, t = c2w_t[g, :3, :3], c2w_t[g, :3, 3:]
-                pc = R.T @ (pw - t)
-                uv = (K_t @ pc)[:2] / pc[2:].clamp_min(1e-6)
-                grid = torch.stack([uv[0] / W * 2 - 1, uv[1] / H * 2 - 1], -1).reshape(1, H, W, 2)
-                warped = tF.grid_sample(img[g : g + 1], grid, align_corners=False, padding_mode="border")
-                diff = (warped - img[f : f + 1]).abs().mean(1, keepdim=True)
-                outside = ((grid.abs() > 1).any(-1) | (pc[2] <= 0).reshape(1, H, W))[:, None]
-                cost = cost + torch.where(outside, torch.full_like(diff, 0.25), diff)
-            cost_maps.append(tF.avg_pool2d(cost, patch, 1, patch // 2, count_include_pad=False))
-        costs = torch.cat(cost_maps, 1)[0]  # [n_depths, H, W]
+        pws = [c2w_t[f, :3, :3] @ (rays * d) + c2w_t[f, :3, 3:] for d in depths]  # [3, HW] each
+        cost = torch.zeros(n_depths, 1, H, W)
+        for g in nb.tolist():  # every depth at once from here on: one call per neighbour, not per depth
+            R, t = c2w_t[g, :3, :3], c2w_t[g, :3, 3:]
+            pcs = [R.T @ (pw - t) for pw in pws]
+            uvs = [(K_t @ pc)[:2] / pc[2:].clamp_min(1e-6) for pc in pcs]
+            grid = torch.stack([torch.stack([uv[0] / W * 2 - 1, uv[1] / H * 2 - 1], -1) for uv in uvs])
+            grid = grid.reshape(n_depths, H, W, 2)
+            warped = tF.grid_sample(
+                img[g : g + 1].expand(n_depths, -1, -1, -1), grid, align_corners=False, padding_mode="border"
+            )
+            diff = (warped - img[f : f + 1]).abs().mean(1, keepdim=True)  # [n_depths, 1, H, W]
+            behind = torch.stack([pc[2] <= 0 for pc in pcs]).reshape(n_depths, H, W)
+            outside = ((grid.abs() > 1).any(-1) | behind)[:, None]
+            cost = cost + torch.where(outside, torch.full_like(diff, 0.25), diff)
+        costs = tF.avg_pool2d(cost, patch, 1, patch // 2, count_include_pad=False)[:, 0]  # [n_depths, H, W]
         best, arg = costs.min(0)
         conf = costs.mean(0) / best.clamp_min(1e-4)
         gy, gx = torch.gradient(img[f].mean(0))
