@@ -124,10 +124,12 @@ def _child(part: str, kinds: Sequence[str]) -> None:
 
     if part == "losses":
         splat_cpu._fast_path = lambda: None  # the rasteriser's torch reference: the other child compiles it
-    else:  # EDI's numpy reference (a tiny capture's latents): the losses child compiles its kernel
+    else:  # EDI's numpy reference (a tiny capture's latents) and the c estimate's residual as plain Python (its
+        import edi._kernels  # kernel's own source, 0.4 s on the tiny capture): the losses child compiles both
         import edi.model
 
         edi.model._IMPLS["fast"] = edi.model._IMPLS["reference"]
+        edi._kernels._mean_residual_numba = edi._kernels._mean_residual_numba.py_func  # type: ignore[assignment]
     with torch_reference() if part == "raster" else contextlib.nullcontext():
         warm_up(kinds)  # type: ignore[arg-type]  # checked by warm_up
 

@@ -166,8 +166,9 @@ print(json.dumps(called))
 
 @pytest.mark.slow
 def test_the_rasteriser_child_leaves_edi_to_the_losses_child():
-    # both children build and prepare a tiny capture; EDI's kernel is the losses child's (the rasteriser's child
-    # runs EDI's numpy reference), so it is not compiled twice on a cold cache
+    # both children build and prepare a tiny capture; EDI's kernels are the losses child's (the rasteriser's child
+    # runs EDI's numpy reference and the c estimate's residual as plain Python), so neither is compiled twice on a
+    # cold cache
     env = dict(os.environ, EBAD_PRECOMPILE_PARENT=str(os.getpid()), NUMBA_NUM_THREADS="1")
     env["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT), env.get("PYTHONPATH")) if p)
     r = subprocess.run([sys.executable, "-c", _CHILD, "raster"], env=env, capture_output=True, text=True, timeout=600)
