@@ -112,24 +112,32 @@ def end_with_parent(parent: int, poll: float = 1.0) -> None:
 
 
 def _child(part: str, kinds: Sequence[str]) -> None:
-    """Run ``warm_up(kinds)`` with the other half's kernels on their torch reference."""
+    """Run ``warm_up(kinds)`` with the other half's kernels on their torch reference, or as plain Python (a
+    kernel's own source, ``py_func``, where it has no other reference), so that no kernel is compiled twice."""
     import contextlib
 
     end_with_parent(int(os.environ[_PARENT]))
 
+    import scenes.simulate
     import splat_cpu
 
+    from . import gaussians, strategy
     from .kernels import torch_reference
     from .run import warm_up
 
+    # the tiny capture's events as plain Python (0.4 s): a reconstruction of a recorded capture never simulates,
+    # and the demo's own scene is simulated (the kernel compiled) by the caller
+    scenes.simulate._crossings_numba = scenes.simulate._crossings_numba.py_func  # type: ignore[assignment]
     if part == "losses":
         splat_cpu._fast_path = lambda: None  # the rasteriser's torch reference: the other child compiles it
-    else:  # EDI's numpy reference (a tiny capture's latents) and the c estimate's residual as plain Python (its
-        import edi._kernels  # kernel's own source, 0.4 s on the tiny capture): the losses child compiles both
-        import edi.model
+    else:  # EDI's numpy reference (a tiny capture's latents), the c estimate's residual, the quaternions'
+        import edi._kernels  # normalisation and densification's screen gradients as plain Python: the losses
+        import edi.model  # child compiles them
 
         edi.model._IMPLS["fast"] = edi.model._IMPLS["reference"]
         edi._kernels._mean_residual_numba = edi._kernels._mean_residual_numba.py_func  # type: ignore[assignment]
+        gaussians._normalise_rows = gaussians._normalise_rows.py_func  # type: ignore[assignment]
+        strategy._add_screen_grads = strategy._add_screen_grads.py_func  # type: ignore[assignment]
     with torch_reference() if part == "raster" else contextlib.nullcontext():
         warm_up(kinds)  # type: ignore[arg-type]  # checked by warm_up
 
