@@ -130,12 +130,12 @@ def _child(part: str, kinds: Sequence[str]) -> None:
     scenes.simulate._crossings_numba = scenes.simulate._crossings_numba.py_func  # type: ignore[assignment]
     if part == "losses":
         splat_cpu._fast_path = lambda: None  # the rasteriser's torch reference: the other child compiles it
-    else:  # EDI's numpy reference (a tiny capture's latents), the c estimate's residual, the quaternions'
-        import edi._kernels  # normalisation and densification's screen gradients as plain Python: the losses
-        import edi.model  # child compiles them
+    else:  # no c estimate (its value does not change what the rasteriser compiles; 3.7 CPU-s on EDI's reference),
+        import edi  # EDI's numpy reference (a tiny capture's latents), the quaternions' normalisation and
+        import edi.model  # densification's screen gradients as plain Python: the losses child compiles them
 
+        edi.estimate_c = lambda *args, **kwargs: edi.Contrast(0.2, 0.2)
         edi.model._IMPLS["fast"] = edi.model._IMPLS["reference"]
-        edi._kernels._mean_residual_numba = edi._kernels._mean_residual_numba.py_func  # type: ignore[assignment]
         gaussians._normalise_rows = gaussians._normalise_rows.py_func  # type: ignore[assignment]
         strategy._add_screen_grads = strategy._add_screen_grads.py_func  # type: ignore[assignment]
     with torch_reference() if part == "raster" else contextlib.nullcontext():

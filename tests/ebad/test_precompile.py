@@ -174,9 +174,9 @@ def _compiled_by_child(part: str) -> list[str]:  # the kernels a child ran, each
 
 @pytest.mark.slow
 def test_no_kernel_is_compiled_by_both_children():
-    # both children build and prepare a tiny capture and train it 3 steps. The rasteriser's child runs EDI's numpy
-    # reference and the c estimate's residual, the quaternions' normalisation and densification's screen gradients
-    # as plain Python: the losses child compiles them. Neither compiles the event simulator (plain Python on the
+    # both children build and prepare a tiny capture and train it 3 steps. The rasteriser's child estimates no c and
+    # runs EDI's numpy reference, the quaternions' normalisation and densification's screen gradients as plain
+    # Python: the losses child compiles them. Neither compiles the event simulator (plain Python on the
     # tiny capture): a recorded capture never needs it, and the demo compiles it for its own scene.
     raster, losses = _compiled_by_child("raster"), _compiled_by_child("losses")
     assert "splat_cpu._numba_kernels.backward_tiles" in raster, raster
