@@ -50,6 +50,10 @@ SH_REST_LR_RATIO = 20.0  # the higher SH coefficients learn at lr_colors / this 
 # plane-sweep stereo needs parallax: cameras whose baseline moves a point over the depth range by less
 # than this many pixels give every depth plane the same cost, so random depths are used instead
 MIN_PARALLAX_PX = 1.0
+# plane sweep: this many depth planes are warped in one call per neighbour frame, which torch's threads share (at 30
+# views of 346x260, 2 threads: 9.4-10.7 s one plane at a time, 6.9-7.1 s eight at once, 80 MB more at the peak;
+# every plane at once was no faster and held 220 MB more)
+SWEEP_DEPTHS_AT_ONCE = 8
 
 log = logging.getLogger(__name__)
 
@@ -303,22 +307,26 @@ def plane_sweep_points(
         dist = (centres - centres[f]).norm(dim=1)
         dist[f] = float("inf")
         nb = torch.argsort(dist)[: min(neighbours, F - 1)]
-        pws = [c2w_t[f, :3, :3] @ (rays * d) + c2w_t[f, :3, 3:] for d in depths]  # [3, HW] each
-        cost = torch.zeros(n_depths, 1, H, W)
-        for g in nb.tolist():  # every depth at once from here on: one call per neighbour, not per depth
-            R, t = c2w_t[g, :3, :3], c2w_t[g, :3, 3:]
-            pcs = [R.T @ (pw - t) for pw in pws]
-            uvs = [(K_t @ pc)[:2] / pc[2:].clamp_min(1e-6) for pc in pcs]
-            grid = torch.stack([torch.stack([uv[0] / W * 2 - 1, uv[1] / H * 2 - 1], -1) for uv in uvs])
-            grid = grid.reshape(n_depths, H, W, 2)
-            warped = tF.grid_sample(
-                img[g : g + 1].expand(n_depths, -1, -1, -1), grid, align_corners=False, padding_mode="border"
-            )
-            diff = (warped - img[f : f + 1]).abs().mean(1, keepdim=True)  # [n_depths, 1, H, W]
-            behind = torch.stack([pc[2] <= 0 for pc in pcs]).reshape(n_depths, H, W)
-            outside = ((grid.abs() > 1).any(-1) | behind)[:, None]
-            cost = cost + torch.where(outside, torch.full_like(diff, 0.25), diff)
-        costs = tF.avg_pool2d(cost, patch, 1, patch // 2, count_include_pad=False)[:, 0]  # [n_depths, H, W]
+        cost_maps = []
+        for d0 in range(0, n_depths, SWEEP_DEPTHS_AT_ONCE):  # a few depths at once: one call per neighbour for them
+            ds = depths[d0 : d0 + SWEEP_DEPTHS_AT_ONCE]
+            pws = [c2w_t[f, :3, :3] @ (rays * d) + c2w_t[f, :3, 3:] for d in ds]  # [3, HW] each
+            cost = torch.zeros(len(ds), 1, H, W)
+            for g in nb.tolist():
+                R, t = c2w_t[g, :3, :3], c2w_t[g, :3, 3:]
+                pcs = [R.T @ (pw - t) for pw in pws]
+                uvs = [(K_t @ pc)[:2] / pc[2:].clamp_min(1e-6) for pc in pcs]
+                grid = torch.stack([torch.stack([uv[0] / W * 2 - 1, uv[1] / H * 2 - 1], -1) for uv in uvs])
+                grid = grid.reshape(len(ds), H, W, 2)
+                warped = tF.grid_sample(
+                    img[g : g + 1].expand(len(ds), -1, -1, -1), grid, align_corners=False, padding_mode="border"
+                )
+                diff = (warped - img[f : f + 1]).abs().mean(1, keepdim=True)  # [depths, 1, H, W]
+                behind = torch.stack([pc[2] <= 0 for pc in pcs]).reshape(len(ds), H, W)
+                outside = ((grid.abs() > 1).any(-1) | behind)[:, None]
+                cost = cost + torch.where(outside, torch.full_like(diff, 0.25), diff)
+            cost_maps.append(tF.avg_pool2d(cost, patch, 1, patch // 2, count_include_pad=False)[:, 0])
+        costs = torch.cat(cost_maps)  # [n_depths, H, W]
         best, arg = costs.min(0)
         conf = costs.mean(0) / best.clamp_min(1e-4)
         gy, gx = torch.gradient(img[f].mean(0))
