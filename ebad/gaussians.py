@@ -51,9 +51,9 @@ SH_REST_LR_RATIO = 20.0  # the higher SH coefficients learn at lr_colors / this 
 # than this many pixels give every depth plane the same cost, so random depths are used instead
 MIN_PARALLAX_PX = 1.0
 # plane sweep: this many depth planes are warped in one call per neighbour frame, which torch's threads share (at 30
-# views of 346x260, 2 threads: 9.4-10.7 s one plane at a time, 6.9-7.1 s eight at once, 80 MB more at the peak;
-# every plane at once was no faster and held 220 MB more)
-SWEEP_DEPTHS_AT_ONCE = 8
+# views of 346x260, 2 threads, alternating in fresh processes: one plane at a time 11.3-11.7 s, four 8.7-9.2 s, eight
+# 8.7-9.1 s; the sweep's peak grew 237, 282 and 331 MB; all 32 at once was no faster and grew 450)
+SWEEP_DEPTHS_AT_ONCE = 4
 
 log = logging.getLogger(__name__)
 
