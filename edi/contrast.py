@@ -565,6 +565,8 @@ def _consistency_pairs(
         n_neg = n_neg + resid[i + 1, 1] - resid[i, 1]
         if ((z[0] != 0) | (z[1] != 0))[ok].any():
             pairs.append((i, n_pos, n_neg, z[0], z[1], ok, fired))
+        tails.pop((i, 1), None)  # frame i is in no later pair
+        tails.pop((i, -1), None)
     return pairs, 1.0 - float(valid.mean())
 
 
