@@ -511,8 +511,7 @@ def _mean_residual(events: EventStream, exposures: np.ndarray) -> np.ndarray:
     H, W = events.height, events.width
     if len(events) == 0:
         return np.zeros((len(exposures), 2, H, W))
-    a_us = np.array([seconds_to_us(float(t_s)) for t_s, _ in exposures], np.float64)
-    b_us = np.array([seconds_to_us(float(t_e)) for _, t_e in exposures], np.float64)
+    a_us, b_us = seconds_to_us(np.asarray(exposures, np.float64)).T  # [F] each
     out = mean_residual(events.t, events.x, events.y, events.p, W, H, a_us, b_us, TURN_A, TURN_B)
     return out.reshape(len(exposures), 2, H, W)
 
