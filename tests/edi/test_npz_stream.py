@@ -127,11 +127,9 @@ def test_truncated_or_corrupt_member_names_the_file_and_field(tmp_path):
 
 
 _PEAK = """
-import re, sys
+import sys
 import numpy as np
 from edi.io import read_events
-def status(key):  # kB
-    return int(re.search(key + r":\\s+(\\d+)", open("/proc/self/status").read()).group(1))
 read_events(sys.argv[2])  # the reader's own imports (scipy's) before the baseline
 open("/proc/self/clear_refs", "w").write("5")  # the peak (VmHWM) from now on
 base = status("VmRSS")
