@@ -21,6 +21,8 @@ Per run:
   the parent compiles them into the cache first, ``ebad.run.warm_up``) and the steps/s after it;
 * test PSNR (poses refined against the images, ``ebad.evaluate``) of snapshots at ``--marks``
   instants against wall time (the prepare time included);
+* with several budgets, each one's final PSNR and its gain over the one before (``budget_curves``): the
+  plateau is where that gain runs out;
 * the subprocess's peak RSS (its own ``VmHWM``: ``ru_maxrss`` would report the parent's peak, which
   Linux carries over ``exec``), its resident set at each of those lines and after loading, training
   and each evaluation (``memory_mb``), and the stored stream's bytes per event.
@@ -217,6 +219,30 @@ def _db(psnr: float | None) -> str:
     return "-" if psnr is None else f"{psnr:.2f} dB"
 
 
+def budget_curves(rows: list[dict]) -> list[str]:
+    """Per (views, preset, poses) run at several budgets: each budget's final refined PSNR and what it gained over
+    the budget before, for the time it took. Where that gain runs out is the plateau; a snapshot inside one run is
+    not, since a run lays its schedule (resolution phases, learning-rate decay) over its own budget."""
+    groups: dict[tuple, list[dict]] = {}
+    for r in rows:
+        if "error" not in r and r.get("final_psnr_refined") is not None:
+            groups.setdefault((r["views"], r["preset"], r["poses"]), []).append(r)
+    lines = []
+    for (views, preset, poses), rs in groups.items():
+        if len(rs) < 2:
+            continue
+        rs = sorted(rs, key=lambda r: r["seconds"])
+        parts = [f"{rs[0]['seconds']:.0f} s {rs[0]['final_psnr_refined']:.2f} dB"]
+        for prev, r in zip(rs[:-1], rs[1:]):
+            gain = r["final_psnr_refined"] - prev["final_psnr_refined"]
+            parts.append(
+                f"{r['seconds']:.0f} s {r['final_psnr_refined']:.2f} dB "
+                f"({gain:+.2f} for {r['wall_seconds'] / prev['wall_seconds']:.1f}x the wall time)"
+            )
+        lines.append(f"{views:3d} views {preset:>6} {poses:>5} by budget: " + ", ".join(parts))
+    return lines
+
+
 def _subprocess(args: list[str]) -> dict:
     out = subprocess.run([sys.executable, "-m", "benchmarks.scaling", *args], capture_output=True, text=True)
     if out.returncode != 0:
@@ -331,6 +357,8 @@ def main(argv=None) -> int:
                         flush=True,
                     )
         results["runs"][n] = rows
+        for line in budget_curves(rows):
+            print(line, flush=True)
     if a.events > 0:
         path = work / "events.npz"
         write_events(int(a.events), str(path))

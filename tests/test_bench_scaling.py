@@ -99,3 +99,31 @@ def test_the_kernels_are_ready_before_any_capture_is_simulated(monkeypatch):
     with pytest.raises(Stop):
         scaling.main(["--views", "4", "--events", "0", "--size", "tiny"])
     assert order == [("warm_up", ["grey"]), "simulate"]
+
+
+def test_budget_curves_give_each_budgets_gain_over_the_one_before():
+    """Runs of one (views, preset, poses) at several budgets, listed out of order, with a failed run and a run of
+    another preset alone: one line, budgets in order, each gain against the budget before it."""
+
+    def row(seconds, psnr, wall, preset="ebad"):
+        return {
+            "views": 30,
+            "preset": preset,
+            "poses": "noisy",
+            "seconds": seconds,
+            "final_psnr_refined": psnr,
+            "wall_seconds": wall,
+        }
+
+    rows = [
+        row(3600, 25.10, 3650),
+        row(840, 24.76, 871),
+        row(1800, 25.00, 1830),
+        row(840, 24.2, 854, "bad"),
+        {"views": 30, "preset": "ebad", "poses": "noisy", "seconds": 7200, "error": ["killed"]},
+    ]
+    assert scaling.budget_curves(rows) == [
+        " 30 views   ebad noisy by budget: 840 s 24.76 dB, 1800 s 25.00 dB (+0.24 for 2.1x the wall time), "
+        "3600 s 25.10 dB (+0.10 for 2.0x the wall time)"
+    ]
+    assert scaling.budget_curves(rows[1:2] + rows[3:]) == []  # one budget a method: no curve
