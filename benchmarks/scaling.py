@@ -232,11 +232,11 @@ def budget_curves(rows: list[dict]) -> list[str]:
         if len(rs) < 2:
             continue
         rs = sorted(rs, key=lambda r: r["seconds"])
-        parts = [f"{rs[0]['seconds']:.0f} s {rs[0]['final_psnr_refined']:.2f} dB"]
+        parts = [f"{rs[0]['seconds']:.0f} s {_db(rs[0]['final_psnr_refined'])}"]
         for prev, r in zip(rs[:-1], rs[1:]):
             gain = r["final_psnr_refined"] - prev["final_psnr_refined"]
             parts.append(
-                f"{r['seconds']:.0f} s {r['final_psnr_refined']:.2f} dB "
+                f"{r['seconds']:.0f} s {_db(r['final_psnr_refined'])} "
                 f"({gain:+.2f} for {r['wall_seconds'] / prev['wall_seconds']:.1f}x the wall time)"
             )
         lines.append(f"{views:3d} views {preset:>6} {poses:>5} by budget: " + ", ".join(parts))
