@@ -42,6 +42,7 @@ import argparse
 import copy
 import json
 import logging
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -276,50 +277,12 @@ def plot(results: dict, path: Path) -> None:
     plt.close(fig)
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--size", default="davis", help="scene size: tiny, small or davis (346x260)")
-    ap.add_argument("--views", default="10,20,40", help="training views per capture, comma-separated")
-    ap.add_argument("--test-views", type=int, default=8, help="held-out test views per capture")
-    ap.add_argument("--presets", default="ebad,bad")
-    ap.add_argument("--poses", default="noisy,sfm", help="noisy (the capture's noisy poses) and/or sfm (pycolmap)")
-    ap.add_argument("--seconds", default="900", help="training budget per run; several, comma-separated: a run each")
-    ap.add_argument("--marks", type=int, default=8, help="snapshots per run")
-    ap.add_argument("--refine-iters", type=int, default=200)
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--events", type=float, default=50e6, help="events of the stream measured on its own (0: skip)")
-    ap.add_argument("--name", default="scaling", help="results file benchmarks/results/NAME.json (+ .png)")
-    ap.add_argument("--workdir", default=None, help="where the captures are written (default a temporary folder)")
-    ap.add_argument("--child", default=None, help=argparse.SUPPRESS)
-    ap.add_argument("--events-child", nargs=2, default=None, help=argparse.SUPPRESS)
-    a = ap.parse_args(argv)
-    if a.child is not None:
-        print(json.dumps(run_child(json.loads(a.child))))
-        return 0
-    if a.events_child is not None:
-        print(json.dumps(events_measure(int(float(a.events_child[0])), a.events_child[1])))
-        return 0
-    views = [int(v) for v in a.views.split(",") if v]
-    presets = [p for p in a.presets.split(",") if p]
-    try:
-        budgets = [float(x) for x in a.seconds.split(",") if x]
-    except ValueError:
-        ap.error(f"--seconds: {a.seconds!r} is not a comma-separated list of seconds")
-    if not budgets or any(b <= 0 for b in budgets):
-        ap.error(f"--seconds: {a.seconds!r}: every budget must be > 0")
-    poses = [p for p in a.poses.split(",") if p]
-    for p in poses:
-        if p not in POSES:
-            ap.error(f"--poses: unknown {p!r} (choose from {', '.join(POSES)})")
-    if any(v < 2 for v in views) or a.test_views < 1:
-        ap.error("--views: every capture needs >= 2 training views, and --test-views >= 1")
+def _measure(
+    a: argparse.Namespace, views: list[int], presets: list[str], poses: list[str], budgets: list[float], work: Path
+) -> dict:
+    """Every capture simulated and written under ``work``, every run of it measured; the results' dict."""
     import scenes
-    from ebad.run import warm_up
 
-    # numba's kernels compiled (or loaded) into the cache here, outside every child's budget: a child on a stale
-    # cache compiled its rasteriser in its first steps (8.3 s of a 300-s budget, docs/results.md)
-    print(f"numba's kernels ready in {warm_up(['grey']):.0f} s (outside every budget)", flush=True)
-    work = Path(a.workdir) if a.workdir else Path(tempfile.mkdtemp(prefix="ebad-scaling-"))
     results: dict = {"args": vars(a), "runs": {}, "simulate_seconds": {}, "simulate_peak_rss_mb": {}}
     for n in views:
         t0 = time.perf_counter()
@@ -365,6 +328,61 @@ def main(argv=None) -> int:
         results["events"] = _subprocess(["--events-child", str(int(a.events)), str(path)])
         path.unlink()
         print(f"events: {results['events']}", flush=True)
+    return results
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--size", default="davis", help="scene size: tiny, small or davis (346x260)")
+    ap.add_argument("--views", default="10,20,40", help="training views per capture, comma-separated")
+    ap.add_argument("--test-views", type=int, default=8, help="held-out test views per capture")
+    ap.add_argument("--presets", default="ebad,bad")
+    ap.add_argument("--poses", default="noisy,sfm", help="noisy (the capture's noisy poses) and/or sfm (pycolmap)")
+    ap.add_argument("--seconds", default="900", help="training budget per run; several, comma-separated: a run each")
+    ap.add_argument("--marks", type=int, default=8, help="snapshots per run")
+    ap.add_argument("--refine-iters", type=int, default=200)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--events", type=float, default=50e6, help="events of the stream measured on its own (0: skip)")
+    ap.add_argument("--name", default="scaling", help="results file benchmarks/results/NAME.json (+ .png)")
+    ap.add_argument(
+        "--workdir",
+        default=None,
+        help="where the captures are written and kept (default a temporary folder, removed at the end)",
+    )
+    ap.add_argument("--child", default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--events-child", nargs=2, default=None, help=argparse.SUPPRESS)
+    a = ap.parse_args(argv)
+    if a.child is not None:
+        print(json.dumps(run_child(json.loads(a.child))))
+        return 0
+    if a.events_child is not None:
+        print(json.dumps(events_measure(int(float(a.events_child[0])), a.events_child[1])))
+        return 0
+    views = [int(v) for v in a.views.split(",") if v]
+    presets = [p for p in a.presets.split(",") if p]
+    try:
+        budgets = [float(x) for x in a.seconds.split(",") if x]
+    except ValueError:
+        ap.error(f"--seconds: {a.seconds!r} is not a comma-separated list of seconds")
+    if not budgets or any(b <= 0 for b in budgets):
+        ap.error(f"--seconds: {a.seconds!r}: every budget must be > 0")
+    poses = [p for p in a.poses.split(",") if p]
+    for p in poses:
+        if p not in POSES:
+            ap.error(f"--poses: unknown {p!r} (choose from {', '.join(POSES)})")
+    if any(v < 2 for v in views) or a.test_views < 1:
+        ap.error("--views: every capture needs >= 2 training views, and --test-views >= 1")
+    from ebad.run import warm_up
+
+    # numba's kernels compiled (or loaded) into the cache here, outside every child's budget: a child on a stale
+    # cache compiled its rasteriser in its first steps (8.3 s of a 300-s budget, docs/results.md)
+    print(f"numba's kernels ready in {warm_up(['grey']):.0f} s (outside every budget)", flush=True)
+    work = Path(a.workdir) if a.workdir else Path(tempfile.mkdtemp(prefix="ebad-scaling-"))
+    try:
+        results = _measure(a, views, presets, poses, budgets, work)
+    finally:
+        if not a.workdir:  # the captures (hundreds of MB each) go with the run; --workdir keeps them
+            shutil.rmtree(work, ignore_errors=True)
     out = write_json(a.name, results)
     if results["runs"]:  # no views asked (``--views ""``): the events measurement alone, nothing to plot
         plot(results, RESULTS / f"{a.name}.png")
