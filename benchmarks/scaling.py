@@ -32,8 +32,9 @@ The parent's own peak while it simulates and writes each capture is ``simulate_p
 ``--events N`` also measures one stream of N events (default 50M, 0: skip) in a subprocess: written
 as an uncompressed .npz, read with ``edi.read_events`` (peak RSS, seconds, bytes per event), and
 windowed per frame (30 windows: ``EventStream.window`` views and the counts per virtual window).
-Writes ``benchmarks/results/NAME.json`` and a plot ``NAME.png``. Timings are noisy on a shared
-machine: compare within one run.
+Writes ``benchmarks/results/NAME.json`` and a plot ``NAME.png``; after each run, the runs so far go to
+``NAME.partial.json`` (marked ``unfinished``, removed at the end), so a benchmark stopped midway keeps them.
+Timings are noisy on a shared machine: compare within one run.
 """
 
 from __future__ import annotations
@@ -271,10 +272,16 @@ def plot(results: dict, path: Path) -> None:
         ax.set(xlabel="wall seconds (everything before the first step included)", ylabel="test PSNR dB (refined)")
         ax.set_title(f"{views} training views")
         ax.grid(alpha=0.3)
-        ax.legend()
+        if ax.lines:
+            ax.legend()
+        else:  # every run of this size failed: its errors are in the JSON
+            ax.text(0.5, 0.5, "no run finished", ha="center", va="center", transform=ax.transAxes)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+UNFINISHED = "the benchmark stopped before its end: these are the runs it finished"
 
 
 def _measure(
@@ -293,7 +300,8 @@ def _measure(
         results["simulate_seconds"][n] = time.perf_counter() - t0
         results["simulate_peak_rss_mb"][n] = memory_mb()[1]
         del sc
-        rows = []
+        rows: list[dict] = []
+        results["runs"][n] = rows
         for preset in presets:
             for pose in poses:
                 for budget in budgets:
@@ -319,7 +327,8 @@ def _measure(
                         ),
                         flush=True,
                     )
-        results["runs"][n] = rows
+                    # the runs so far, kept if the benchmark stops before its end (an hour's run each at 40 views)
+                    write_json(f"{a.name}.partial", {**results, "unfinished": UNFINISHED})
         for line in budget_curves(rows):
             print(line, flush=True)
     if a.events > 0:
@@ -378,12 +387,19 @@ def main(argv=None) -> int:
     # cache compiled its rasteriser in its first steps (8.3 s of a 300-s budget, docs/results.md)
     print(f"numba's kernels ready in {warm_up(['grey']):.0f} s (outside every budget)", flush=True)
     work = Path(a.workdir) if a.workdir else Path(tempfile.mkdtemp(prefix="ebad-scaling-"))
+    partial = RESULTS / f"{a.name}.partial.json"
+    partial.unlink(missing_ok=True)  # an earlier stopped run's: this run's name is the results' now
     try:
         results = _measure(a, views, presets, poses, budgets, work)
+    except BaseException:  # Ctrl-C included
+        if partial.exists():
+            print(f"stopped before its end: the runs it finished are in {partial}", file=sys.stderr, flush=True)
+        raise
     finally:
         if not a.workdir:  # the captures (hundreds of MB each) go with the run; --workdir keeps them
             shutil.rmtree(work, ignore_errors=True)
     out = write_json(a.name, results)
+    partial.unlink(missing_ok=True)
     if results["runs"]:  # no views asked (``--views ""``): the events measurement alone, nothing to plot
         plot(results, RESULTS / f"{a.name}.png")
         print(f"wrote {out} and {a.name}.png")

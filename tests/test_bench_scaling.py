@@ -161,3 +161,41 @@ def test_the_captures_folder_goes_with_the_run_unless_given(monkeypatch, tmp_pat
         scaling.main(argv)
     assert (work / "davis_4" / "frames.npz").exists() == keep
     assert work.exists() == keep
+
+
+def test_a_benchmark_stopped_midway_keeps_the_runs_it_finished(monkeypatch, tmp_path, capsys):
+    """Each finished run goes to NAME.partial.json, marked unfinished, at once: Ctrl-C in the second hour-long run
+    of a benchmark kept nothing before. A benchmark that ends writes NAME.json and removes the partial file."""
+    import benchmarks._common
+    import ebad.run
+    import scenes
+
+    monkeypatch.setattr(benchmarks._common, "RESULTS", tmp_path)
+    monkeypatch.setattr(scaling, "RESULTS", tmp_path)
+    monkeypatch.setattr(ebad.run, "warm_up", lambda kinds: 0.0)
+    monkeypatch.setattr(scenes, "make_scene", lambda *a, **kw: None)
+    monkeypatch.setattr(scenes, "write_scene", lambda sc, d: None)
+    calls = []
+
+    def child(args):
+        calls.append(json.loads(args[1])["seconds"])
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return {"error": ["a finished run"]}
+
+    monkeypatch.setattr(scaling, "_subprocess", child)
+    argv = ["--views", "4", "--events", "0", "--presets", "ebad", "--poses", "noisy", "--seconds", "10,20,30"]
+    with pytest.raises(KeyboardInterrupt):
+        scaling.main([*argv, "--name", "stopped"])
+    partial = json.loads((tmp_path / "stopped.partial.json").read_text())
+    assert partial["unfinished"] == scaling.UNFINISHED
+    assert [r["seconds"] for r in partial["runs"]["4"]] == [10.0]
+    assert not (tmp_path / "stopped.json").exists()
+    assert f"the runs it finished are in {tmp_path / 'stopped.partial.json'}" in capsys.readouterr().err
+
+    calls.clear()
+    monkeypatch.setattr(scaling, "_subprocess", lambda args: calls.append(1) or {"error": ["a finished run"]})
+    assert scaling.main([*argv, "--name", "stopped"]) == 0
+    done = json.loads((tmp_path / "stopped.json").read_text())
+    assert [r["seconds"] for r in done["runs"]["4"]] == [10.0, 20.0, 30.0] and "unfinished" not in done
+    assert not (tmp_path / "stopped.partial.json").exists()
