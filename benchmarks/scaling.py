@@ -32,8 +32,8 @@ The parent's own peak while it simulates and writes each capture is ``simulate_p
 ``--events N`` also measures one stream of N events (default 50M, 0: skip) in a subprocess: written
 as an uncompressed .npz, read with ``edi.read_events`` (peak RSS, seconds, bytes per event), and
 windowed per frame (30 windows: ``EventStream.window`` views and the counts per virtual window).
-Writes ``benchmarks/results/NAME.json`` and a plot ``NAME.png``; after each run, the runs so far go to
-``NAME.partial.json`` (marked ``unfinished``, removed at the end), so a benchmark stopped midway keeps them.
+Writes ``benchmarks/results/NAME.json`` and a plot ``NAME.png``; the JSON is written after each run too,
+marked ``partial`` until the end (as ``benchmarks.ablation`` does), so a benchmark stopped midway keeps its runs.
 Timings are noisy on a shared machine: compare within one run.
 """
 
@@ -281,16 +281,18 @@ def plot(results: dict, path: Path) -> None:
     plt.close(fig)
 
 
-UNFINISHED = "the benchmark stopped before its end: these are the runs it finished"
-
-
 def _measure(
-    a: argparse.Namespace, views: list[int], presets: list[str], poses: list[str], budgets: list[float], work: Path
-) -> dict:
-    """Every capture simulated and written under ``work``, every run of it measured; the results' dict."""
+    a: argparse.Namespace,
+    views: list[int],
+    presets: list[str],
+    poses: list[str],
+    budgets: list[float],
+    work: Path,
+    results: dict,
+) -> None:
+    """Every capture simulated and written under ``work``, every run of it measured, into ``results`` as it goes."""
     import scenes
 
-    results: dict = {"args": vars(a), "runs": {}, "simulate_seconds": {}, "simulate_peak_rss_mb": {}}
     for n in views:
         t0 = time.perf_counter()
         reset_peak()  # this process's peak while it simulates and writes this capture
@@ -327,8 +329,8 @@ def _measure(
                         ),
                         flush=True,
                     )
-                    # the runs so far, kept if the benchmark stops before its end (an hour's run each at 40 views)
-                    write_json(f"{a.name}.partial", {**results, "unfinished": UNFINISHED})
+                    # what is done survives a stop (an hour's run each at 40 views)
+                    write_json(a.name, {**results, "partial": True})
         for line in budget_curves(rows):
             print(line, flush=True)
     if a.events > 0:
@@ -337,7 +339,6 @@ def _measure(
         results["events"] = _subprocess(["--events-child", str(int(a.events)), str(path)])
         path.unlink()
         print(f"events: {results['events']}", flush=True)
-    return results
 
 
 def main(argv=None) -> int:
@@ -387,19 +388,20 @@ def main(argv=None) -> int:
     # cache compiled its rasteriser in its first steps (8.3 s of a 300-s budget, docs/results.md)
     print(f"numba's kernels ready in {warm_up(['grey']):.0f} s (outside every budget)", flush=True)
     work = Path(a.workdir) if a.workdir else Path(tempfile.mkdtemp(prefix="ebad-scaling-"))
-    partial = RESULTS / f"{a.name}.partial.json"
-    partial.unlink(missing_ok=True)  # an earlier stopped run's: this run's name is the results' now
+    results: dict = {"args": vars(a), "runs": {}, "simulate_seconds": {}, "simulate_peak_rss_mb": {}}
     try:
-        results = _measure(a, views, presets, poses, budgets, work)
+        _measure(a, views, presets, poses, budgets, work, results)
     except BaseException:  # Ctrl-C included
-        if partial.exists():
-            print(f"stopped before its end: the runs it finished are in {partial}", file=sys.stderr, flush=True)
+        if any(results["runs"].values()):
+            print(
+                f"stopped before its end: the runs it finished are in {RESULTS / a.name}.json (marked partial)",
+                file=sys.stderr,
+            )
         raise
     finally:
         if not a.workdir:  # the captures (hundreds of MB each) go with the run; --workdir keeps them
             shutil.rmtree(work, ignore_errors=True)
     out = write_json(a.name, results)
-    partial.unlink(missing_ok=True)
     if results["runs"]:  # no views asked (``--views ""``): the events measurement alone, nothing to plot
         plot(results, RESULTS / f"{a.name}.png")
         print(f"wrote {out} and {a.name}.png")

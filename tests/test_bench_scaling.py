@@ -164,8 +164,8 @@ def test_the_captures_folder_goes_with_the_run_unless_given(monkeypatch, tmp_pat
 
 
 def test_a_benchmark_stopped_midway_keeps_the_runs_it_finished(monkeypatch, tmp_path, capsys):
-    """Each finished run goes to NAME.partial.json, marked unfinished, at once: Ctrl-C in the second hour-long run
-    of a benchmark kept nothing before. A benchmark that ends writes NAME.json and removes the partial file."""
+    """Each finished run goes to NAME.json at once, marked partial (as benchmarks.ablation does): Ctrl-C in the
+    second hour-long run of a benchmark kept nothing before. A benchmark that ends writes it without the mark."""
     import benchmarks._common
     import ebad.run
     import scenes
@@ -187,15 +187,12 @@ def test_a_benchmark_stopped_midway_keeps_the_runs_it_finished(monkeypatch, tmp_
     argv = ["--views", "4", "--events", "0", "--presets", "ebad", "--poses", "noisy", "--seconds", "10,20,30"]
     with pytest.raises(KeyboardInterrupt):
         scaling.main([*argv, "--name", "stopped"])
-    partial = json.loads((tmp_path / "stopped.partial.json").read_text())
-    assert partial["unfinished"] == scaling.UNFINISHED
+    partial = json.loads((tmp_path / "stopped.json").read_text())
+    assert partial["partial"] is True
     assert [r["seconds"] for r in partial["runs"]["4"]] == [10.0]
-    assert not (tmp_path / "stopped.json").exists()
-    assert f"the runs it finished are in {tmp_path / 'stopped.partial.json'}" in capsys.readouterr().err
+    assert f"the runs it finished are in {tmp_path / 'stopped.json'} (marked partial)" in capsys.readouterr().err
 
-    calls.clear()
-    monkeypatch.setattr(scaling, "_subprocess", lambda args: calls.append(1) or {"error": ["a finished run"]})
+    monkeypatch.setattr(scaling, "_subprocess", lambda args: {"error": ["a finished run"]})
     assert scaling.main([*argv, "--name", "stopped"]) == 0
     done = json.loads((tmp_path / "stopped.json").read_text())
-    assert [r["seconds"] for r in done["runs"]["4"]] == [10.0, 20.0, 30.0] and "unfinished" not in done
-    assert not (tmp_path / "stopped.partial.json").exists()
+    assert [r["seconds"] for r in done["runs"]["4"]] == [10.0, 20.0, 30.0] and "partial" not in done
