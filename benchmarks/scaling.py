@@ -20,7 +20,8 @@ Per run:
   sharpness, latents, initialisation, the initial scoring), the first step (numba's kernels loaded:
   the parent compiles them into the cache first, ``ebad.run.warm_up``) and the steps/s after it;
 * test PSNR (poses refined against the images, ``ebad.evaluate``) of snapshots at ``--marks``
-  instants against wall time (the prepare time included);
+  instants against wall time (the prepare time included), and each test view's PSNR before and after its
+  refinement with the refinement's steps (``view_scores``);
 * with several budgets, each one's final PSNR and its gain over the one before (``budget_curves``): the
   plateau is where that gain runs out;
 * the subprocess's peak RSS (its own ``VmHWM``: ``ru_maxrss`` would report the parent's peak, which
@@ -92,6 +93,22 @@ class FirstStep:
         return None
 
 
+def view_scores(res: dict) -> dict[str, dict[str, float | int | None]]:
+    """Each test view's PSNR before and after its pose refinement and the refinement's steps, from an
+    ``ebad.evaluate`` result: a mark's mean can move by one view whose refinement stopped short."""
+    before = res["test"].per_view if "test" in res else {}
+    after = res["test_refined"].per_view if "test_refined" in res else {}
+    steps = res.get("refine_steps", {})
+    return {
+        name: {
+            "psnr": before[name]["psnr"] if name in before else None,
+            "psnr_refined": after[name]["psnr"] if name in after else None,
+            "refine_steps": steps.get(name),
+        }
+        for name in dict.fromkeys([*before, *after])
+    }
+
+
 def run_child(spec: dict) -> dict:
     """One reconstruction of a written capture; what the module docstring lists."""
     import scenes
@@ -139,6 +156,7 @@ def run_child(spec: dict) -> dict:
                 "gaussians": snap["gaussians"],
                 "test_psnr_refined": res["test_refined"].psnr if "test_refined" in res else None,
                 "test_psnr": res["test"].psnr if "test" in res else None,
+                "views": view_scores(res),
             }
         )
         memory[f"evaluated {len(points)}"] = memory_mb()
