@@ -199,8 +199,8 @@ def test_a_benchmark_stopped_midway_keeps_the_runs_it_finished(monkeypatch, tmp_
 
 
 def test_each_mark_keeps_every_test_views_scores_and_refinement_steps():
-    """A 40-view mark's refined mean fell 1.85 dB while the unrefined one moved 0.25 (cap 120k, 1824 s): which
-    view's refinement stopped short could not be told from the means. Each view's PSNR before and after, and its
+    """A 40-view mark's refined mean fell 1.85 dB while the unrefined one moved 0.25 (cap 120k, 1824 s): whether
+    one view's refinement stopped short could not be told from the means. Each view's PSNR before and after, and its
     steps, are kept by name; a view scored only before refinement keeps None after."""
     from ebad.scoring import ViewScores
 
