@@ -2,7 +2,8 @@
 
     python -m benchmarks.scaling [--size davis] [--views 10,20,40] [--test-views 8] [--presets ebad,bad]
                                  [--poses noisy,sfm] [--seconds 900[,3600]] [--marks 8] [--refine-iters 200]
-                                 [--events 50e6] [--name scaling]
+                                 [--refine-also 300] [--events 50e6] [--name scaling]
+    python -m benchmarks.scaling --views 10 --presets ebad --poses noisy --seconds 300,300,300   # one budget's spread
     python -m benchmarks.scaling --size tiny --views 4 --seconds 20        # a check that it runs
     python -m benchmarks.scaling --views "" --events 50e6 --name scaling_events50m   # the events alone
 
@@ -21,9 +22,11 @@ Per run:
   the parent compiles them into the cache first, ``ebad.run.warm_up``) and the steps/s after it;
 * test PSNR (poses refined against the images, ``ebad.evaluate``) of snapshots at ``--marks``
   instants against wall time (the prepare time included), and each test view's PSNR before and after its
-  refinement with the refinement's steps (``view_scores``);
+  refinement with the refinement's steps (``view_scores``); with ``--refine-also``, the same snapshot refined
+  again under each other step cap (``refined_at``), outside every budget;
 * with several budgets, each one's final PSNR and its gain over the one before (``budget_curves``): the
-  plateau is where that gain runs out;
+  plateau is where that gain runs out; a budget given more than once is run that many times, and its runs'
+  mean ± std is the spread of one setting's time-budgeted runs;
 * the subprocess's peak RSS (its own ``VmHWM``: ``ru_maxrss`` would report the parent's peak, which
   Linux carries over ``exec``), its resident set at each of those lines and after loading, training
   and each evaluation (``memory_mb``), and the stored stream's bytes per event.
@@ -49,8 +52,11 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections import Counter
 from pathlib import Path
 from typing import TYPE_CHECKING
+
+import numpy as np
 
 from ._common import RESULTS, config_spec, memory_mb, peak_rss_mb, reset_peak, write_json
 
@@ -148,17 +154,23 @@ def run_child(spec: dict) -> dict:
         r = copy.copy(run)
         r.params, r.trajectories, r.response = snap["params"], snap["trajectories"], snap["response"]
         res = evaluate(r, capture, refine=True, refine_iters=int(spec["refine_iters"]))
-        points.append(
-            {
-                "train_seconds": snap["seconds"],
-                "wall_seconds": before_train + snap["seconds"],
-                "step": snap["step"],
-                "gaussians": snap["gaussians"],
-                "test_psnr_refined": res["test_refined"].psnr if "test_refined" in res else None,
-                "test_psnr": res["test"].psnr if "test" in res else None,
-                "views": view_scores(res),
+        point = {
+            "train_seconds": snap["seconds"],
+            "wall_seconds": before_train + snap["seconds"],
+            "step": snap["step"],
+            "gaussians": snap["gaussians"],
+            "test_psnr_refined": res["test_refined"].psnr if "test_refined" in res else None,
+            "test_psnr": res["test"].psnr if "test" in res else None,
+            "views": view_scores(res),
+        }
+        # the same snapshot refined with other step caps (``--refine-also``): whether the cap moves the figure
+        for cap in spec.get("refine_also", []):
+            other = evaluate(r, capture, refine=True, refine_iters=int(cap))
+            point.setdefault("refined_at", {})[str(cap)] = {
+                "test_psnr_refined": other["test_refined"].psnr if "test_refined" in other else None,
+                "views": view_scores(other),
             }
-        )
+        points.append(point)
         memory[f"evaluated {len(points)}"] = memory_mb()
     first_step = None if first.at is None else first.at - before_train  # the first step's own duration
     later = (m.train_seconds - (first_step or 0.0)) / max(m.steps - 1, 1)
@@ -242,23 +254,33 @@ def _db(psnr: float | None) -> str:
 def budget_curves(rows: list[dict]) -> list[str]:
     """Per (views, preset, poses) run at several budgets: each budget's final refined PSNR and what it gained over
     the budget before, for the time it took. Where that gain runs out is the plateau; a snapshot inside one run is
-    not, since a run lays its schedule (resolution phases, learning-rate decay) over its own budget."""
-    groups: dict[tuple, list[dict]] = {}
+    not, since a run lays its schedule (resolution phases, learning-rate decay) over its own budget. A budget run
+    several times (``--seconds 300,300,300``) is each run's figure and their mean ± std (population, as
+    ``benchmarks.ablation``): the spread of one setting's time-budgeted runs, the gains compared between means."""
+    groups: dict[tuple, dict[float, list[dict]]] = {}
     for r in rows:
         if "error" not in r and r.get("final_psnr_refined") is not None:
-            groups.setdefault((r["views"], r["preset"], r["poses"]), []).append(r)
+            key = (r["views"], r["preset"], r["poses"])
+            groups.setdefault(key, {}).setdefault(float(r["seconds"]), []).append(r)
     lines = []
-    for (views, preset, poses), rs in groups.items():
-        if len(rs) < 2:
+    for (views, preset, poses), by_budget in groups.items():
+        if sum(len(rs) for rs in by_budget.values()) < 2:
             continue
-        rs = sorted(rs, key=lambda r: r["seconds"])
-        parts = [f"{rs[0]['seconds']:.0f} s {_db(rs[0]['final_psnr_refined'])}"]
-        for prev, r in zip(rs[:-1], rs[1:]):
-            gain = r["final_psnr_refined"] - prev["final_psnr_refined"]
-            parts.append(
-                f"{r['seconds']:.0f} s {_db(r['final_psnr_refined'])} "
-                f"({gain:+.2f} for {r['wall_seconds'] / prev['wall_seconds']:.1f}x the wall time)"
-            )
+        parts, prev = [], None
+        for seconds in sorted(by_budget):
+            rs = by_budget[seconds]
+            psnr = float(np.mean([r["final_psnr_refined"] for r in rs]))
+            wall = float(np.mean([r["wall_seconds"] for r in rs]))
+            if len(rs) == 1:
+                part = f"{seconds:.0f} s {_db(psnr)}"
+            else:
+                each = ", ".join(f"{r['final_psnr_refined']:.2f}" for r in rs)
+                spread = float(np.std([r["final_psnr_refined"] for r in rs]))
+                part = f"{seconds:.0f} s x{len(rs)} {each}: {psnr:.2f} ± {spread:.2f} dB"
+            if prev is not None:
+                part += f" ({psnr - prev[0]:+.2f} for {wall / prev[1]:.1f}x the wall time)"
+            parts.append(part)
+            prev = (psnr, wall)
         lines.append(f"{views:3d} views {preset:>6} {poses:>5} by budget: " + ", ".join(parts))
     return lines
 
@@ -279,14 +301,20 @@ def plot(results: dict, path: Path) -> None:
     sizes = list(results["runs"])
     fig, axes = plt.subplots(1, max(len(sizes), 1), figsize=(5 * max(len(sizes), 1), 3.8), squeeze=False)
     for ax, views in zip(axes[0], sizes):
-        several = len({r.get("seconds") for r in results["runs"][views]}) > 1  # budgets: say which curve is which
-        for r in results["runs"][views]:
+        rows = results["runs"][views]
+        several = len({r.get("seconds") for r in rows}) > 1  # budgets: say which curve is which
+        runs_of = Counter((r.get("preset"), r.get("poses"), r.get("seconds")) for r in rows)
+        seen: Counter = Counter()
+        for r in rows:
+            key = (r.get("preset"), r.get("poses"), r.get("seconds"))
+            seen[key] += 1
             if "points" not in r:
                 continue
             xs = [p["wall_seconds"] for p in r["points"]]
             ys = [p["test_psnr_refined"] for p in r["points"]]
             budget = f", {r['seconds']:.0f} s budget" if several else ""
-            ax.plot(xs, ys, marker="o", label=f"{r['preset']} ({r['poses']}{budget})")
+            again = f", run {seen[key]}" if runs_of[key] > 1 else ""  # one budget repeated: its runs apart
+            ax.plot(xs, ys, marker="o", label=f"{r['preset']} ({r['poses']}{budget}{again})")
         ax.set(xlabel="wall seconds (everything before the first step included)", ylabel="test PSNR dB (refined)")
         ax.set_title(f"{views} training views")
         ax.grid(alpha=0.3)
@@ -333,6 +361,7 @@ def _measure(
                         "seconds": budget,
                         "marks": a.marks,
                         "refine_iters": a.refine_iters,
+                        "refine_also": a.refine_also,
                     }
                     r = _subprocess(["--child", json.dumps(spec)])
                     rows.append({**spec, **r})
@@ -368,7 +397,12 @@ def main(argv=None) -> int:
     ap.add_argument("--poses", default="noisy,sfm", help="noisy (the capture's noisy poses) and/or sfm (pycolmap)")
     ap.add_argument("--seconds", default="900", help="training budget per run; several, comma-separated: a run each")
     ap.add_argument("--marks", type=int, default=8, help="snapshots per run")
-    ap.add_argument("--refine-iters", type=int, default=200)
+    ap.add_argument("--refine-iters", type=int, default=200, help="test-pose refinement's step cap at each mark")
+    ap.add_argument(
+        "--refine-also",
+        default="",
+        help="other step caps, comma-separated, each mark's snapshot refined again with each (outside every budget)",
+    )
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--events", type=float, default=50e6, help="events of the stream measured on its own (0: skip)")
     ap.add_argument("--name", default="scaling", help="results file benchmarks/results/NAME.json (+ .png)")
@@ -394,6 +428,13 @@ def main(argv=None) -> int:
         ap.error(f"--seconds: {a.seconds!r} is not a comma-separated list of seconds")
     if not budgets or any(b <= 0 for b in budgets):
         ap.error(f"--seconds: {a.seconds!r}: every budget must be > 0")
+    raw = a.refine_also
+    try:
+        a.refine_also = [int(x) for x in raw.split(",") if x]
+    except ValueError:
+        ap.error(f"--refine-also: {raw!r} is not a comma-separated list of step counts")
+    if any(k < 1 for k in a.refine_also):
+        ap.error(f"--refine-also: {raw!r}: every step cap must be >= 1")
     poses = [p for p in a.poses.split(",") if p]
     for p in poses:
         if p not in POSES:

@@ -222,3 +222,87 @@ def test_each_mark_keeps_every_test_views_scores_and_refinement_steps():
         "t2": {"psnr": 17.5, "psnr_refined": None, "refine_steps": None},
     }
     assert scaling.view_scores({}) == {}  # no test view with an image
+
+
+def test_a_budget_run_several_times_gives_each_run_and_their_mean_and_spread():
+    """``--seconds 300,300,300`` runs one setting three times: the spread of a time-budgeted run (its schedule follows
+    the clock, so two runs differ) was only ever seen across commits. Each run's figure, their mean ± std (population),
+    and the next budget's gain over that mean, not over one of the runs."""
+
+    def row(seconds, psnr, wall):
+        return {
+            "views": 10,
+            "preset": "ebad",
+            "poses": "noisy",
+            "seconds": seconds,
+            "final_psnr_refined": psnr,
+            "wall_seconds": wall,
+        }
+
+    rows = [row(300, 26.20, 322), row(1200, 26.90, 1222), row(300, 26.41, 318), row(300, 26.23, 323)]
+    assert scaling.budget_curves(rows) == [
+        " 10 views   ebad noisy by budget: 300 s x3 26.20, 26.41, 26.23: 26.28 ± 0.09 dB, "
+        "1200 s 26.90 dB (+0.62 for 3.8x the wall time)"
+    ]
+    assert scaling.budget_curves([rows[0], rows[2]]) == [  # repeats alone: a line too
+        " 10 views   ebad noisy by budget: 300 s x2 26.20, 26.41: 26.30 ± 0.11 dB"
+    ]
+
+
+def test_refine_also_takes_step_caps_or_says_which_argument_is_wrong(capsys):
+    for bad in ("abc", "300,x", "0", "300,-5"):
+        with pytest.raises(SystemExit) as e:
+            scaling.main(["--refine-also", bad, "--views", "4", "--events", "0"])
+        assert e.value.code == 2
+        assert "--refine-also" in capsys.readouterr().err
+
+
+def test_each_mark_is_refined_again_under_every_other_step_cap(monkeypatch):
+    """Three of eight views spent all 100 refinement steps at the 20-view run's end: whether the cap moves the figure
+    needs the same snapshot refined with more. ``refine_also`` evaluates each mark again per cap; the mark's own
+    figure stays the ``refine_iters`` one, and a spec without ``refine_also`` (older JSON) adds nothing."""
+    from types import SimpleNamespace
+
+    import ebad.evaluate
+    import ebad.run
+    import scenes
+    from ebad.scoring import ViewScores
+
+    calls = []
+
+    def evaluate(run, capture, refine=False, refine_iters=300):
+        calls.append((run.params["mark"], refine_iters))
+        gain = {100: 3.0, 300: 3.5}[refine_iters] + run.params["mark"]
+        return {
+            "test": ViewScores(20.0, 0.5, 1, {"t0": {"psnr": 20.0, "ssim": 0.5}}),
+            "test_refined": ViewScores(20.0 + gain, 0.8, 1, {"t0": {"psnr": 20.0 + gain, "ssim": 0.8}}),
+            "refine_steps": {"t0": min(refine_iters, 140)},
+        }
+
+    def reconstruct(capture, cfg, callbacks=()):
+        snaps = callbacks[1]
+        for mark in (0, 1):
+            snaps.taken.append(
+                {"seconds": 5.0 * (mark + 1), "step": 10 * (mark + 1), "gaussians": 3, "params": {"mark": mark}}
+                | {"trajectories": None, "response": None}
+            )
+        prepare = SimpleNamespace(sharp_frames=0, sharp_reason="none")
+        metrics = SimpleNamespace(steps=20, train_seconds=10.0, prepare_seconds=1.0, gaussians=3, prepare=prepare)
+        return SimpleNamespace(params=None, trajectories=None, response=None, metrics=metrics)
+
+    capture = SimpleNamespace(events=type("Ev", (list,), {"nbytes": lambda self: 90})([0] * 10))
+    monkeypatch.setattr(scenes, "load", lambda path: capture)
+    monkeypatch.setattr(ebad.run, "reconstruct", reconstruct)
+    monkeypatch.setattr(ebad.evaluate, "evaluate", evaluate)
+    spec = {"capture": "c", "views": 4, "preset": "ebad", "poses": "noisy", "seconds": 10.0, "marks": 2}
+    out = scaling.run_child({**spec, "refine_iters": 100, "refine_also": [300]})
+    assert calls == [(0, 100), (0, 300), (1, 100), (1, 300)]
+    assert [p["test_psnr_refined"] for p in out["points"]] == [23.0, 24.0]
+    assert [p["refined_at"]["300"]["test_psnr_refined"] for p in out["points"]] == [23.5, 24.5]
+    assert out["points"][1]["refined_at"]["300"]["views"] == {
+        "t0": {"psnr": 20.0, "psnr_refined": 24.5, "refine_steps": 140}
+    }
+    assert out["points"][1]["views"]["t0"]["refine_steps"] == 100
+    calls.clear()
+    old = scaling.run_child({**spec, "refine_iters": 100})
+    assert calls == [(0, 100), (1, 100)] and all("refined_at" not in p for p in old["points"])
