@@ -117,18 +117,32 @@ def view_scores(res: dict) -> dict[str, dict[str, float | int | None]]:
 
 def run_child(spec: dict) -> dict:
     """One reconstruction of a written capture; what the module docstring lists."""
+    t0 = time.perf_counter()
+    timeline = Timeline(t0)
+    loggers = [logging.getLogger(name) for name in ("ebad.progress", "scenes.colmap")]
+    levels = [lg.level for lg in loggers]
+    for lg in loggers:
+        lg.setLevel(logging.INFO)
+        lg.addHandler(timeline)
+    try:
+        return _run_child(spec, t0, timeline)
+    finally:  # called in-process too (tests): the loggers as they were, or every later phase line goes to the timeline
+        for lg, level in zip(loggers, levels):
+            lg.removeHandler(timeline)
+            lg.setLevel(level)
+
+
+def _refined_psnr(res: dict) -> float | None:
+    return res["test_refined"].psnr if "test_refined" in res else None
+
+
+def _run_child(spec: dict, t0: float, timeline: Timeline) -> dict:
     import scenes
     from ebad.evaluate import evaluate
     from ebad.run import reconstruct
 
     from .time_to_quality import Snapshots
 
-    t0 = time.perf_counter()
-    timeline = Timeline(t0)
-    for name in ("ebad.progress", "scenes.colmap"):
-        lg = logging.getLogger(name)
-        lg.setLevel(logging.INFO)
-        lg.addHandler(timeline)
     memory = {"start": memory_mb()}  # (resident, peak so far) MB at the run's milestones
     capture = scenes.load(spec["capture"])
     load_s = time.perf_counter() - t0
@@ -159,7 +173,7 @@ def run_child(spec: dict) -> dict:
             "wall_seconds": before_train + snap["seconds"],
             "step": snap["step"],
             "gaussians": snap["gaussians"],
-            "test_psnr_refined": res["test_refined"].psnr if "test_refined" in res else None,
+            "test_psnr_refined": _refined_psnr(res),
             "test_psnr": res["test"].psnr if "test" in res else None,
             "views": view_scores(res),
         }
@@ -167,7 +181,7 @@ def run_child(spec: dict) -> dict:
         for cap in spec.get("refine_also", []):
             other = evaluate(r, capture, refine=True, refine_iters=int(cap))
             point.setdefault("refined_at", {})[str(cap)] = {
-                "test_psnr_refined": other["test_refined"].psnr if "test_refined" in other else None,
+                "test_psnr_refined": _refined_psnr(other),
                 "views": view_scores(other),
             }
         points.append(point)

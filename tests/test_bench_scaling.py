@@ -1,6 +1,7 @@
 """benchmarks.scaling's memory figures: a child's peak RSS is its own, not its parent's."""
 
 import json
+import logging
 import subprocess
 import sys
 from pathlib import Path
@@ -283,8 +284,14 @@ def test_each_mark_is_refined_again_under_every_other_step_cap(monkeypatch):
         snaps = callbacks[1]
         for mark in (0, 1):
             snaps.taken.append(
-                {"seconds": 5.0 * (mark + 1), "step": 10 * (mark + 1), "gaussians": 3, "params": {"mark": mark}}
-                | {"trajectories": None, "response": None}
+                {
+                    "seconds": 5.0 * (mark + 1),
+                    "step": 10 * (mark + 1),
+                    "gaussians": 3,
+                    "params": {"mark": mark},
+                    "trajectories": None,
+                    "response": None,
+                }
             )
         prepare = SimpleNamespace(sharp_frames=0, sharp_reason="none")
         metrics = SimpleNamespace(steps=20, train_seconds=10.0, prepare_seconds=1.0, gaussians=3, prepare=prepare)
@@ -306,3 +313,22 @@ def test_each_mark_is_refined_again_under_every_other_step_cap(monkeypatch):
     calls.clear()
     old = scaling.run_child({**spec, "refine_iters": 100})
     assert calls == [(0, 100), (1, 100)] and all("refined_at" not in p for p in old["points"])
+
+
+def test_a_child_run_in_process_leaves_the_progress_loggers_as_it_found_them(monkeypatch):
+    """``run_child`` sets ``ebad.progress`` and ``scenes.colmap`` to INFO with its timeline as a handler. Left there,
+    every later ``say`` in the process went to the timeline rather than stderr (``ebad eval``'s refinement lines went
+    missing in the test run after this module's, in CI), and a failed run must not leave it either."""
+    import scenes
+
+    loggers = [logging.getLogger(name) for name in ("ebad.progress", "scenes.colmap")]
+    before = [(lg.level, lg.handlers[:]) for lg in loggers]
+
+    def load(path):
+        assert all(lg.level == logging.INFO and len(lg.handlers) == len(b[1]) + 1 for lg, b in zip(loggers, before))
+        raise FileNotFoundError(path)
+
+    monkeypatch.setattr(scenes, "load", load)
+    with pytest.raises(FileNotFoundError):
+        scaling.run_child({"capture": "c", "preset": "ebad", "poses": "noisy", "seconds": 1.0, "marks": 1})
+    assert [(lg.level, lg.handlers) for lg in loggers] == before
