@@ -1,11 +1,11 @@
-"""Checks every test's teardown runs: nothing here changes what a test sees."""
+"""What every test must leave as it found it, checked after each test."""
 
 import logging
 
 import pytest
 
 # ``ebad.progress`` decides from its level and handlers whether a phase line is logged or printed to stderr, so a
-# test that leaves either changed makes a later test in the same worker miss its lines (CI, run 51)
+# test that leaves either changed makes a later test in the same worker miss its lines (CI on 92add60)
 _WATCHED = ("ebad.progress", "scenes.colmap")
 
 
