@@ -44,6 +44,7 @@ Timings are noisy on a shared machine: compare within one run.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import copy
 import json
 import logging
@@ -53,6 +54,7 @@ import sys
 import tempfile
 import time
 from collections import Counter
+from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -64,6 +66,7 @@ if TYPE_CHECKING:
     from ebad.config import PoseSource
 
 POSES: dict[str, PoseSource] = {"noisy": "capture", "sfm": "colmap"}  # --poses -> trajectory.pose_source
+PHASE_LOGGERS = ("ebad.progress", "scenes.colmap")  # the lines a run's timeline keeps
 
 
 class Timeline(logging.Handler):
@@ -115,18 +118,20 @@ def view_scores(res: dict) -> dict[str, dict[str, float | int | None]]:
     }
 
 
-def run_child(spec: dict) -> dict:
-    """One reconstruction of a written capture; what the module docstring lists."""
-    t0 = time.perf_counter()
+@contextlib.contextmanager
+def _phase_timeline(t0: float) -> Iterator[Timeline]:
+    """A ``Timeline`` on the ``PHASE_LOGGERS`` at INFO, taken off and their levels restored at the end, a failed run's
+    too: ``run_child`` runs in-process in tests, where a timeline left on ``ebad.progress`` takes every later phase
+    line from stderr."""
     timeline = Timeline(t0)
-    loggers = [logging.getLogger(name) for name in ("ebad.progress", "scenes.colmap")]
+    loggers = [logging.getLogger(name) for name in PHASE_LOGGERS]
     levels = [lg.level for lg in loggers]
     for lg in loggers:
         lg.setLevel(logging.INFO)
         lg.addHandler(timeline)
     try:
-        return _run_child(spec, t0, timeline)
-    finally:  # called in-process too (tests): the loggers as they were, or every later phase line goes to the timeline
+        yield timeline
+    finally:
         for lg, level in zip(loggers, levels):
             lg.removeHandler(timeline)
             lg.setLevel(level)
@@ -136,79 +141,82 @@ def _refined_psnr(res: dict) -> float | None:
     return res["test_refined"].psnr if "test_refined" in res else None
 
 
-def _run_child(spec: dict, t0: float, timeline: Timeline) -> dict:
+def run_child(spec: dict) -> dict:
+    """One reconstruction of a written capture; what the module docstring lists."""
     import scenes
     from ebad.evaluate import evaluate
     from ebad.run import reconstruct
 
     from .time_to_quality import Snapshots
 
-    memory = {"start": memory_mb()}  # (resident, peak so far) MB at the run's milestones
-    capture = scenes.load(spec["capture"])
-    load_s = time.perf_counter() - t0
-    memory["loaded"] = memory_mb()
-    ev = capture.events
-    cfg = config_spec(spec["preset"])
-    cfg.train.iters, cfg.train.max_seconds = 1_000_000, float(spec["seconds"])
-    cfg.train.progress, cfg.train.eval_every = False, 0
-    cfg.trajectory.pose_source = POSES[spec["poses"]]
-    marks = int(spec["marks"])
-    snaps = Snapshots([spec["seconds"] * (k + 1) / marks for k in range(marks - 1)])
-    first = FirstStep(t0)
-    run = reconstruct(capture, cfg, callbacks=[first, snaps])
-    wall = time.perf_counter() - t0
-    memory["trained"] = memory_mb()
-    m = run.metrics
-    assert m is not None  # reconstruct sets it
-    # loading, prepare, initialisation, the initial scoring: up to the loop's start (not the wall less the
-    # training seconds: reconstruct's work after the loop would count as before it)
-    before_train = first.train_start if first.train_start is not None else wall - m.train_seconds
-    points = []
-    for snap in snaps.taken:
-        r = copy.copy(run)
-        r.params, r.trajectories, r.response = snap["params"], snap["trajectories"], snap["response"]
-        res = evaluate(r, capture, refine=True, refine_iters=int(spec["refine_iters"]))
-        point = {
-            "train_seconds": snap["seconds"],
-            "wall_seconds": before_train + snap["seconds"],
-            "step": snap["step"],
-            "gaussians": snap["gaussians"],
-            "test_psnr_refined": _refined_psnr(res),
-            "test_psnr": res["test"].psnr if "test" in res else None,
-            "views": view_scores(res),
-        }
-        # the same snapshot refined with other step caps (``--refine-also``): whether the cap moves the figure
-        for cap in spec.get("refine_also", []):
-            other = evaluate(r, capture, refine=True, refine_iters=int(cap))
-            point.setdefault("refined_at", {})[str(cap)] = {
-                "test_psnr_refined": _refined_psnr(other),
-                "views": view_scores(other),
+    t0 = time.perf_counter()
+    with _phase_timeline(t0) as timeline:
+        memory = {"start": memory_mb()}  # (resident, peak so far) MB at the run's milestones
+        capture = scenes.load(spec["capture"])
+        load_s = time.perf_counter() - t0
+        memory["loaded"] = memory_mb()
+        ev = capture.events
+        cfg = config_spec(spec["preset"])
+        cfg.train.iters, cfg.train.max_seconds = 1_000_000, float(spec["seconds"])
+        cfg.train.progress, cfg.train.eval_every = False, 0
+        cfg.trajectory.pose_source = POSES[spec["poses"]]
+        marks = int(spec["marks"])
+        snaps = Snapshots([spec["seconds"] * (k + 1) / marks for k in range(marks - 1)])
+        first = FirstStep(t0)
+        run = reconstruct(capture, cfg, callbacks=[first, snaps])
+        wall = time.perf_counter() - t0
+        memory["trained"] = memory_mb()
+        m = run.metrics
+        assert m is not None  # reconstruct sets it
+        # loading, prepare, initialisation, the initial scoring: up to the loop's start (not the wall less the
+        # training seconds: reconstruct's work after the loop would count as before it)
+        before_train = first.train_start if first.train_start is not None else wall - m.train_seconds
+        points = []
+        for snap in snaps.taken:
+            r = copy.copy(run)
+            r.params, r.trajectories, r.response = snap["params"], snap["trajectories"], snap["response"]
+            res = evaluate(r, capture, refine=True, refine_iters=int(spec["refine_iters"]))
+            point = {
+                "train_seconds": snap["seconds"],
+                "wall_seconds": before_train + snap["seconds"],
+                "step": snap["step"],
+                "gaussians": snap["gaussians"],
+                "test_psnr_refined": _refined_psnr(res),
+                "test_psnr": res["test"].psnr if "test" in res else None,
+                "views": view_scores(res),
             }
-        points.append(point)
-        memory[f"evaluated {len(points)}"] = memory_mb()
-    first_step = None if first.at is None else first.at - before_train  # the first step's own duration
-    later = (m.train_seconds - (first_step or 0.0)) / max(m.steps - 1, 1)
-    return {
-        **spec,
-        "load_seconds": load_s,
-        "timeline": timeline.lines,  # (seconds since start, what began or ended, resident MB, peak MB so far)
-        "prepare_seconds": m.prepare_seconds,
-        "before_first_step_seconds": before_train + (first_step or 0.0),
-        "first_step_seconds": first_step,  # numba's kernels loaded (or compiled) and one step
-        "steps": m.steps,
-        "steps_per_second": 1.0 / later if later > 0 else None,
-        "train_seconds": m.train_seconds,
-        "wall_seconds": wall,
-        "gaussians": m.gaussians,
-        "events": len(ev),
-        "bytes_per_event": ev.nbytes() / max(len(ev), 1),
-        "peak_rss_mb": peak_rss_mb(),
-        "memory_mb": memory,
-        "sharp_frames": m.prepare.sharp_frames,
-        "sharp_reason": m.prepare.sharp_reason,
-        "points": points,
-        "final_psnr_refined": points[-1]["test_psnr_refined"] if points else None,
-    }
+            # the same snapshot refined with other step caps (``--refine-also``): whether the cap moves the figure
+            for cap in spec.get("refine_also", []):
+                other = evaluate(r, capture, refine=True, refine_iters=int(cap))
+                point.setdefault("refined_at", {})[str(cap)] = {
+                    "test_psnr_refined": _refined_psnr(other),
+                    "views": view_scores(other),
+                }
+            points.append(point)
+            memory[f"evaluated {len(points)}"] = memory_mb()
+        first_step = None if first.at is None else first.at - before_train  # the first step's own duration
+        later = (m.train_seconds - (first_step or 0.0)) / max(m.steps - 1, 1)
+        return {
+            **spec,
+            "load_seconds": load_s,
+            "timeline": timeline.lines,  # (seconds since start, what began or ended, resident MB, peak MB so far)
+            "prepare_seconds": m.prepare_seconds,
+            "before_first_step_seconds": before_train + (first_step or 0.0),
+            "first_step_seconds": first_step,  # numba's kernels loaded (or compiled) and one step
+            "steps": m.steps,
+            "steps_per_second": 1.0 / later if later > 0 else None,
+            "train_seconds": m.train_seconds,
+            "wall_seconds": wall,
+            "gaussians": m.gaussians,
+            "events": len(ev),
+            "bytes_per_event": ev.nbytes() / max(len(ev), 1),
+            "peak_rss_mb": peak_rss_mb(),
+            "memory_mb": memory,
+            "sharp_frames": m.prepare.sharp_frames,
+            "sharp_reason": m.prepare.sharp_reason,
+            "points": points,
+            "final_psnr_refined": points[-1]["test_psnr_refined"] if points else None,
+        }
 
 
 def events_measure(n: int, path: str, frames: int = 30) -> dict:

@@ -321,7 +321,7 @@ def test_a_child_run_in_process_leaves_the_progress_loggers_as_it_found_them(mon
     missing in the test run after this module's, in CI), and a failed run must not leave it either."""
     import scenes
 
-    loggers = [logging.getLogger(name) for name in ("ebad.progress", "scenes.colmap")]
+    loggers = [logging.getLogger(name) for name in scaling.PHASE_LOGGERS]
     before = [(lg.level, lg.handlers[:]) for lg in loggers]
 
     def load(path):
